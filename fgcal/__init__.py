@@ -1,0 +1,21 @@
+"""fgcal: robot arm geometry calibration as a probabilistic factor graph.
+
+Five lines to a simulated dataset::
+
+    import numpy as np
+    from fgcal import load_model, simulate, SimulationSettings
+    model = load_model("puma560")
+    dataset, notes = simulate(model, np.random.default_rng(0), SimulationSettings(n_poses=21))
+"""
+from .dataset import Dataset, Noise
+from .dataset_io import dataset_model, load_dataset, save_dataset
+from .errors import DatasetError, FgcalError, ModelError
+from .model import ParameterSet, RobotModel
+from .robot_file import load_model, save_model
+from .simulate import Deviations, SimulationSettings, simulate
+
+__version__ = "0.1.0"
+
+__all__ = ["Dataset", "Noise", "load_dataset", "save_dataset", "dataset_model", "FgcalError", "DatasetError",
+           "ModelError", "ParameterSet", "RobotModel", "load_model", "save_model", "Deviations",
+           "SimulationSettings", "simulate", "__version__"]

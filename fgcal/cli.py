@@ -1,0 +1,130 @@
+"""The ``fgcal`` command line: a thin layer over the library.
+
+A user's mistake (a bad file, an impossible option) ends in one line on standard error and
+exit status 2, with no traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import FgcalError
+
+log = logging.getLogger("fgcal")
+
+
+def _cmd_simulate(args) -> int:
+    from .dataset import Noise
+    from .dataset_io import save_dataset
+    from .robot_file import load_model
+    from .simulate import Deviations, SimulationSettings, simulate
+
+    if args.cmm_sigma < 0 or args.joint_resolution < 0 or args.repeatability < 0:
+        raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")
+    if not 0 <= args.outliers < 1:
+        raise FgcalError("--outliers is a fraction of probe points, from 0 to below 1")
+    model = load_model(args.robot)
+    settings = SimulationSettings(
+        n_poses=args.poses, plan=args.plan,
+        noise=Noise(args.cmm_sigma, args.joint_resolution, args.repeatability),
+        deviations=Deviations(args.length_sigma, args.angle_sigma, args.base_length_sigma, args.base_angle_sigma),
+        n_balls=args.balls, probes_per_ball=args.probes_per_ball, outlier_fraction=args.outliers,
+        outlier_size=args.outlier_size, levels=tuple(args.levels.split(",")))
+    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=args.robot, seed=args.seed)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+    save_dataset(ds, args.out, overwrite=args.force)
+    counts = ", ".join(f"{len(getattr(ds, lv))} {lv}" for lv in ds.levels())
+    print(f"wrote {args.out}: {ds.n_poses} poses ({args.plan} plan), {counts}; truth in truth.yaml")
+    return 0
+
+
+def _cmd_check(args) -> int:
+    from .dataset_io import dataset_model, load_dataset
+    from .identifiability import analyse, identification_jacobian
+
+    ds = load_dataset(args.dataset)
+    model = dataset_model(ds)
+    print(f"{args.dataset}: robot {model.name}, {ds.n_poses} poses; levels: {', '.join(ds.levels()) or 'none'}")
+    for lv in ds.levels():
+        print(f"  {lv}: {len(getattr(ds, lv))} rows")
+    outside = ~model.in_limits(ds.joints_rad)
+    if outside.any():
+        print(f"  warning: {outside.sum()} pose(s) outside the joint limits: {ds.pose_ids[outside].tolist()}")
+    params = model.parameters()
+    J = identification_jacobian(params, ds.joints_rad, measurement=ds.tooling.offsets())
+    result = analyse(J, params.names)
+    print("identifiability (ball centres at these poses): " + result.summary())
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from .resources import default_dataset_dir
+
+    ds_dir = default_dataset_dir()
+    print(f"fgcal demo: the bundled dataset {ds_dir}")
+    return _cmd_check(argparse.Namespace(dataset=ds_dir))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
+    p.add_argument("--version", action="version", version=f"fgcal {__version__}")
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress to standard error")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="the paper's POSE program: simulate a measured robot (writes a dataset)")
+    s.add_argument("out", type=Path, help="dataset directory to write")
+    s.add_argument("--robot", default="puma560", help="built-in model name or model file (default puma560)")
+    s.add_argument("--poses", type=int, default=None, help="number of poses (random plan; default 21)")
+    s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    s.add_argument("--plan", choices=("random", "paper"), default="random",
+                   help="random reachable joint sets, or the paper's 48-pose experiment")
+    s.add_argument("--cmm-sigma", type=float, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
+    s.add_argument("--joint-resolution", type=float, default=0.01,
+                   help="joint readings rounded to this, deg (default 0.01; 0 = exact)")
+    s.add_argument("--repeatability", type=float, default=0.0,
+                   help="joints land off the readings by N(0, this) deg (default 0)")
+    s.add_argument("--outliers", type=float, default=0.0, help="fraction of probe points with a gross error")
+    s.add_argument("--outlier-size", type=float, default=0.5, help="size of a gross error, mm (default 0.5)")
+    s.add_argument("--balls", type=int, default=3, help="balls measured per pose (default 3)")
+    s.add_argument("--probes-per-ball", type=int, default=4, help="probe points per ball (default 4)")
+    s.add_argument("--levels", default="probes",
+                   help="comma-separated files to write: probes, centres, poses (default probes)")
+    s.add_argument("--length-sigma", type=float, default=0.5, help="link length deviations, mm (default 0.5)")
+    s.add_argument("--angle-sigma", type=float, default=0.05, help="link angle deviations, deg (default 0.05)")
+    s.add_argument("--base-length-sigma", type=float, default=5.0, help="base placement deviation, mm (default 5)")
+    s.add_argument("--base-angle-sigma", type=float, default=0.5, help="base angle deviation, deg (default 0.5)")
+    s.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    s.set_defaults(func=_cmd_simulate)
+
+    c = sub.add_parser("check", help="validate a dataset and report what its poses can identify")
+    c.add_argument("dataset", type=Path)
+    c.set_defaults(func=_cmd_check)
+
+    d = sub.add_parser("demo", help="run the main job on the bundled dataset")
+    d.set_defaults(func=_cmd_demo)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(levelname)s: %(message)s")
+    try:
+        return args.func(args)
+    except FgcalError as exc:
+        print(f"fgcal: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fgcal: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,320 @@
+"""Reading and writing dataset directories (DESIGN.md section 3) with validation.
+
+Every problem ends in a :class:`~fgcal.errors.DatasetError` whose one-line message names the file
+and the line (the header is line 1) or the pose. Writing goes to a temporary directory first,
+which then replaces the target, so a dataset on disk is never half written.
+"""
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .dataset import FORMAT, Dataset, Noise, PointObservations, PoseObservations
+from .errors import DatasetError, FgcalError
+from .model import SLOT_NAMES, RobotModel, Tooling
+from .robot_file import load_model
+from .yamlio import atomic_write_text, dump_yaml, read_yaml
+
+__all__ = ["load_dataset", "save_dataset", "dataset_model", "write_csv"]
+
+log = logging.getLogger(__name__)
+
+JOINT_COLUMNS = ["pose", "q1", "q2", "q3", "q4", "q5", "q6"]
+POINT_COLUMNS = ["pose", "ball", "x", "y", "z"]
+POSE_COLUMNS = ["pose", "x", "y", "z", "qw", "qx", "qy", "qz"]
+
+
+def _number(text: str, where: str, what: str) -> float:
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: {what} is not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise DatasetError(f"{where}: {what} is not finite: {text!r}")
+    return value
+
+
+def _integer(text: str, where: str, what: str) -> int:
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: {what} must be an integer id, got {text!r}") from None
+
+
+def _read_table(path: Path, columns: list[str]):
+    """Rows of a CSV file as (line number, dict); the header must hold exactly ``columns``."""
+    try:
+        fh = path.open(newline="", encoding="utf-8")
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    with fh:
+        reader = csv.reader(fh)
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise DatasetError(f"{path}: empty file (expected the header {','.join(columns)})")
+            header = [h.strip() for h in header]
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise DatasetError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                   f"(expected {','.join(columns)})")
+            unknown = [h for h in header if h not in columns]
+            if unknown:
+                raise DatasetError(f"{path}: line 1: unknown column(s) {', '.join(unknown)} "
+                                   f"(expected {','.join(columns)})")
+            if len(set(header)) != len(header):
+                raise DatasetError(f"{path}: line 1: a column is repeated in the header")
+            rows = []
+            for record in reader:
+                line = reader.line_num
+                if not record or all(not c.strip() for c in record):
+                    continue
+                if len(record) != len(header):
+                    raise DatasetError(f"{path}: line {line}: {len(record)} fields, expected {len(header)}")
+                rows.append((line, {h: c.strip() for h, c in zip(header, record)}))
+        except csv.Error as exc:
+            raise DatasetError(f"{path}: line {reader.line_num}: {exc}") from None
+        except UnicodeDecodeError:
+            raise DatasetError(f"{path}: not a UTF-8 text file") from None
+    return rows
+
+
+def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> PointObservations:
+    rows = _read_table(path, POINT_COLUMNS)
+    pose, ball, xyz, lines = [], [], [], []
+    seen = {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        if r["ball"] not in balls:
+            raise DatasetError(f"{where}: unknown ball {r['ball']!r} (dataset.yaml tool.balls has {', '.join(balls)})")
+        if unique:
+            key = (pid, r["ball"])
+            if key in seen:
+                raise DatasetError(f"{where}: duplicate centre of ball {r['ball']} at pose {pid} (first on line {seen[key]})")
+            seen[key] = line
+        pose.append(pid)
+        ball.append(r["ball"])
+        xyz.append([_number(r[c], where, c) for c in "xyz"])
+        lines.append(line)
+    return PointObservations(np.array(pose, dtype=int), np.array(ball, dtype=str),
+                             np.array(xyz, dtype=float).reshape(-1, 3), np.array(lines, dtype=int))
+
+
+def _pose_table(path: Path, known_poses: set) -> PoseObservations:
+    rows = _read_table(path, POSE_COLUMNS)
+    pose, xyz, quat, lines = [], [], [], []
+    seen = {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        q = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
+        norm = np.linalg.norm(q)
+        if abs(norm - 1.0) > 1e-3:
+            raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {norm:.6g}, expected 1")
+        pose.append(pid)
+        xyz.append([_number(r[c], where, c) for c in "xyz"])
+        quat.append(q / norm)
+        lines.append(line)
+    return PoseObservations(np.array(pose, dtype=int), np.array(xyz).reshape(-1, 3), np.array(quat).reshape(-1, 4),
+                            np.array(lines, dtype=int))
+
+
+def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
+    data = read_yaml(path, error=DatasetError)
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a mapping with format, robot, tool, noise, provenance")
+    missing = [k for k in ("format", "robot", "tool", "noise", "provenance") if k not in data]
+    if missing:
+        raise DatasetError(f"{path}: missing key(s) {', '.join(missing)}")
+    if data["format"] != FORMAT:
+        raise DatasetError(f"{path}: format {data['format']!r} is not known (expected {FORMAT!r})")
+    if not isinstance(data["robot"], str) or not data["robot"]:
+        raise DatasetError(f"{path}: robot must be a model name or a model file path")
+
+    def num(value, what, minimum=None):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise DatasetError(f"{path}: {what} must be a finite number, got {value!r}")
+        if minimum is not None and value < minimum:
+            raise DatasetError(f"{path}: {what} must be >= {minimum}, got {value!r}")
+        return float(value)
+
+    tool = data["tool"]
+    if not isinstance(tool, dict) or "radius" not in tool or not isinstance(tool.get("balls"), dict) or not tool["balls"]:
+        raise DatasetError(f"{path}: tool must have radius and balls {{name: [x, y, z]}}")
+    balls = {}
+    for name, centre in tool["balls"].items():
+        if not isinstance(centre, list) or len(centre) != 3:
+            raise DatasetError(f"{path}: tool.balls.{name} must be [x, y, z] (mm)")
+        balls[str(name)] = np.array([num(c, f"tool.balls.{name}") for c in centre])
+    tooling = Tooling(radius=num(tool["radius"], "tool.radius", 0.0), balls=balls)
+    if tooling.radius <= 0:
+        raise DatasetError(f"{path}: tool.radius must be positive")
+
+    noise_raw = data["noise"]
+    allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma")
+    if not isinstance(noise_raw, dict):
+        raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
+    unknown = set(noise_raw) - set(allowed)
+    if unknown:
+        raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+    noise = Noise(**{k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()})
+    provenance = data["provenance"]
+    if not isinstance(provenance, dict):
+        provenance = {"text": str(provenance)}
+    return data["robot"], tooling, noise, provenance
+
+
+def _truth(path: Path) -> tuple[dict, list]:
+    data = read_yaml(path, error=DatasetError)
+    if not isinstance(data, dict) or not isinstance(data.get("parameters"), dict):
+        raise DatasetError(f"{path}: expected 'parameters: {{name: value}}'")
+    truth = {}
+    for name, value in data["parameters"].items():
+        if name not in SLOT_NAMES:
+            raise DatasetError(f"{path}: unknown parameter {name!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise DatasetError(f"{path}: parameter {name} must be a finite number, got {value!r}")
+        truth[name] = float(value)
+    outliers = []
+    for i, item in enumerate(data.get("outliers") or []):
+        if not (isinstance(item, list) and len(item) == 3):
+            raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index]")
+        outliers.append((int(item[0]), str(item[1]), int(item[2])))
+    return truth, outliers
+
+
+def load_dataset(directory) -> Dataset:
+    """Read and validate a dataset directory.
+
+    Raises
+    ------
+    DatasetError
+        With a one-line message naming the file and line, for any malformed input.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance = _meta(directory / "dataset.yaml")
+    joints_path = directory / "joints.csv"
+    rows = _read_table(joints_path, JOINT_COLUMNS)
+    if not rows:
+        raise DatasetError(f"{joints_path}: no poses")
+    ids, q, seen = [], [], {}
+    for line, r in rows:
+        where = f"{joints_path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        q.append([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]])
+    known = set(ids)
+    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.array(ids),
+                 joints_deg=np.array(q), path=directory)
+    if (directory / "probes.csv").exists():
+        ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
+    if (directory / "centres.csv").exists():
+        ds.centres = _point_table(directory / "centres.csv", known, tooling.balls, unique=True)
+    if (directory / "poses.csv").exists():
+        ds.poses = _pose_table(directory / "poses.csv", known)
+    if (directory / "truth.yaml").exists():
+        ds.truth, ds.truth_outliers = _truth(directory / "truth.yaml")
+    if not ds.levels():
+        log.warning("%s: no measurements (probes.csv, centres.csv or poses.csv); joint readings only", directory)
+    return ds
+
+
+def dataset_model(ds: Dataset) -> RobotModel:
+    """The robot model a dataset names (built-in, or a file relative to the dataset directory)."""
+    ref = ds.robot
+    if ds.path is not None and (ref.endswith((".yaml", ".yml")) or "/" in ref):
+        candidate = (ds.path / ref) if not Path(ref).is_absolute() else Path(ref)
+        return load_model(candidate)
+    try:
+        return load_model(ref)
+    except FgcalError as exc:
+        where = ds.path / "dataset.yaml" if ds.path else "dataset"
+        raise DatasetError(f"{where}: robot: {exc}") from None
+
+
+def _fmt(v: float) -> str:
+    return repr(float(v))
+
+
+def write_csv(path, header, rows) -> None:
+    """Write a CSV file atomically; floats with full (round-trip) precision."""
+    lines = [",".join(header)]
+    for row in rows:
+        lines.append(",".join(_fmt(v) if isinstance(v, (float, np.floating)) else str(v) for v in row))
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _write_into(ds: Dataset, directory: Path) -> None:
+    meta = {
+        "format": FORMAT,
+        "robot": ds.robot,
+        "tool": {"radius": float(ds.tooling.radius),
+                 "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
+        "noise": {k: v for k, v in vars(ds.noise).items() if v is not None},
+        "provenance": ds.provenance,
+    }
+    atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
+    write_csv(directory / "joints.csv", JOINT_COLUMNS,
+              ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
+    for level, name in (("probes", "probes.csv"), ("centres", "centres.csv")):
+        obs = getattr(ds, level)
+        if obs is not None:
+            write_csv(directory / name, POINT_COLUMNS,
+                      ([int(p), b, *map(float, x)] for p, b, x in zip(obs.pose, obs.ball, obs.xyz)))
+    if ds.poses is not None:
+        quat = ds.poses.quat / np.linalg.norm(ds.poses.quat, axis=1, keepdims=True)
+        write_csv(directory / "poses.csv", POSE_COLUMNS,
+                  ([int(p), *map(float, x), *map(float, qq)] for p, x, qq in zip(ds.poses.pose, ds.poses.xyz, quat)))
+    if ds.truth is not None:
+        truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
+        if ds.truth_outliers:
+            truth["outliers"] = [[int(p), str(b), int(i)] for p, b, i in ds.truth_outliers]
+        atomic_write_text(directory / "truth.yaml", dump_yaml(truth))
+
+
+def save_dataset(ds: Dataset, directory, overwrite: bool = False) -> Path:
+    """Write ``ds`` as a dataset directory, all at once (a temporary directory is renamed).
+
+    Raises
+    ------
+    FgcalError
+        If ``directory`` exists and ``overwrite`` is false.
+    """
+    directory = Path(directory)
+    if directory.exists() and not overwrite:
+        raise FgcalError(f"{directory}: already exists (use --force to replace it)")
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+    try:
+        _write_into(ds, tmp)
+        if directory.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
+            old.rmdir()
+            directory.rename(old)
+            tmp.rename(directory)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(directory)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return directory

@@ -1,0 +1,147 @@
+"""Identifiability of kinematic parameters from a set of poses.
+
+The identification Jacobian stacks, for every pose, the derivative of what is measured (a full
+pose, or the positions of tool-frame points) with respect to the estimated parameters. Its
+columns are scaled (to unit norm by default, or by expected parameter errors) so that singular
+values compare lengths and angles fairly. A rank below the parameter count means some parameter
+cannot be separated from others; :func:`analyse` names it and the parameters it is confused with.
+No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .kinematics import check_joints, jacobians
+from .model import ParameterSet
+
+__all__ = ["identification_jacobian", "Identifiability", "analyse"]
+
+
+def identification_jacobian(params: ParameterSet, q, slots=None, measurement="pose",
+                            orientation_scale: float = 100.0) -> np.ndarray:
+    """Stacked Jacobian of the measurements with respect to the parameters.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        The estimated parameters (P of them).
+    q : array_like, shape (N, 6)
+        Joint readings (rad).
+    slots : array_like, shape (37,), optional
+        Where to linearise (mm, rad); the nominal by default.
+    measurement : {"pose", "position"} or array_like, shape (B, 3)
+        ``"pose"``: 6 rows per pose (position in mm, rotation in rad times ``orientation_scale``
+        mm so that both rows are lengths); ``"position"``: the tool origin only; an array: the
+        world positions of these tool-frame points (mm), 3B rows per pose.
+    orientation_scale : float
+        Lever arm (mm) that turns rotation rows into length rows.
+
+    Returns
+    -------
+    ndarray, shape (M, P)
+        Rows in mm per internal unit (mm or rad).
+    """
+    q = check_joints(q)
+    x = params.model.nominal if slots is None else np.asarray(slots, dtype=float)
+    idx = params.index
+    if isinstance(measurement, str):
+        jac = jacobians(x, q)
+        J = jac.pose_slots[:, :, idx]
+        if measurement == "pose":
+            J = J * np.array([1, 1, 1, orientation_scale, orientation_scale, orientation_scale])[None, :, None]
+        elif measurement == "position":
+            J = J[:, :3]
+        else:
+            raise ValueError(f"measurement must be 'pose', 'position' or (B, 3) points, got {measurement!r}")
+        return J.reshape(-1, len(idx))
+    jac = jacobians(x, q, offsets=measurement)
+    return jac.point_slots[..., idx].reshape(-1, len(idx))
+
+
+@dataclass
+class Identifiability:
+    """What a pose set can identify.
+
+    Attributes
+    ----------
+    names : list of str
+        Parameter names, in the order of the Jacobian's columns.
+    singular_values : ndarray, shape (P,)
+        Of the column-scaled Jacobian, descending.
+    rank : int
+        Numerical rank.
+    condition_number : float
+        Largest over smallest singular value (inf when rank deficient).
+    redundant : dict of str to list of str
+        Each parameter that is a combination of earlier ones, with those it depends on.
+    """
+
+    names: list[str]
+    singular_values: np.ndarray
+    rank: int
+    condition_number: float
+    redundant: dict[str, list[str]]
+
+    @property
+    def identifiable(self) -> list[str]:
+        return [n for n in self.names if n not in self.redundant]
+
+    def summary(self) -> str:
+        lines = [f"rank {self.rank} of {len(self.names)}; condition number {self.condition_number:.4g}"]
+        for name, others in self.redundant.items():
+            lines.append(f"  {name} cannot be separated from: {', '.join(others) or '(zero column)'}")
+        return "\n".join(lines)
+
+
+def analyse(J, names, scale=None, rtol: float = 1e-7) -> Identifiability:
+    """Rank, singular values and redundant parameters of an identification Jacobian.
+
+    Parameters
+    ----------
+    J : array_like, shape (M, P)
+    names : sequence of str, length P
+        Column names; a column is blamed only when it is a combination of *earlier* columns, so
+        put the parameters you trust first.
+    scale : array_like, shape (P,), optional
+        Column scales (for example expected parameter errors in internal units); the columns are
+        normalised to unit length when omitted.
+    rtol : float
+        Relative tolerance for a singular value, and for a column's residual after projection on
+        the earlier columns, to count as zero.
+    """
+    J = np.asarray(J, dtype=float)
+    names = list(names)
+    if J.ndim != 2 or J.shape[1] != len(names):
+        raise ValueError(f"J must have shape (M, {len(names)}), got {J.shape}")
+    if scale is None:
+        norms = np.linalg.norm(J, axis=0)
+        scale = np.where(norms > 0, 1.0 / np.where(norms > 0, norms, 1.0), 1.0)
+    Js = J * np.asarray(scale, dtype=float)[None, :]
+    sv = np.linalg.svd(Js, compute_uv=False)
+    rank = int(np.sum(sv > rtol * sv[0])) if sv.size and sv[0] > 0 else 0
+    cond = float(sv[0] / sv[-1]) if rank == len(names) else float("inf")
+
+    # Gram-Schmidt in column order: a column with no component outside the span of the accepted
+    # ones is redundant; its least-squares coefficients say with which parameters.
+    redundant: dict[str, list[str]] = {}
+    accepted: list[int] = []
+    col_norms = np.linalg.norm(Js, axis=0)
+    ref = max(col_norms.max(initial=0.0), 1e-300)
+    for k in range(len(names)):
+        col = Js[:, k]
+        if col_norms[k] <= rtol * ref:
+            redundant[names[k]] = []
+            continue
+        if accepted:
+            A = Js[:, accepted]
+            coef, *_ = np.linalg.lstsq(A, col, rcond=None)
+            resid = np.linalg.norm(col - A @ coef)
+            if resid <= np.sqrt(rtol) * col_norms[k]:
+                weight = np.abs(coef) * np.linalg.norm(A, axis=0)
+                partners = [names[accepted[i]] for i in np.argsort(-weight) if weight[i] > 1e-3 * col_norms[k]]
+                redundant[names[k]] = partners
+                continue
+        accepted.append(k)
+    return Identifiability(names=names, singular_values=sv, rank=rank, condition_number=cond, redundant=redundant)

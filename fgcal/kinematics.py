@@ -1,0 +1,227 @@
+"""Forward kinematics and analytic Jacobians, vectorised over many joint readings.
+
+The chain ``T(q) = A_b A_1 ... A_5 Rz(q_6) A_t`` is a fixed sequence of elementary operations
+(rotations about, or translations along, a local axis). Each operation depends on one slot
+(a geometric parameter) and possibly on one joint reading. Differentiating the chain through an
+operation is then a screw about (or along) that operation's world axis, which gives exact
+Jacobians with no symbolic algebra.
+
+Units: mm and rad. Slot vectors have shape (37,) in :data:`fgcal.model.SLOT_NAMES` order.
+Jacobians of a pose are ``(6, ·)``: rows ``[dp_x, dp_y, dp_z, w_x, w_y, w_z]``, the world-frame
+translation of the tool origin and the world-frame rotation vector (``dR = [w]x R``), the same
+quantities as the paper's differential displacement and orientation (eq. 17).
+No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import EULER_FIELDS, N_JOINTS, N_LINKS_IN_CHAIN, SLOT_NAMES, slot
+from .transforms import rot
+
+__all__ = ["ChainOp", "CHAIN", "check_joints", "forward", "forward_frames", "ChainJacobians", "jacobians"]
+
+N_SLOTS = len(SLOT_NAMES)
+
+
+@dataclass(frozen=True)
+class ChainOp:
+    """One elementary operation: ``kind`` 'R' (rotate) or 'T' (translate) about/along ``axis``."""
+
+    kind: str
+    axis: int
+    slot: int | None
+    joint: int | None
+
+
+def _build_chain() -> tuple[ChainOp, ...]:
+    ops = []
+    for prefix in ("base",):
+        ops += [ChainOp("R", 2, slot(f"{prefix}.phi"), None), ChainOp("R", 1, slot(f"{prefix}.theta"), None),
+                ChainOp("R", 0, slot(f"{prefix}.psi"), None)]
+        ops += [ChainOp("T", i, slot(f"{prefix}.{f}"), None) for i, f in enumerate(EULER_FIELDS[3:])]
+    for n in range(1, N_LINKS_IN_CHAIN + 1):
+        ops += [ChainOp("R", 2, slot(f"j{n}.theta"), n - 1), ChainOp("T", 2, slot(f"j{n}.d"), None),
+                ChainOp("T", 0, slot(f"j{n}.a"), None), ChainOp("R", 0, slot(f"j{n}.alpha"), None),
+                ChainOp("R", 1, slot(f"j{n}.beta"), None)]
+    ops.append(ChainOp("R", 2, None, N_JOINTS - 1))
+    ops += [ChainOp("R", 2, slot("tool.phi"), None), ChainOp("R", 1, slot("tool.theta"), None),
+            ChainOp("R", 0, slot("tool.psi"), None)]
+    ops += [ChainOp("T", i, slot(f"tool.{f}"), None) for i, f in enumerate(EULER_FIELDS[3:])]
+    return tuple(ops)
+
+
+CHAIN: tuple[ChainOp, ...] = _build_chain()
+
+
+def check_joints(q) -> np.ndarray:
+    """Convert joint readings to a float ``(N, 6)`` array (rad); raise with the expected shape."""
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        q = q[None, :]
+    if q.ndim != 2 or q.shape[1] != N_JOINTS:
+        raise ValueError(f"joint readings must have shape (N, 6) or (6,), got {np.shape(q)}")
+    return q
+
+
+def _check_slots(x) -> np.ndarray:
+    x = np.asarray(x, dtype=float)
+    if x.shape != (N_SLOTS,):
+        raise ValueError(f"slot vector must have shape ({N_SLOTS},), got {x.shape}")
+    return x
+
+
+def forward_frames(x, q):
+    """Frames before every chain operation and the final tool frame.
+
+    Parameters
+    ----------
+    x : array_like, shape (37,)
+        Slot values (mm, rad).
+    q : array_like, shape (N, 6)
+        Joint readings (rad).
+
+    Returns
+    -------
+    R_before : ndarray, shape (K, N, 3, 3)
+        World rotation of the frame before each of the K chain operations.
+    p_before : ndarray, shape (K, N, 3)
+        World origin of those frames (mm).
+    T : ndarray, shape (N, 4, 4)
+        Tool pose in the world frame.
+    """
+    x = _check_slots(x)
+    q = check_joints(q)
+    n = q.shape[0]
+    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    p = np.zeros((n, 3))
+    R_before = np.empty((len(CHAIN), n, 3, 3))
+    p_before = np.empty((len(CHAIN), n, 3))
+    for k, op in enumerate(CHAIN):
+        R_before[k] = R
+        p_before[k] = p
+        value = x[op.slot] if op.slot is not None else 0.0
+        if op.kind == "R":
+            angle = value + q[:, op.joint] if op.joint is not None else value
+            R = R @ rot(op.axis, angle)
+        else:
+            p = p + R[:, :, op.axis] * value
+    T = np.zeros((n, 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    T[:, 3, 3] = 1.0
+    return R_before, p_before, T
+
+
+def forward(x, q) -> np.ndarray:
+    """Tool poses ``(N, 4, 4)`` in the world frame for joint readings ``q`` (N, 6) rad."""
+    x = _check_slots(x)
+    q = check_joints(q)
+    n = q.shape[0]
+    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    p = np.zeros((n, 3))
+    for op in CHAIN:
+        value = x[op.slot] if op.slot is not None else 0.0
+        if op.kind == "R":
+            if op.joint is None:
+                if value != 0.0:
+                    R = R @ rot(op.axis, value)
+            else:
+                R = R @ rot(op.axis, value + q[:, op.joint])
+        elif value != 0.0:
+            p = p + R[:, :, op.axis] * value
+    T = np.zeros((n, 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    T[:, 3, 3] = 1.0
+    return T
+
+
+def tool_points(T, offsets) -> np.ndarray:
+    """World positions ``(N, B, 3)`` of tool-frame points ``offsets`` (B, 3) at poses ``T`` (N, 4, 4)."""
+    offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+    return T[:, None, :3, 3] + np.einsum("nij,bj->nbi", T[:, :3, :3], offsets)
+
+
+@dataclass
+class ChainJacobians:
+    """Tool poses and their Jacobians at N joint readings.
+
+    Attributes
+    ----------
+    T : ndarray, shape (N, 4, 4)
+        Tool poses (mm).
+    pose_slots : ndarray, shape (N, 6, 37)
+        d[p; w] / d slots (mm per mm, mm per rad; rad per mm, rad per rad).
+    pose_joints : ndarray, shape (N, 6, 6)
+        d[p; w] / d q.
+    points : ndarray, shape (N, B, 3) or None
+        World positions of the requested tool-frame points.
+    point_slots : ndarray, shape (N, B, 3, 37) or None
+    point_joints : ndarray, shape (N, B, 3, 6) or None
+    """
+
+    T: np.ndarray
+    pose_slots: np.ndarray
+    pose_joints: np.ndarray
+    points: np.ndarray | None = None
+    point_slots: np.ndarray | None = None
+    point_joints: np.ndarray | None = None
+
+
+def jacobians(x, q, offsets=None) -> ChainJacobians:
+    """Analytic Jacobians of the tool pose, and of tool-frame points, w.r.t. slots and joints.
+
+    Parameters
+    ----------
+    x : array_like, shape (37,)
+        Slot values (mm, rad).
+    q : array_like, shape (N, 6)
+        Joint readings (rad).
+    offsets : array_like, shape (B, 3), optional
+        Tool-frame points (mm), for example ball centres.
+
+    Returns
+    -------
+    ChainJacobians
+    """
+    R_before, p_before, T = forward_frames(x, q)
+    n = T.shape[0]
+    p_tool = T[:, :3, 3]
+    pose_slots = np.zeros((n, 6, N_SLOTS))
+    pose_joints = np.zeros((n, 6, N_JOINTS))
+    have_points = offsets is not None
+    if have_points:
+        offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+        points = tool_points(T, offsets)
+        nb = offsets.shape[0]
+        point_slots = np.zeros((n, nb, 3, N_SLOTS))
+        point_joints = np.zeros((n, nb, 3, N_JOINTS))
+    for k, op in enumerate(CHAIN):
+        axis = R_before[k][:, :, op.axis]  # (N, 3) world direction of the local axis
+        if op.kind == "R":
+            d_pos = np.cross(axis, p_tool - p_before[k])
+            d_rot = axis
+            if have_points:
+                d_pts = np.cross(axis[:, None, :], points - p_before[k][:, None, :])
+        else:
+            d_pos = axis
+            d_rot = np.zeros_like(axis)
+            if have_points:
+                d_pts = np.broadcast_to(axis[:, None, :], (n, nb, 3))
+        targets = []
+        if op.slot is not None:
+            targets.append((pose_slots, point_slots if have_points else None, op.slot))
+        if op.joint is not None:
+            targets.append((pose_joints, point_joints if have_points else None, op.joint))
+        for pose_J, point_J, col in targets:
+            pose_J[:, :3, col] += d_pos
+            pose_J[:, 3:, col] += d_rot
+            if have_points:
+                point_J[:, :, :, col] += d_pts
+    out = ChainJacobians(T=T, pose_slots=pose_slots, pose_joints=pose_joints)
+    if have_points:
+        out.points, out.point_slots, out.point_joints = points, point_slots, point_joints
+    return out
