@@ -63,6 +63,29 @@ def _cmd_check(args) -> int:
     return 0
 
 
+def _cmd_measure(args) -> int:
+    from .dataset_io import load_dataset, save_dataset
+    from .measure import POSE_ROW, derived_dataset, measure_probes, quality_csv
+
+    ds = load_dataset(args.dataset)
+    out = args.out or args.dataset.with_name(args.dataset.name + "-measured")
+    result = measure_probes(ds, method=args.method, free_radius=args.free_radius, threshold=args.threshold,
+                            tolerance=args.tolerance)
+    derived = derived_dataset(ds, result)
+    save_dataset(derived, out, overwrite=args.force, extra_files={"quality.csv": quality_csv(result.quality)})
+    balls = [q for q in result.quality if q.ball != POSE_ROW]
+    poses = [q for q in result.quality if q.ball == POSE_ROW]
+    bad_balls = [q for q in balls if q.status != "ok"]
+    bad_poses = [q for q in poses if q.status != "ok"]
+    print(f"{len(balls)} ball fits, {len(bad_balls)} flagged; {len(poses) - len(bad_poses)} of {len(poses)} poses "
+          f"accepted ({args.method}); wrote {out} (centres.csv, poses.csv, quality.csv)")
+    for q in (bad_balls + bad_poses)[: args.show]:
+        print(f"  pose {q.pose} {'' if q.ball == POSE_ROW else 'ball ' + q.ball + ' '}{q.status}")
+    if len(bad_balls) + len(bad_poses) > args.show:
+        print(f"  ... {len(bad_balls) + len(bad_poses) - args.show} more in {out / 'quality.csv'}")
+    return 0
+
+
 def _cmd_demo(args) -> int:
     from .resources import default_dataset_dir
 
@@ -105,6 +128,20 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="validate a dataset and report what its poses can identify")
     c.add_argument("dataset", type=Path)
     c.set_defaults(func=_cmd_check)
+
+    m = sub.add_parser("measure", help="probe points -> ball centres -> poses, with quality checks (two-stage)")
+    m.add_argument("dataset", type=Path)
+    m.add_argument("--out", type=Path, default=None,
+                   help="dataset directory to write (default: DATASET-measured beside DATASET)")
+    m.add_argument("--method", choices=("svd", "paper"), default="svd",
+                   help="least-squares rigid fit of the good balls, or the paper's T = P' P^-1 (default svd)")
+    m.add_argument("--free-radius", action="store_true", help="fit each ball's radius too")
+    m.add_argument("--threshold", type=float, default=None,
+                   help="RMS sphere-fit residual (mm) that flags a ball; default from the CMM noise")
+    m.add_argument("--tolerance", type=float, default=None, help="eqs. 19-21 tolerance for --method paper")
+    m.add_argument("--show", type=int, default=10, help="flagged rows to print (default 10)")
+    m.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    m.set_defaults(func=_cmd_measure)
 
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
     d.set_defaults(func=_cmd_demo)

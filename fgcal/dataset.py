@@ -32,6 +32,9 @@ class Noise:
         Standard deviation of the joints' landing error not seen by the readings (deg).
     pose_position_sigma, pose_orientation_sigma : float or None
         Noise of a measured pose (mm, deg), when ``poses.csv`` is given.
+    centre_sigma : float or None
+        Noise of each coordinate of a ball centre (mm) when centres were fitted to probe points
+        rather than measured directly; ``cmm_sigma`` applies when it is None.
     """
 
     cmm_sigma: float = 0.01
@@ -39,6 +42,7 @@ class Noise:
     repeatability: float = 0.0
     pose_position_sigma: float | None = None
     pose_orientation_sigma: float | None = None
+    centre_sigma: float | None = None
 
     @property
     def joint_sigma_deg(self) -> float:

@@ -165,7 +165,8 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
         raise DatasetError(f"{path}: tool.radius must be positive")
 
     noise_raw = data["noise"]
-    allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma")
+    allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
+               "centre_sigma")
     if not isinstance(noise_raw, dict):
         raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
     unknown = set(noise_raw) - set(allowed)
@@ -291,8 +292,10 @@ def _write_into(ds: Dataset, directory: Path) -> None:
         atomic_write_text(directory / "truth.yaml", dump_yaml(truth))
 
 
-def save_dataset(ds: Dataset, directory, overwrite: bool = False) -> Path:
+def save_dataset(ds: Dataset, directory, overwrite: bool = False, extra_files=None) -> Path:
     """Write ``ds`` as a dataset directory, all at once (a temporary directory is renamed).
+
+    ``extra_files`` maps further file names to their text (for example ``quality.csv``).
 
     Raises
     ------
@@ -306,6 +309,8 @@ def save_dataset(ds: Dataset, directory, overwrite: bool = False) -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
     try:
         _write_into(ds, tmp)
+        for name, text in (extra_files or {}).items():
+            atomic_write_text(tmp / name, text)
         if directory.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
             old.rmdir()

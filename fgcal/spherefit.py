@@ -1,0 +1,192 @@
+"""Ball centres from CMM surface points (the paper's eq. 16), with quality checks.
+
+An algebraic fit gives the starting guess; a geometric least-squares fit (distances to the
+sphere) with the radius known, or free, gives the centre, its covariance and per-point
+residuals. A fit whose residual is too large for the CMM's noise is flagged, and the point that
+most likely caused it is named. Units: mm. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+__all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "default_threshold", "check_points"]
+
+FALSE_ALARM = 1e-3  # probability that a good fit is flagged by the default threshold
+MIN_THRESHOLD_MM = 1e-6  # exact data still carries floating-point noise
+
+
+def check_points(points, minimum: int) -> np.ndarray:
+    """Convert ``points`` to a float ``(n, 3)`` array with ``n >= minimum``; raise ``ValueError``."""
+    points = np.asarray(points, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape (n, 3), got {points.shape}")
+    if len(points) < minimum:
+        raise ValueError(f"need at least {minimum} points, got {len(points)}")
+    return points
+
+
+def algebraic_sphere(points) -> tuple[np.ndarray, float]:
+    """Centre (3,) and radius of the sphere through ``points`` (n >= 4, not coplanar), linear LS.
+
+    Solves ``|p|^2 = 2 c.p + (r^2 - |c|^2)``; exact for exact points, biased under noise, so it
+    serves as the geometric fit's starting guess.
+    """
+    points = check_points(points, 4)
+    A = np.hstack([2.0 * points, np.ones((len(points), 1))])
+    b = np.sum(points**2, axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    centre = sol[:3]
+    return centre, float(np.sqrt(max(sol[3] + centre @ centre, 0.0)))
+
+
+def default_threshold(sigma: float, n_points: int, n_unknowns: int = 3) -> float:
+    """RMS residual (mm) above which a fit is flagged: the chi-square bound at 0.1% false alarm."""
+    dof = n_points - n_unknowns
+    if dof <= 0 or sigma <= 0:
+        return MIN_THRESHOLD_MM
+    return max(MIN_THRESHOLD_MM, sigma * float(np.sqrt(chi2.ppf(1.0 - FALSE_ALARM, dof) / n_points)))
+
+
+@dataclass
+class SphereFit:
+    """Result of :func:`fit_sphere`.
+
+    Attributes
+    ----------
+    centre : ndarray, shape (3,)
+    radius : float
+    residuals : ndarray, shape (n,)
+        Signed distance of each point from the fitted sphere (mm).
+    rms : float
+        RMS of the residuals (mm).
+    covariance : ndarray, shape (3, 3)
+        Of the centre, for the ``sigma`` given (mm^2); NaN when not determined.
+    ok : bool
+    status : str
+        ``"ok"`` or why not.
+    suspect : int or None
+        Index of the point that most likely spoils a flagged fit.
+    """
+
+    centre: np.ndarray
+    radius: float
+    residuals: np.ndarray
+    rms: float
+    covariance: np.ndarray
+    ok: bool
+    status: str
+    suspect: int | None = None
+
+
+def _gauss_newton(points, centre, radius, free_radius: bool, iterations: int = 50):
+    for _ in range(iterations):
+        diff = points - centre
+        dist = np.linalg.norm(diff, axis=1)
+        res = dist - radius
+        J = -diff / dist[:, None]
+        if free_radius:
+            J = np.hstack([J, -np.ones((len(points), 1))])
+        step, *_ = np.linalg.lstsq(J, -res, rcond=None)
+        centre = centre + step[:3]
+        if free_radius:
+            radius = radius + step[3]
+        if np.linalg.norm(step) < 1e-13 * (1.0 + np.linalg.norm(centre)):
+            break
+    diff = points - centre
+    dist = np.linalg.norm(diff, axis=1)
+    J = -diff / dist[:, None]
+    if free_radius:
+        J = np.hstack([J, -np.ones((len(points), 1))])
+    return centre, radius, dist - radius, J
+
+
+def _initial_centre(points, radius):
+    try:
+        centre, _ = algebraic_sphere(points)
+        if np.all(np.isfinite(centre)) and abs(np.linalg.norm(points - centre, axis=1).mean() - radius) < radius:
+            return centre
+    except (ValueError, np.linalg.LinAlgError):
+        pass
+    # Points on a cap: the centre lies a radius behind their mean, along the cap's normal.
+    mean = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - mean)
+    normal = vt[-1]
+    return mean - radius * normal
+
+
+def fit_sphere(points, radius: float | None = None, sigma: float = 0.01, threshold: float | None = None,
+               guess=None) -> SphereFit:
+    """Geometric least-squares sphere fit with quality check.
+
+    Parameters
+    ----------
+    points : array_like, shape (n, 3)
+        Surface points (mm); n >= 3 with the radius known, n >= 4 with it free.
+    radius : float, optional
+        The ball's known radius (mm); fitted when omitted.
+    sigma : float
+        CMM noise per coordinate (mm), for the covariance and the default threshold.
+    threshold : float, optional
+        RMS residual (mm) above which the fit is flagged; :func:`default_threshold` by default.
+    guess : array_like, shape (3,), optional
+        Starting centre (for example from the robot's forward kinematics); it also picks the
+        right one of the two solutions that three points and a known radius allow.
+
+    Returns
+    -------
+    SphereFit
+    """
+    free = radius is None
+    n_unknowns = 4 if free else 3
+    points = check_points(points, n_unknowns)
+    r0 = radius if not free else algebraic_sphere(points)[1]
+    c0 = np.asarray(guess, dtype=float) if guess is not None else _initial_centre(points, r0)
+    centre, r, res, J = _gauss_newton(points, c0, r0, free)
+    rms = float(np.sqrt(np.mean(res**2)))
+    limit = default_threshold(sigma, len(points), n_unknowns) if threshold is None else threshold
+    try:
+        info = J.T @ J
+        cov = np.linalg.inv(info)[:3, :3] * sigma**2
+        if np.linalg.cond(info) > 1e12:
+            raise np.linalg.LinAlgError
+    except np.linalg.LinAlgError:
+        return SphereFit(centre, float(r), res, rms, np.full((3, 3), np.nan), False,
+                         "points do not determine a sphere (coplanar or coincident)")
+    if not np.all(np.isfinite(centre)):
+        return SphereFit(centre, float(r), res, rms, cov, False, "fit did not converge")
+    if rms <= limit:
+        return SphereFit(centre, float(r), res, rms, cov, True, "ok")
+    status = f"residual {rms:.4g} mm above {limit:.4g} mm"
+    suspect, off, rest_ok = _suspect(points, centre, r, free, sigma, threshold)
+    if suspect is None:
+        status += f"; {len(points)} points leave one redundant measurement, not enough to say which is bad"
+    elif rest_ok:
+        status += f"; outlier: point {suspect + 1} ({off:+.4g} mm off the sphere of the others)"
+    else:
+        status += f"; more than one bad point (worst: point {suspect + 1}, {off:+.4g} mm)"
+    return SphereFit(centre, float(r), res, rms, cov, False, status, suspect)
+
+
+def _suspect(points, centre, radius, free, sigma, threshold):
+    """Leave-one-out: the point whose removal leaves the most consistent fit.
+
+    Needs two or more redundant measurements: with one, every normalised residual is the same
+    and no point can be singled out. Returns (index or None, its distance off, rest passes).
+    """
+    n = len(points)
+    n_unknowns = 4 if free else 3
+    if n - 1 - n_unknowns < 1:
+        return None, 0.0, False
+    best = None
+    for k in range(n):
+        keep = np.arange(n) != k
+        c, r, res, _ = _gauss_newton(points[keep], centre, radius, free)
+        ssr = float(np.sum(res**2))
+        if best is None or ssr < best[1]:
+            best = (k, ssr, float(np.linalg.norm(points[k] - c) - r))
+    k, ssr, off = best
+    limit = default_threshold(sigma, n - 1, n_unknowns) if threshold is None else threshold
+    return k, off, bool(np.sqrt(ssr / (n - 1)) <= limit)
