@@ -1,1 +1,17 @@
-"""GTSAM factors of fgcal's measurement model (probe points, ball centres, poses, joint readings)."""
+"""GTSAM factors of fgcal's measurement model.
+
+:mod:`factors.errors` holds the pure, vectorised error functions with analytic Jacobians (used
+directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as a GTSAM factor:
+
+* probe point on the sphere around a ball-centre variable,
+* ball centre (variable or measured) at the forward kinematics times the ball's offset,
+* measured tool pose against the forward kinematics,
+* joint readings as priors on joint variables, and a prior on the parameters.
+"""
+from .errors import ball_centre_error, joint_error, pose_error, probe_error, slots_of
+from .gtsam_factors import (ball_centre_factor, centre_key, joint_key, joint_prior, noise_model,
+                            parameter_prior, pose_factor, probe_factor, theta_key)
+
+__all__ = ["ball_centre_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor",
+           "centre_key", "joint_key", "joint_prior", "noise_model", "parameter_prior", "pose_factor",
+           "probe_factor", "theta_key"]

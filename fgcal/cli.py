@@ -35,7 +35,18 @@ def _cmd_simulate(args) -> int:
         deviations=Deviations(args.length_sigma, args.angle_sigma, args.base_length_sigma, args.base_angle_sigma),
         n_balls=args.balls, probes_per_ball=args.probes_per_ball, outlier_fraction=args.outliers,
         outlier_size=args.outlier_size, levels=tuple(args.levels.split(",")))
-    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=args.robot, seed=args.seed)
+    truth = None
+    if args.truth is not None:
+        from .dataset_io import load_truth
+        from .model import SLOT_NAMES, slots_from_file_units
+
+        values, _ = load_truth(args.truth)
+        missing = [n for n in SLOT_NAMES if n not in values]
+        if missing:
+            raise FgcalError(f"{args.truth}: lacks {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}")
+        truth = slots_from_file_units(np.array([values[n] for n in SLOT_NAMES]))
+    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=args.robot, seed=args.seed,
+                         truth=truth)
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     save_dataset(ds, args.out, overwrite=args.force)
@@ -86,12 +97,129 @@ def _cmd_measure(args) -> int:
     return 0
 
 
+def parse_pose_selection(text: str | None, available) -> np.ndarray:
+    """Pose ids from ``odd``, ``even``, ``first:N``, ``last:N`` or ranges like ``1-21,30``."""
+    available = np.asarray(available, dtype=int)
+    if text is None:
+        return available
+    text = text.strip()
+    if text in ("odd", "even"):
+        return available[available % 2 == (1 if text == "odd" else 0)]
+    for prefix in ("first:", "last:"):
+        if text.startswith(prefix):
+            try:
+                n = int(text[len(prefix):])
+            except ValueError:
+                raise FgcalError(f"--poses {text!r}: expected {prefix}N") from None
+            return available[:n] if prefix == "first:" else available[-n:]
+    chosen = []
+    for part in text.split(","):
+        try:
+            if "-" in part.strip()[1:]:
+                a, b = part.strip().split("-", 1) if not part.strip().startswith("-") else (part, part)
+                chosen.extend(range(int(a), int(b) + 1))
+            else:
+                chosen.append(int(part))
+        except ValueError:
+            raise FgcalError(f"--poses {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
+    missing = sorted(set(chosen) - set(available.tolist()))
+    if missing:
+        raise FgcalError(f"--poses: pose(s) {', '.join(map(str, missing[:10]))} not in the dataset")
+    return np.array(sorted(set(chosen)), dtype=int)
+
+
+def _print_result(result) -> None:
+    print(f"calibrated {result.robot} from {result.n_poses} poses: {result.iterations} iterations, "
+          f"{'converged' if result.converged else 'NOT converged'}; condition number {result.condition_number:.3g}")
+    for level, s in result.levels.items():
+        if level in ("kinematic", "prior"):
+            continue
+        extra = f", rotation {s.rms_rotation_deg:.4g} deg" if s.rms_rotation_deg is not None else ""
+        print(f"  {level:8s} {s.n:6d}  rms {s.rms:.4g} {s.unit}{extra}  (sigma {s.sigma:.3g}; "
+              f"variance factor {s.variance_factor:.3g})")
+    for h in result.held:
+        print(f"  held at nominal: {h['name']} = {h['value']:g} ({h['reason']})")
+    print(f"  {'parameter':12s} {'nominal':>12s} {'estimate':>14s} {'sigma':>10s}")
+    for p in result.parameters:
+        print(f"  {p.name:12s} {p.nominal:12.6g} {p.estimate:14.8g} {p.sigma:10.3g} {p.unit}")
+
+
+def _cmd_calibrate(args) -> int:
+    from .calibrate import CalibrationOptions, calibrate
+    from .dataset_io import dataset_model, load_dataset
+    from .result import save_result
+
+    ds = load_dataset(args.dataset)
+    model = dataset_model(ds)
+    ids = parse_pose_selection(args.poses, ds.pose_ids)
+    if len(ids) != ds.n_poses:
+        ds = ds.select(ids)
+    options = CalibrationOptions(
+        levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
+        joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
+        extra=tuple(args.extra.split(",")) if args.extra else (),
+        exclude=tuple(args.exclude.split(",")) if args.exclude else ())
+    result = calibrate(ds, model, options)
+    save_result(result, args.out)
+    _print_result(result)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _cmd_verify(args) -> int:
+    import json
+
+    from .dataset_io import dataset_model, load_dataset
+    from .result import load_result
+    from .verify import verify
+    from .yamlio import atomic_write_text
+
+    result = load_result(args.result)
+    ds = load_dataset(args.dataset)
+    ids = parse_pose_selection(args.poses, ds.pose_ids)
+    if len(ids) != ds.n_poses:
+        ds = ds.select(ids)
+    overlap = sorted(set(result.pose_ids) & set(ds.pose_ids.tolist())) if str(result.dataset) == str(ds.path) else []
+    if overlap:
+        print(f"note: {len(overlap)} of these poses were used in the calibration; the errors there are optimistic")
+    report = verify(result, ds, dataset_model(ds))
+    d = report.to_dict()
+    for s in report.skipped:
+        print(f"note: skipped {s}")
+
+    def line(label, summary):
+        p, o = summary["position_mm"], summary["orientation_deg"]
+        return (f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm; "
+                f"orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg")
+
+    print(f"verification on {d['n_poses']} poses ({d['reference']}):")
+    print(line("nominal vs measured", d["before"]))
+    print(line("calibrated vs measured", d))
+    if "truth" in d:
+        print(line("nominal vs truth", d["truth"]["before"]))
+        print(line("calibrated vs truth", d["truth"]))
+    if args.out:
+        atomic_write_text(args.out, json.dumps(d, indent=1) + "\n")
+        print(f"wrote {args.out}")
+    return 0
+
+
 def _cmd_demo(args) -> int:
+    """The paper's experiment on the bundled dataset: identify on 24 poses, verify on the other 24."""
     from .resources import default_dataset_dir
 
     ds_dir = default_dataset_dir()
-    print(f"fgcal demo: the bundled dataset {ds_dir}")
-    return _cmd_check(argparse.Namespace(dataset=ds_dir))
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"fgcal demo: {ds_dir} (a simulated PUMA 560, the paper's 48-pose plan); results in {out}/")
+    print("\n== check: what the poses can identify")
+    _cmd_check(argparse.Namespace(dataset=ds_dir))
+    print("\n== calibrate on the odd poses: one factor graph from raw probe points")
+    _cmd_calibrate(argparse.Namespace(dataset=ds_dir, out=out / "result.json", poses="odd", levels=None, robust=None,
+                                      prior="none", exact_joints=False, estimate_noise=False, extra=None, exclude=None))
+    print("\n== verify on the even poses (the paper's VERIFY)")
+    return _cmd_verify(argparse.Namespace(result=out / "result.json", dataset=ds_dir, poses="even",
+                                          out=out / "verify.json"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -122,6 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--angle-sigma", type=float, default=0.05, help="link angle deviations, deg (default 0.05)")
     s.add_argument("--base-length-sigma", type=float, default=5.0, help="base placement deviation, mm (default 5)")
     s.add_argument("--base-angle-sigma", type=float, default=0.5, help="base angle deviation, deg (default 0.5)")
+    s.add_argument("--truth", type=Path, default=None,
+                   help="truth.yaml of another simulated dataset: the same actual robot (a verification set)")
     s.add_argument("--force", action="store_true", help="replace OUT if it exists")
     s.set_defaults(func=_cmd_simulate)
 
@@ -143,7 +273,30 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--force", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_cmd_measure)
 
+    k = sub.add_parser("calibrate", help="batch factor-graph calibration (the paper's ID6); writes fgcal-result/1")
+    k.add_argument("dataset", type=Path)
+    k.add_argument("--out", type=Path, required=True, help="result file (JSON)")
+    k.add_argument("--poses", default=None, help="poses to use: odd, even, first:N, last:N or ranges like 1-21")
+    k.add_argument("--levels", default=None, help="comma-separated levels to use (default: all present)")
+    k.add_argument("--robust", choices=("huber", "cauchy"), default=None, help="robust loss on the measurements")
+    k.add_argument("--prior", choices=("none", "weak"), default="none",
+                   help="weak: 10x the typical deviation on every parameter (default none)")
+    k.add_argument("--estimate-noise", action="store_true",
+                   help="estimate each level's noise (variance factor) and re-weight")
+    k.add_argument("--exact-joints", action="store_true", help="treat the joint readings as exact")
+    k.add_argument("--extra", default=None, help="extra slots to estimate, e.g. j1.theta (redundancy is reported)")
+    k.add_argument("--exclude", default=None, help="parameters to hold at nominal")
+    k.set_defaults(func=_cmd_calibrate)
+
+    v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")
+    v.add_argument("result", type=Path)
+    v.add_argument("dataset", type=Path)
+    v.add_argument("--poses", default=None, help="poses to use (as for calibrate)")
+    v.add_argument("--out", type=Path, default=None, help="write verify.json")
+    v.set_defaults(func=_cmd_verify)
+
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
+    d.add_argument("--out", type=Path, default=Path("fgcal-demo"), help="output directory (default fgcal-demo)")
     d.set_defaults(func=_cmd_demo)
     return p
 

@@ -21,7 +21,7 @@ from .model import SLOT_NAMES, RobotModel, Tooling
 from .robot_file import load_model
 from .yamlio import atomic_write_text, dump_yaml, read_yaml
 
-__all__ = ["load_dataset", "save_dataset", "dataset_model", "write_csv"]
+__all__ = ["load_dataset", "save_dataset", "dataset_model", "write_csv", "load_truth"]
 
 log = logging.getLogger(__name__)
 
@@ -179,7 +179,9 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     return data["robot"], tooling, noise, provenance
 
 
-def _truth(path: Path) -> tuple[dict, list]:
+def load_truth(path) -> tuple[dict, list]:
+    """``truth.yaml``: parameter values {name: value} (mm, deg) and planted outliers."""
+    path = Path(path)
     data = read_yaml(path, error=DatasetError)
     if not isinstance(data, dict) or not isinstance(data.get("parameters"), dict):
         raise DatasetError(f"{path}: expected 'parameters: {{name: value}}'")
@@ -233,7 +235,7 @@ def load_dataset(directory) -> Dataset:
     if (directory / "poses.csv").exists():
         ds.poses = _pose_table(directory / "poses.csv", known)
     if (directory / "truth.yaml").exists():
-        ds.truth, ds.truth_outliers = _truth(directory / "truth.yaml")
+        ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
         log.warning("%s: no measurements (probes.csv, centres.csv or poses.csv); joint readings only", directory)
     return ds

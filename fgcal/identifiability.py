@@ -145,3 +145,44 @@ def analyse(J, names, scale=None, rtol: float = 1e-7) -> Identifiability:
                 continue
         accepted.append(k)
     return Identifiability(names=names, singular_values=sv, rank=rank, condition_number=cond, redundant=redundant)
+
+
+def analyse_information(S, names, rtol: float = 1e-6) -> Identifiability:
+    """Identifiability from an information matrix ``S`` (P, P), for example a Schur complement.
+
+    ``S`` is scaled to unit diagonal; eigenvalues below ``rtol`` times the largest span the
+    unidentifiable directions. For each such direction the *last* parameter (in ``names``'
+    order) taking part in it is blamed, with the others in it as its partners; put the
+    parameters you trust first. ``rtol`` is on eigenvalues (squared singular values): a Schur
+    complement computed in floating point is only good to about 1e-8 of its largest eigenvalue.
+    """
+    S = np.asarray(S, dtype=float)
+    names = list(names)
+    d = np.sqrt(np.maximum(np.diag(S), 0.0))
+    live = d > 1e-12 * max(d.max(initial=0.0), 1e-300)
+    scale = np.where(live, 1.0 / np.where(live, d, 1.0), 0.0)
+    eigval, eigvec = np.linalg.eigh(S * np.outer(scale, scale))
+    top = max(eigval.max(initial=0.0), 1e-300)
+    null = eigvec[:, eigval < rtol * top]
+    redundant: dict[str, list[str]] = {n: [] for n, ok in zip(names, live) if not ok}
+    for i in np.nonzero(~live)[0]:  # a parameter nothing constrains is its own null direction
+        null = null - np.outer(np.eye(len(names))[i], null[i])
+    while null.shape[1]:
+        u, s, _ = np.linalg.svd(null, full_matrices=False)
+        null = u[:, s > 1e-6]
+        if not null.shape[1]:
+            break
+        weight = np.linalg.norm(null, axis=1)
+        candidates = [i for i in range(len(names)) if weight[i] > 0.1 * weight.max() and names[i] not in redundant]
+        i = candidates[-1]
+        v = null @ null[i] / np.linalg.norm(null[i])
+        v /= np.linalg.norm(v)
+        order = np.argsort(-np.abs(v))
+        redundant[names[i]] = [names[j] for j in order if j != i and abs(v[j]) > 0.05 * abs(v[i])]
+        # keep only null directions without parameter i
+        _, _, vt = np.linalg.svd(null[i][None, :])
+        null = null @ vt[1:].T
+    sv = np.sqrt(np.clip(eigval, 0.0, None))[::-1]
+    rank = len(names) - len(redundant)
+    cond = float(sv[0] / sv[rank - 1]) if rank == len(names) and sv[rank - 1] > 0 else float("inf")
+    return Identifiability(names=names, singular_values=sv, rank=rank, condition_number=cond, redundant=redundant)

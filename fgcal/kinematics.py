@@ -140,8 +140,14 @@ def forward(x, q) -> np.ndarray:
 
 
 def tool_points(T, offsets) -> np.ndarray:
-    """World positions ``(N, B, 3)`` of tool-frame points ``offsets`` (B, 3) at poses ``T`` (N, 4, 4)."""
-    offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+    """World positions ``(N, B, 3)`` of tool-frame points at poses ``T`` (N, 4, 4).
+
+    ``offsets`` is ``(B, 3)`` (the same points at every pose) or ``(N, B, 3)`` (per pose).
+    """
+    offsets = np.asarray(offsets, dtype=float)
+    if offsets.ndim == 3:
+        return T[:, None, :3, 3] + np.einsum("nij,nbj->nbi", T[:, :3, :3], offsets)
+    offsets = offsets.reshape(-1, 3)
     return T[:, None, :3, 3] + np.einsum("nij,bj->nbi", T[:, :3, :3], offsets)
 
 
@@ -180,8 +186,8 @@ def jacobians(x, q, offsets=None) -> ChainJacobians:
         Slot values (mm, rad).
     q : array_like, shape (N, 6)
         Joint readings (rad).
-    offsets : array_like, shape (B, 3), optional
-        Tool-frame points (mm), for example ball centres.
+    offsets : array_like, shape (B, 3) or (N, B, 3), optional
+        Tool-frame points (mm), for example ball centres: the same at every pose, or per pose.
 
     Returns
     -------
@@ -194,9 +200,12 @@ def jacobians(x, q, offsets=None) -> ChainJacobians:
     pose_joints = np.zeros((n, 6, N_JOINTS))
     have_points = offsets is not None
     if have_points:
-        offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+        offsets = np.asarray(offsets, dtype=float)
+        offsets = offsets.reshape(-1, 3) if offsets.ndim < 3 else offsets
+        if offsets.ndim == 3 and offsets.shape[0] != n:
+            raise ValueError(f"per-pose offsets must have shape ({n}, B, 3), got {offsets.shape}")
         points = tool_points(T, offsets)
-        nb = offsets.shape[0]
+        nb = offsets.shape[-2]
         point_slots = np.zeros((n, nb, 3, N_SLOTS))
         point_joints = np.zeros((n, nb, 3, N_JOINTS))
     for k, op in enumerate(CHAIN):

@@ -339,10 +339,12 @@ class SimulationSettings:
 
 
 def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSettings = SimulationSettings(),
-             robot_ref: str | None = None, seed=None):
+             robot_ref: str | None = None, seed=None, truth=None):
     """Simulate a calibration experiment; returns ``(dataset, notes)``.
 
-    ``notes`` lists what was skipped (poses the CMM could not reach) so callers can say so.
+    ``truth`` (37,) mm/rad reuses an actual robot (for a verification set of the same robot, as
+    the paper ran POSE twice); a new one is drawn otherwise. ``notes`` lists what was skipped
+    (poses the CMM could not reach) so callers can say so.
     """
     s = settings
     if model.tooling is None:
@@ -354,7 +356,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
         raise FgcalError(f"--balls must be between 1 and {len(model.tooling.balls)}")
     if s.probes_per_ball < 4 and "probes" in s.levels:
         raise FgcalError("--probes-per-ball must be at least 4 (a sphere needs 4 points)")
-    truth = draw_truth(model, rng, s.deviations)
+    truth = draw_truth(model, rng, s.deviations) if truth is None else np.asarray(truth, dtype=float)
     notes = []
     if s.plan == "random":
         n = 21 if s.n_poses is None else s.n_poses

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.stats import chi2
 
-__all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "default_threshold", "check_points"]
+__all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "fit_spheres_batch", "best_of_candidates",
+           "mirror_through_points", "default_threshold", "check_points"]
 
 FALSE_ALARM = 1e-3  # probability that a good fit is flagged by the default threshold
 MIN_THRESHOLD_MM = 1e-6  # exact data still carries floating-point noise
@@ -42,12 +45,87 @@ def algebraic_sphere(points) -> tuple[np.ndarray, float]:
     return centre, float(np.sqrt(max(sol[3] + centre @ centre, 0.0)))
 
 
+@lru_cache(maxsize=256)
+def _chi2_bound(dof: int) -> float:
+    return float(chi2.ppf(1.0 - FALSE_ALARM, dof))
+
+
 def default_threshold(sigma: float, n_points: int, n_unknowns: int = 3) -> float:
     """RMS residual (mm) above which a fit is flagged: the chi-square bound at 0.1% false alarm."""
     dof = n_points - n_unknowns
     if dof <= 0 or sigma <= 0:
         return MIN_THRESHOLD_MM
-    return max(MIN_THRESHOLD_MM, sigma * float(np.sqrt(chi2.ppf(1.0 - FALSE_ALARM, dof) / n_points)))
+    return max(MIN_THRESHOLD_MM, sigma * float(np.sqrt(_chi2_bound(dof) / n_points)))
+
+
+def fit_spheres_batch(points, radius: float, iterations: int = 20, guess=None) -> np.ndarray:
+    """Centres ``(K, 3)`` of K spheres of known ``radius``, each through n points ``(K, n, 3)``.
+
+    Vectorised Gauss-Newton, without quality checks: a starting point for a joint solve. Points
+    on a cap fit two centres equally well (mirror images through the cap); Gauss-Newton finds
+    the one nearer its start, so pass ``guess`` (K, 3), for example the kinematic prediction,
+    where one is known; otherwise it starts from algebraic fits. A sphere whose points do not
+    determine it gets NaN.
+    """
+    points = np.asarray(points, dtype=float)
+    K, n, _ = points.shape
+    if guess is not None:
+        return _gauss_newton_batch(points, np.asarray(guess, dtype=float).copy(), radius, iterations)
+    A = np.concatenate([2.0 * points, np.ones((K, n, 1))], axis=2)
+    b = np.sum(points**2, axis=2)
+    AtA = np.einsum("kni,knj->kij", A, A)
+    Atb = np.einsum("kni,kn->ki", A, b)
+    good = np.abs(np.linalg.det(AtA)) > 1e-12 * np.maximum(np.einsum("kii->k", AtA), 1.0) ** 4
+    centre = np.full((K, 3), np.nan)
+    if not good.any():
+        return centre
+    sol = np.linalg.solve(AtA[good], Atb[good][..., None])[..., 0]
+    centre[good] = _gauss_newton_batch(points[good], sol[:, :3], radius, iterations)
+    return centre
+
+
+def best_of_candidates(points, radius: float, candidates, sigma: float, prediction=None) -> np.ndarray:
+    """For each sphere, the candidate centre with the smallest sum of squared residuals.
+
+    ``candidates`` is ``(C, K, 3)`` (for example Gauss-Newton from an algebraic start and from
+    its mirror image). Where two candidates fit within the noise (``9 sigma^2`` apart), the one
+    nearer ``prediction`` (K, 3) wins.
+    """
+    points = np.asarray(points, dtype=float)
+    cand = np.asarray(candidates, dtype=float)
+    ssr = np.sum((np.linalg.norm(points[None] - cand[:, :, None, :], axis=3) - radius) ** 2, axis=2)
+    ssr = np.where(np.all(np.isfinite(cand), axis=2), ssr, np.inf)
+    best = np.argmin(ssr, axis=0)
+    if prediction is not None:
+        dist = np.linalg.norm(cand - np.asarray(prediction)[None], axis=2)
+        near = ssr <= ssr.min(axis=0) + 9.0 * max(sigma, 1e-6) ** 2
+        dist = np.where(near & np.isfinite(dist), dist, np.inf)
+        best = np.where(np.isfinite(dist.min(axis=0)), np.argmin(dist, axis=0), best)
+    return cand[best, np.arange(cand.shape[1])]
+
+
+def mirror_through_points(points, centres) -> np.ndarray:
+    """Reflect each centre ``(K, 3)`` through the best-fit plane of its points ``(K, n, 3)``."""
+    mean = points.mean(axis=1)
+    _, _, vt = np.linalg.svd(points - mean[:, None, :])
+    normal = vt[:, -1]
+    h = np.einsum("ki,ki->k", centres - mean, normal)
+    return centres - 2.0 * h[:, None] * normal
+
+
+def _gauss_newton_batch(pts, c, radius, iterations):
+    for _ in range(iterations):
+        diff = pts - c[:, None, :]
+        dist = np.linalg.norm(diff, axis=2)
+        res = dist - radius
+        J = -diff / dist[..., None]
+        JtJ = np.einsum("kni,knj->kij", J, J)
+        Jtr = np.einsum("kni,kn->ki", J, res)
+        step = -np.linalg.solve(JtJ + 1e-12 * np.eye(3), Jtr[..., None])[..., 0]
+        c = c + step
+        if np.max(np.abs(step)) < 1e-12:
+            break
+    return c
 
 
 @dataclass

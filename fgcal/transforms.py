@@ -168,3 +168,24 @@ def pose_difference(T_measured, T_model) -> tuple[np.ndarray, np.ndarray]:
     d = A[..., :3, 3] - B[..., :3, 3]
     delta = so3_log(A[..., :3, :3] @ np.swapaxes(B[..., :3, :3], -1, -2))
     return d, delta
+
+
+def skew(v) -> np.ndarray:
+    """Cross-product matrices (..., 3, 3) of vectors (..., 3)."""
+    v = np.asarray(v, dtype=float)
+    S = np.zeros(v.shape + (3,))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
+
+
+def so3_left_jacobian_inverse(w) -> np.ndarray:
+    """``J_l^-1(w)`` (..., 3, 3): ``log(exp([d]) exp([w])) = w + J_l^-1(w) d`` to first order."""
+    w = np.asarray(w, dtype=float)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    W = skew(w)
+    small = theta < 1e-6
+    t = np.where(small, 1.0, theta)
+    coef = np.where(small, 1.0 / 12.0, 1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
+    return np.eye(3) - 0.5 * W + coef * (W @ W)

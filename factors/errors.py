@@ -1,0 +1,100 @@
+"""Pure error functions of fgcal's measurement model, vectorised over M measurements.
+
+Each returns the *unwhitened* error and its Jacobians with respect to its variables. The
+kinematic parameters are a vector ``theta`` (P,) in internal units (mm, rad), placed into the
+37-slot chain by ``index`` (P,) over ``held`` (37,), the values of the slots not estimated.
+Joint variables ``q`` are radians; points are mm (world).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fgcal.kinematics import jacobians
+from fgcal.transforms import so3_left_jacobian_inverse, so3_log
+
+__all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_error", "joint_error"]
+
+
+def slots_of(theta, index, held) -> np.ndarray:
+    """The 37-slot vector with ``theta`` at ``index`` and ``held`` elsewhere."""
+    x = np.array(held, dtype=float)
+    x[np.asarray(index, dtype=int)] = theta
+    return x
+
+
+def probe_error(centre, point, radius):
+    """A probe point lies on the sphere of ``radius`` around the ball centre.
+
+    Parameters
+    ----------
+    centre, point : array_like, shape (M, 3)
+    radius : float
+
+    Returns
+    -------
+    e : ndarray, shape (M, 1)
+        ``|point - centre| - radius`` (mm).
+    J_centre : ndarray, shape (M, 1, 3)
+    """
+    centre = np.atleast_2d(np.asarray(centre, dtype=float))
+    diff = np.atleast_2d(np.asarray(point, dtype=float)) - centre
+    dist = np.linalg.norm(diff, axis=1)
+    return (dist - radius)[:, None], (-diff / dist[:, None])[:, None, :]
+
+
+def ball_centre_error(theta, q, offset, centre, index, held):
+    """A ball centre is at the forward kinematics times the ball's tool-frame offset.
+
+    Parameters
+    ----------
+    theta : array_like, shape (P,)
+    q : array_like, shape (M, 6)
+        Joint values (rad) of each measurement's pose.
+    offset : array_like, shape (M, 3)
+        The ball's centre in the tool frame (mm).
+    centre : array_like, shape (M, 3)
+        The ball-centre variable, or a measured centre (mm, world).
+    index, held : see :func:`slots_of`.
+
+    Returns
+    -------
+    e : ndarray, shape (M, 3)
+        ``FK(theta, q) offset - centre`` (mm).
+    J_theta : ndarray, shape (M, 3, P)
+    J_q : ndarray, shape (M, 3, 6)
+    (the Jacobian with respect to ``centre`` is ``-I``)
+    """
+    x = slots_of(theta, index, held)
+    q = np.atleast_2d(q)
+    jac = jacobians(x, q, offsets=np.asarray(offset, dtype=float).reshape(-1, 1, 3))
+    e = jac.points[:, 0] - np.atleast_2d(centre)
+    return e, jac.point_slots[:, 0][:, :, index], jac.point_joints[:, 0]
+
+
+def pose_error(theta, q, T_measured, index, held):
+    """A measured tool pose against the forward kinematics.
+
+    Returns
+    -------
+    e : ndarray, shape (M, 6)
+        ``[log(R_fk R_meas^T) (rad, world); p_fk - p_meas (mm)]``.
+    J_theta : ndarray, shape (M, 6, P)
+    J_q : ndarray, shape (M, 6, 6)
+    """
+    x = slots_of(theta, index, held)
+    q = np.atleast_2d(q)
+    T_measured = np.asarray(T_measured, dtype=float).reshape(-1, 4, 4)
+    jac = jacobians(x, q)
+    w = so3_log(jac.T[:, :3, :3] @ np.swapaxes(T_measured[:, :3, :3], -1, -2))
+    e = np.concatenate([w, jac.T[:, :3, 3] - T_measured[:, :3, 3]], axis=1)
+    Jl = so3_left_jacobian_inverse(w)
+
+    def rows(J):  # J: (M, 6, n) with rows [dp; omega]
+        return np.concatenate([Jl @ J[:, 3:], J[:, :3]], axis=1)
+
+    return e, rows(jac.pose_slots[:, :, index]), rows(jac.pose_joints)
+
+
+def joint_error(q, reading):
+    """A joint variable against the controller's reading: ``q - reading`` (M, 6), Jacobian ``I``."""
+    return np.atleast_2d(q) - np.atleast_2d(reading)

@@ -1,0 +1,128 @@
+"""GTSAM factors built on :mod:`factors.errors`: small builders returning ``gtsam`` factors.
+
+Variables in a ``gtsam.Values``: the parameter vector under :func:`theta_key` (a Vector of P),
+each pose's joints under :func:`joint_key` (Vector 6, rad), each ball centre under
+:func:`centre_key` (Vector 3, mm). A variable that is known (exact joint readings, a measured
+centre) is passed as a constant instead of a key.
+
+Keep a reference to every factor's arguments: the error closures capture them.
+"""
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from .errors import ball_centre_error, pose_error, probe_error
+
+__all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "ball_centre_factor",
+           "pose_factor", "joint_prior", "parameter_prior"]
+
+
+def theta_key() -> int:
+    return gtsam.symbol("k", 0)
+
+
+def joint_key(pose_index: int) -> int:
+    return gtsam.symbol("q", int(pose_index))
+
+
+def centre_key(ball_index: int) -> int:
+    return gtsam.symbol("c", int(ball_index))
+
+
+def noise_model(sigmas, robust: str | None = None, k: float = 1.345):
+    """A diagonal Gaussian noise model, optionally inside a Huber or Cauchy robust loss.
+
+    ``k`` is the loss's threshold in units of the whitened error (sigmas).
+    """
+    base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+    if robust is None:
+        return base
+    if robust == "huber":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k), base)
+    if robust == "cauchy":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(k), base)
+    raise ValueError(f"unknown robust loss {robust!r} (huber, cauchy)")
+
+
+def _vector(values, key):
+    return values.atVector(key)
+
+
+def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None) -> gtsam.CustomFactor:
+    """A probe point (3,) mm on the sphere of ``radius`` around the centre variable ``c_key``."""
+    point = np.array(point, dtype=float).reshape(1, 3)
+
+    def error(this, values, H):
+        e, J = probe_error(_vector(values, c_key)[None], point, radius)
+        if H is not None:
+            H[0] = J[0]
+        return e[0]
+
+    return gtsam.CustomFactor(noise_model([sigma], robust), [c_key], error)
+
+
+def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: int | None = None,
+                       q_fixed=None, c_key: int | None = None, c_measured=None, robust=None) -> gtsam.CustomFactor:
+    """A ball centre (variable ``c_key`` or ``c_measured``) at FK(theta, q) times ``offset``.
+
+    Joints are the variable ``q_key`` or the constant ``q_fixed`` (6,) rad.
+    """
+    if (q_key is None) == (q_fixed is None) or (c_key is None) == (c_measured is None):
+        raise ValueError("give exactly one of q_key/q_fixed and one of c_key/c_measured")
+    offset = np.array(offset, dtype=float).reshape(1, 3)
+    index = np.array(index, dtype=int)
+    held = np.array(held, dtype=float)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, 6)
+    c_const = None if c_measured is None else np.array(c_measured, dtype=float).reshape(1, 3)
+    keys = [t_key] + ([q_key] if q_key is not None else []) + ([c_key] if c_key is not None else [])
+
+    def error(this, values, H):
+        theta = _vector(values, t_key)
+        q = q_const if q_key is None else _vector(values, q_key)[None]
+        c = c_const if c_key is None else _vector(values, c_key)[None]
+        e, J_t, J_q = ball_centre_error(theta, q, offset, c, index, held)
+        if H is not None:
+            H[0] = J_t[0]
+            i = 1
+            if q_key is not None:
+                H[i] = J_q[0]
+                i += 1
+            if c_key is not None:
+                H[i] = -np.eye(3)
+        return e[0]
+
+    return gtsam.CustomFactor(noise_model([sigma] * 3, robust), keys, error)
+
+
+def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, t_key: int,
+                q_key: int | None = None, q_fixed=None, robust=None) -> gtsam.CustomFactor:
+    """A measured tool pose (4, 4) against FK(theta, q): error ``[rotation (rad); position (mm)]``."""
+    if (q_key is None) == (q_fixed is None):
+        raise ValueError("give exactly one of q_key and q_fixed")
+    T_measured = np.array(T_measured, dtype=float).reshape(1, 4, 4)
+    index = np.array(index, dtype=int)
+    held = np.array(held, dtype=float)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, 6)
+    keys = [t_key] + ([q_key] if q_key is not None else [])
+
+    def error(this, values, H):
+        q = q_const if q_key is None else _vector(values, q_key)[None]
+        e, J_t, J_q = pose_error(_vector(values, t_key), q, T_measured, index, held)
+        if H is not None:
+            H[0] = J_t[0]
+            if q_key is not None:
+                H[1] = J_q[0]
+        return e[0]
+
+    return gtsam.CustomFactor(noise_model([sigma_rot] * 3 + [sigma_pos] * 3, robust), keys, error)
+
+
+def joint_prior(q_key: int, reading, sigma: float) -> gtsam.PriorFactorVector:
+    """The joint variable ``q_key`` is the controller's reading (6,) rad give or take ``sigma`` rad."""
+    return gtsam.PriorFactorVector(q_key, np.array(reading, dtype=float), noise_model([sigma] * 6))
+
+
+def parameter_prior(t_key: int, mean, sigmas) -> gtsam.PriorFactorVector:
+    """A prior on the parameter vector: ``mean`` (P,) with ``sigmas`` (P,) in internal units."""
+    return gtsam.PriorFactorVector(t_key, np.array(mean, dtype=float), noise_model(sigmas))

@@ -1,0 +1,466 @@
+"""Batch calibration (the paper's ID6, as one factor graph) with honest covariances.
+
+:func:`calibrate` builds the graph of a dataset (:mod:`fgcal.graph`), finds the parameters the
+data cannot identify (they are held at nominal and named), solves by Levenberg-Marquardt from
+the nominal model (the base placement is first fitted to the measurements), and computes the
+parameters' covariance with ``gtsam.Marginals``. No I/O here.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+
+import gtsam
+import numpy as np
+
+from . import __version__
+from .dataset import Dataset
+from .errors import FgcalError
+from .graph import Graph, Sigmas, State
+from .identifiability import analyse_information
+from .kinematics import forward, tool_points
+from .model import EULER_FIELDS, SLOT_NAMES, RobotModel, slot, slots_to_file_units
+from .posefit import rigid_fit
+from .result import CalibrationResult, LevelSummary, ParameterEstimate
+from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points
+from .transforms import quaternion_to_matrix, to_euler_zyx_trans
+
+__all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
+           "gtsam_covariance"]
+
+log = logging.getLogger(__name__)
+
+# Weak prior: ten times the typical deviations of DESIGN.md (mm, deg).
+WEAK_PRIOR = {"base_length": 50.0, "base_angle": 5.0, "length": 5.0, "angle": 0.5}
+MIN_SIGMA = 1e-6  # exact data (sigma 0) still has floating-point noise
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """How to calibrate.
+
+    Attributes
+    ----------
+    levels : tuple of str or None
+        Measurement levels to use (``probes``, ``centres``, ``poses``); all present by default.
+    robust : {None, "huber", "cauchy"}
+        Robust loss on the measurement factors; ``robust_k`` its threshold in sigmas.
+    prior : {"none", "weak"}
+        ``weak``: a prior of ten times the typical deviation on every parameter
+        (:data:`WEAK_PRIOR`), which keeps an ill-posed solve finite.
+    joint_noise : bool
+        Model the joint readings' rounding and repeatability with joint variables.
+    kinematic_sigma : float
+        Unmodelled error (mm) between a ball-centre variable and the forward kinematics.
+    estimate_noise : bool
+        Re-weight each measurement level by its estimated variance factor until it is 1.
+    extra, exclude : tuple of str
+        Slots to add to, or remove from, the identifiable parameters.
+    """
+
+    levels: tuple | None = None
+    robust: str | None = None
+    robust_k: float | None = None
+    prior: str = "none"
+    joint_noise: bool = True
+    kinematic_sigma: float = 1e-4
+    estimate_noise: bool = False
+    extra: tuple = ()
+    exclude: tuple = ()
+    max_iterations: int = 100
+    tolerance: float = 1e-12
+
+
+def _pose_dof(n_balls: int, full_pose: bool) -> int:
+    return 6 if full_pose or n_balls >= 3 else {0: 0, 1: 3, 2: 5}[n_balls]
+
+
+def _sigmas(ds: Dataset, options: CalibrationOptions, scale=None) -> Sigmas:
+    scale = scale or {}
+    n = ds.noise
+    joint = np.radians(n.joint_sigma_deg) if options.joint_noise else 0.0
+    centre = n.centre_sigma if n.centre_sigma is not None else n.cmm_sigma
+    pos = n.pose_position_sigma if n.pose_position_sigma is not None else n.cmm_sigma
+    rot = np.radians(n.pose_orientation_sigma) if n.pose_orientation_sigma is not None else n.cmm_sigma / 100.0
+    return Sigmas(probe=max(n.cmm_sigma, MIN_SIGMA) * scale.get("probes", 1.0),
+                  centre=max(centre, MIN_SIGMA) * scale.get("centres", 1.0),
+                  pose_position=max(pos, MIN_SIGMA) * scale.get("poses", 1.0),
+                  pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses", 1.0),
+                  joint=joint, kinematic=options.kinematic_sigma)
+
+
+def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
+    present = ds.levels()
+    if options.levels is None:
+        return present
+    for lv in options.levels:
+        if lv not in ("probes", "centres", "poses"):
+            raise FgcalError(f"unknown level {lv!r} (probes, centres, poses)")
+        if lv not in present:
+            raise FgcalError(f"{ds.path or 'dataset'}: has no {lv} (it has: {', '.join(present) or 'none'})")
+    return list(options.levels)
+
+
+def _initial_base(model: RobotModel, held, q, world_points_by_pose):
+    """Fit the base placement to measured points with the nominal chain (a rigid fit)."""
+    x = held.copy()
+    base = [slot(f"base.{f}") for f in EULER_FIELDS]
+    x[base] = 0.0
+    pred, meas = [], []
+    for i, (offsets, world) in world_points_by_pose.items():
+        pred.append(tool_points(forward(x, q[i]), offsets)[0])
+        meas.append(world)
+    if not pred:
+        return held
+    pred, meas = np.vstack(pred), np.vstack(meas)
+    if len(pred) < 3 or np.linalg.matrix_rank(pred - pred.mean(0), tol=1e-6) < 2:
+        return held
+    fit = rigid_fit(pred, meas, sigma=1.0)
+    try:
+        values = to_euler_zyx_trans(fit.T)
+    except ValueError:
+        return held
+    out = held.copy()
+    out[base] = values
+    return out
+
+
+def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None):
+    """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
+
+    Only poses with at least one measurement at the chosen levels take part.
+    """
+    levels = _levels(ds, options)
+    params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
+    params = type(params)(model, tuple(names))
+    held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
+    measured = set()
+    for lv in levels:
+        measured |= set(getattr(ds, lv).pose.tolist())
+    pose_ids = np.array([p for p in ds.pose_ids if p in measured], dtype=int)
+    if not len(pose_ids):
+        raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
+    row = {p: i for i, p in enumerate(pose_ids)}
+    q = ds.joints_rad[ds.row_of(pose_ids)]
+    sig = _sigmas(ds, options, scale)
+    kw = {}
+    world_points = {}
+    init_c = None
+    if "probes" in levels:
+        pr = ds.probes
+        keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
+        var = {k: j for j, k in enumerate(keys)}
+        ball_pose = np.array([row[p] for p, _ in keys], dtype=int)
+        ball_offset = np.array([ds.tooling.balls[b] for _, b in keys])
+        # Start each centre from a sphere fit of its points (batched over balls with equal counts).
+        init_c = np.full((len(keys), 3), np.nan)
+        var_of_probe = np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int)
+        counts = np.bincount(var_of_probe, minlength=len(keys))
+        order = np.argsort(var_of_probe, kind="stable")
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        for n_pts in np.unique(counts):
+            if n_pts < 4:
+                continue
+            vs = np.nonzero(counts == n_pts)[0]
+            pts = pr.xyz[order[starts[vs][:, None] + np.arange(n_pts)]]
+            init_c[vs] = fit_spheres_batch(pts, ds.tooling.radius)
+        for j, (p, b) in enumerate(keys):
+            if np.all(np.isfinite(init_c[j])):
+                offs, pts_w = world_points.get(row[p], (np.zeros((0, 3)), np.zeros((0, 3))))
+                world_points[row[p]] = (np.vstack([offs, ds.tooling.balls[b]]), np.vstack([pts_w, init_c[j]]))
+        kw.update(probes=(np.array([row[p] for p in pr.pose], dtype=int),
+                          np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int),
+                          pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset, radius=ds.tooling.radius)
+    if "centres" in levels:
+        ce = ds.centres
+        idx = np.array([row[p] for p in ce.pose], dtype=int)
+        offsets = np.array([ds.tooling.balls[b] for b in ce.ball]).reshape(-1, 3)
+        kw["centres"] = (idx, offsets, ce.xyz)
+        for i, o, w in zip(idx, offsets, ce.xyz):
+            offs, pts_w = world_points.get(i, (np.zeros((0, 3)), np.zeros((0, 3))))
+            world_points[i] = (np.vstack([offs, o]), np.vstack([pts_w, w]))
+    if "poses" in levels:
+        po = ds.poses
+        idx = np.array([row[p] for p in po.pose], dtype=int)
+        T = np.tile(np.eye(4), (len(po), 1, 1))
+        T[:, :3, :3] = quaternion_to_matrix(po.quat)
+        T[:, :3, 3] = po.xyz
+        kw["poses"] = (idx, T)
+        axes = np.array([[0.0, 0, 0], [100.0, 0, 0], [0, 100.0, 0], [0, 0, 100.0]])
+        for i, Ti in zip(idx, T):
+            world_points[i] = (axes, axes @ Ti[:3, :3].T + Ti[:3, 3])
+    if options.prior == "weak":
+        sig_p = []
+        for n in names:
+            block, f = n.split(".")
+            is_angle = f in ("phi", "theta", "psi", "alpha", "beta")
+            if block == "base":
+                sig_p.append(np.radians(WEAK_PRIOR["base_angle"]) if is_angle else WEAK_PRIOR["base_length"])
+            else:
+                sig_p.append(np.radians(WEAK_PRIOR["angle"]) if is_angle else WEAK_PRIOR["length"])
+        kw["prior"] = (params.take(model.nominal), np.array(sig_p))
+    elif options.prior != "none":
+        raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
+    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
+
+    start = _initial_base(model, held, q, world_points)
+    theta0 = params.take(start)
+    if init_c is not None and len(graph.ball_pose):
+        # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
+        # points equally well, the one near the prediction is the ball's. Balls whose points do
+        # not fit a sphere start at the prediction itself.
+        T0 = forward(params.full(theta0, start), q)
+        predicted = tool_points(T0[graph.ball_pose], graph.ball_offset[:, None, :])[:, 0]
+        for n_pts in np.unique(counts):
+            if n_pts < 3:
+                continue
+            vs = np.nonzero(counts == n_pts)[0]
+            pts = pr.xyz[order[starts[vs][:, None] + np.arange(n_pts)]]
+            first = init_c[vs]
+            ok = np.all(np.isfinite(first), axis=1)
+            first_ok = np.where(ok[:, None], first, predicted[vs])
+            candidates = [fit_spheres_batch(pts, ds.tooling.radius, guess=g)
+                          for g in (first_ok, mirror_through_points(pts, first_ok), predicted[vs])]
+            init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates, ds.noise.cmm_sigma, predicted[vs])
+        bad = ~np.all(np.isfinite(init_c), axis=1) | (np.linalg.norm(init_c - predicted, axis=1) > 50.0)
+        init_c[bad] = predicted[bad]
+    state = graph.initial_state(theta0, init_c)
+    graph.held = params.full(theta0, start)  # held slots stay at the fitted start's values
+    return graph, state, pose_ids
+
+
+def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
+    """Minimise the graph's cost; returns ``(state, iterations, converged)``."""
+    lin = graph.linearise(state)
+    cost = lin.cost
+    damping = 1e-4
+    for it in range(1, max_iterations + 1):
+        for _ in range(30):
+            try:
+                new, d_theta, predicted = graph.step(state, lin, damping)
+            except np.linalg.LinAlgError:
+                damping *= 10
+                continue
+            new_lin = graph.linearise(new)
+            if np.isfinite(new_lin.cost) and new_lin.cost <= cost:
+                break
+            damping *= 10
+        else:
+            log.warning("Levenberg-Marquardt: no step reduces the cost (damping %.3g)", damping)
+            return state, it, False
+        gain = cost - new_lin.cost
+        state, lin = new, new_lin
+        damping = max(damping / 10, 1e-12)
+        small_step = np.max(np.abs(d_theta)) < 1e-12 * (1 + np.max(np.abs(state.theta)))
+        if gain <= tolerance * max(cost, 1e-300) or small_step or new_lin.cost < 1e-24:
+            return state, it, True
+        cost = new_lin.cost
+    return state, max_iterations, False
+
+
+def gtsam_covariance(graph: Graph, state: State) -> np.ndarray:
+    """Covariance of theta from ``gtsam.Marginals`` on the graph linearised at ``state``.
+
+    The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
+    over (theta, q_i, c_ib); per pose, its centre, pose and joint rows over (theta, q_i).
+    """
+    import factors as fx
+
+    lin = graph.linearise(state)
+    gfg = gtsam.GaussianFactorGraph()
+    t_key = fx.theta_key()
+    qdim = 6 if graph.joint_vars else 0
+    unit = {}
+
+    def add(keys_blocks, b):
+        if len(b) not in unit:
+            unit[len(b)] = gtsam.noiseModel.Unit.Create(len(b))
+        args = []
+        for k, B in keys_blocks:
+            args += [k, np.ascontiguousarray(B)]
+        gfg.add(gtsam.JacobianFactor(*args, np.ascontiguousarray(b), unit[len(b)]))
+
+    for i in range(graph.n_poses):
+        q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :6])] if qdim else []  # noqa: E731
+        for j, rows in graph.ball_rows[i]:
+            col = graph.ball_col[j]
+            add([(t_key, lin.J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
+                -lin.r[i, rows])
+        rows = graph.pose_rows[i]
+        if len(rows):
+            add([(t_key, lin.J_theta[i, rows])] + q_block(rows), -lin.r[i, rows])
+    if len(lin.prior_r):
+        add([(t_key, lin.prior_J)], -lin.prior_r)
+    sol = gtsam.VectorValues()
+    sol.insert(t_key, np.zeros(len(state.theta)))
+    for i in range(graph.n_poses if qdim else 0):
+        sol.insert(fx.joint_key(i), np.zeros(6))
+    for j in range(len(graph.ball_pose)):
+        sol.insert(fx.centre_key(j), np.zeros(3))
+    return gtsam.Marginals(gfg, sol).marginalCovariance(t_key)
+
+
+def _level_summaries(graph: Graph, state: State, cov_internal) -> dict[str, LevelSummary]:
+    lin = graph.linearise(state)
+    red = graph.leverage_by_level(state, cov_internal)
+    out = {}
+    units = {"probes": "mm", "kinematic": "mm", "centres": "mm", "poses": "mm", "joints": "deg", "prior": "-"}
+    sig = graph.sigmas
+    for level, (e, s, w) in lin.raw.items():
+        n_rows, h = red.get(level, (0, 0.0))
+        redundancy = n_rows - h
+        vf = float(np.sum(w * s**2) / redundancy) if redundancy > 1e-9 else float("nan")
+        if level == "poses":
+            rms_pos = float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1))))
+            rms_rot = float(np.degrees(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))))
+            out[level] = LevelSummary(len(e), rms_pos, "mm", sig.pose_position, vf, redundancy, rms_rot,
+                                      float(np.degrees(sig.pose_rotation)))
+            continue
+        norms = np.linalg.norm(e, axis=1)
+        scale = np.degrees(1.0) if level == "joints" else 1.0
+        sigma = {"probes": sig.probe, "kinematic": sig.kinematic, "centres": sig.centre,
+                 "joints": sig.joint * np.degrees(1.0), "prior": float("nan")}[level]
+        out[level] = LevelSummary(len(e), float(np.sqrt(np.mean(norms**2)) * scale), units[level], float(sigma),
+                                  vf, redundancy)
+    return out
+
+
+def _unidentifiable(graph: Graph, state: State) -> dict[str, list[str]]:
+    return analyse_information(graph.parameter_information(state), graph.params.names).redundant
+
+
+def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
+    """Identify the kinematic parameters of ``model`` from ``ds`` by one factor-graph solve.
+
+    Raises
+    ------
+    FgcalError
+        If the data cannot determine the parameters (too few poses), naming how many are needed.
+    """
+    params = model.parameters(extra=options.extra, exclude=options.exclude)
+    names = list(params.names)
+    levels = _levels(ds, options)
+    # Degrees of freedom per pose: full pose 6, two balls 5, one ball 3.
+    dof = 0
+    for p in ds.pose_ids:
+        balls = set()
+        full = False
+        for lv in levels:
+            obs = getattr(ds, lv)
+            if lv == "poses":
+                full |= bool(np.any(obs.pose == p))
+            else:
+                balls |= set(obs.ball[obs.pose == p].tolist())
+        dof += _pose_dof(min(len(balls), 3), full)
+    if dof < len(names):
+        raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
+                         f"{len(names)} parameters need at least {len(names)} "
+                         f"(at least {int(np.ceil(len(names) / 6))} full poses; more to average the noise)")
+
+    graph, state, pose_ids = build_graph(ds, model, names, options)
+    held_info = []
+    redundant = _unidentifiable(graph, state)
+    if redundant:
+        for n, partners in redundant.items():
+            reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
+            held_info.append({"name": n, "value": float(slots_to_file_units(graph.held)[SLOT_NAMES.index(n)]),
+                              "reason": reason})
+            log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
+        names = [n for n in names if n not in redundant]
+        graph, state, pose_ids = build_graph(ds, model, names, options)
+
+    state, iterations, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+    scale = {}
+    if options.estimate_noise:
+        for _ in range(8):
+            S = graph.parameter_information(state)
+            summaries = _level_summaries(graph, state, np.linalg.inv(S))
+            factors_ = {lv: s.variance_factor for lv, s in summaries.items()
+                        if lv in ("probes", "centres", "poses") and np.isfinite(s.variance_factor)}
+            if all(abs(f - 1) < 0.01 for f in factors_.values()):
+                break
+            for lv, f in factors_.items():
+                scale[lv] = scale.get(lv, 1.0) * np.sqrt(f)
+            graph_new, _, _ = build_graph(ds, model, names, options, scale=scale)
+            graph_new.held = graph.held
+            graph = graph_new
+            state, it2, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+            iterations += it2
+
+    cov = gtsam_covariance(graph, state)
+    final = graph.params
+    Sinfo = graph.parameter_information(state)
+    dscale = 1.0 / np.sqrt(np.diag(Sinfo))
+    eig = np.linalg.eigvalsh(Sinfo * np.outer(dscale, dscale))
+    sv = np.sqrt(np.clip(eig, 0.0, None))[::-1]
+    still = _unidentifiable(graph, state)
+    if still:
+        log.warning("at the solution these parameters are not identifiable: %s", ", ".join(still))
+    slots = final.full(state.theta, graph.held)
+    slots_file = slots_to_file_units(slots)
+    est = final.to_file_units(state.theta)
+    nominal = final.to_file_units(final.nominal())
+    cov_file = final.covariance_to_file_units(cov)
+    sigma = np.sqrt(np.diag(cov_file))
+    levels_summary = _level_summaries(graph, state, cov)
+    opts = asdict(options)
+    opts["noise_scale"] = scale
+    return CalibrationResult(
+        robot=ds.robot, n_poses=int(len(pose_ids)),
+        parameters=[ParameterEstimate(n, u, float(a), float(b), float(s))
+                    for n, u, a, b, s in zip(final.names, final.units, nominal, est, sigma)],
+        covariance=cov_file, slots={n: float(v) for n, v in zip(SLOT_NAMES, slots_file)}, held=held_info,
+        levels=levels_summary, iterations=iterations, converged=converged, cost=float(graph.cost(state)),
+        singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
+        pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
+        fgcal_version=__version__)
+
+
+def nonlinear_graph(graph: Graph, state: State):
+    """The same problem as a ``gtsam.NonlinearFactorGraph`` of the ``factors`` package, with values.
+
+    GTSAM's own optimisers and ``gtsam.Marginals`` work on it directly; it is slower than the
+    batched solve (each custom factor is called from C++ with a copy of all values) but is the
+    reference the batched solve is tested against.
+    """
+    import factors as fx
+
+    g = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    t_key = fx.theta_key()
+    values.insert(t_key, np.asarray(state.theta, dtype=float))
+    sig = graph.sigmas
+    robust = graph.robust
+    k = graph.robust_k
+
+    def qargs(i):
+        return {"q_key": fx.joint_key(i)} if graph.joint_vars else {"q_fixed": graph.readings[i]}
+
+    if graph.joint_vars:
+        for i in range(graph.n_poses):
+            values.insert(fx.joint_key(i), np.asarray(state.q[i], dtype=float))
+            g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
+    for j in range(len(graph.ball_pose)):
+        values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
+        g.add(fx.ball_centre_factor(graph.index, graph.held, graph.ball_offset[j], sig.kinematic, t_key=t_key,
+                                    c_key=fx.centre_key(j), **qargs(graph.ball_pose[j])))
+    if graph.probes is not None:
+        for j, xyz in zip(graph.probes[1], graph.probes[2]):
+            f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, robust)
+            if robust:
+                f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, None)
+                f = f.cloneWithNewNoiseModel(fx.noise_model([sig.probe], robust, k))
+            g.add(f)
+    if graph.centres is not None:
+        for i, off, xyz in zip(*graph.centres):
+            f = fx.ball_centre_factor(graph.index, graph.held, off, sig.centre, t_key=t_key, c_measured=xyz, **qargs(i))
+            g.add(f.cloneWithNewNoiseModel(fx.noise_model([sig.centre] * 3, robust, k)) if robust else f)
+    if graph.poses is not None:
+        for i, T in zip(*graph.poses):
+            f = fx.pose_factor(graph.index, graph.held, T, sig.pose_rotation, sig.pose_position, t_key=t_key, **qargs(i))
+            if robust:
+                f = f.cloneWithNewNoiseModel(fx.noise_model([sig.pose_rotation] * 3 + [sig.pose_position] * 3, robust, k))
+            g.add(f)
+    if graph.prior is not None:
+        g.add(fx.parameter_prior(t_key, graph.prior[0], graph.prior[1]))
+    return g, values

@@ -1,0 +1,339 @@
+"""The calibration problem as a factor graph over parameters, joints and ball centres.
+
+Variables: the parameter vector ``theta`` (P), each pose's joints ``q_i`` (6, rad; only when
+the readings carry noise) and each probed ball's centre ``c_ib`` (3, mm). Factors (see the
+``factors`` package): probe points on spheres around ``c_ib``; ``c_ib`` at the forward
+kinematics (a tight "kinematic" factor whose sigma is the unmodelled error); measured centres
+and poses against the forward kinematics; joint readings as priors on ``q_i``; an optional prior
+on ``theta``.
+
+Every pose's variables touch only that pose's factors and ``theta``: the graph is an arrow.
+:class:`Graph` evaluates all factors at once with the batched error functions and stores the
+whitened Jacobian in per-pose blocks (padded to equal size), so a Gauss-Newton step eliminates
+the per-pose variables in one batched Schur complement. :func:`to_gtsam` turns the same
+linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import factors as fx
+from .model import ParameterSet
+
+__all__ = ["Sigmas", "Graph", "State", "LEVELS"]
+
+LEVELS = ("probes", "kinematic", "centres", "poses", "joints", "prior")
+
+
+@dataclass(frozen=True)
+class Sigmas:
+    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact."""
+
+    probe: float
+    centre: float
+    pose_position: float
+    pose_rotation: float
+    joint: float
+    kinematic: float = 1e-4
+
+
+@dataclass
+class State:
+    """The variables: ``theta`` (P,), ``q`` (N, 6) rad, ``c`` (Nb, 3) mm."""
+
+    theta: np.ndarray
+    q: np.ndarray
+    c: np.ndarray
+
+    def copy(self) -> "State":
+        return State(self.theta.copy(), self.q.copy(), self.c.copy())
+
+
+@dataclass
+class Linearisation:
+    """Whitened residuals and Jacobians in per-pose blocks at one state.
+
+    Attributes
+    ----------
+    r : ndarray, shape (N, m)
+    J_theta : ndarray, shape (N, m, P)
+    J_local : ndarray, shape (N, m, nz)
+    prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
+    cost : float
+        Half the (robust) sum of squares.
+    weights : dict of level to ndarray
+        Robust weights per factor.
+    """
+
+    r: np.ndarray
+    J_theta: np.ndarray
+    J_local: np.ndarray
+    prior_r: np.ndarray
+    prior_J: np.ndarray
+    cost: float
+    raw: dict = field(default_factory=dict)
+
+
+def _robust(s, kind, k):
+    """Weights and costs of whitened factor norms ``s`` under a robust loss."""
+    if kind is None:
+        return np.ones_like(s), 0.5 * s**2
+    if kind == "huber":
+        w = np.where(s <= k, 1.0, k / np.maximum(s, 1e-300))
+        return w, np.where(s <= k, 0.5 * s**2, k * (s - 0.5 * k))
+    if kind == "cauchy":
+        return 1.0 / (1.0 + (s / k) ** 2), 0.5 * k**2 * np.log1p((s / k) ** 2)
+    raise ValueError(f"unknown robust loss {kind!r}")
+
+
+class Graph:
+    """The factor graph of one dataset, laid out for batched evaluation.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        Estimated parameters; the other slots are held at ``held``.
+    held : ndarray, shape (37,)
+    readings : ndarray, shape (N, 6)
+        Joint readings (rad).
+    sigmas : Sigmas
+    probes : tuple (pose_index (Mp,), ball_var (Mp,), xyz (Mp, 3)) or None
+        ``ball_var`` indexes ``ball_pose``/``ball_offset``.
+    ball_pose, ball_offset : ndarray, shapes (Nb,), (Nb, 3)
+        The ball-centre variables: their pose index and tool-frame offset.
+    radius : float
+    centres : tuple (pose_index (Mc,), offset (Mc, 3), xyz (Mc, 3)) or None
+    poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
+    prior : tuple (mean (P,), sigma (P,)) or None
+    robust : {None, "huber", "cauchy"}, robust_k : float
+    """
+
+    def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
+                 ball_offset=None, radius=0.0, centres=None, poses=None, prior=None, robust=None, robust_k=None):
+        self.params = params
+        self.index = params.index
+        self.held = np.asarray(held, dtype=float)
+        self.readings = np.asarray(readings, dtype=float).reshape(-1, 6)
+        self.sigmas = sigmas
+        self.radius = float(radius)
+        self.robust = robust
+        self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
+        self.prior = prior
+        self.joint_vars = sigmas.joint > 0
+        n = len(self.readings)
+        self.n_poses = n
+        nb = 0 if ball_pose is None else len(ball_pose)
+        self.ball_pose = np.zeros(0, dtype=int) if ball_pose is None else np.asarray(ball_pose, dtype=int)
+        self.ball_offset = np.zeros((0, 3)) if ball_offset is None else np.asarray(ball_offset, dtype=float)
+        self.probes = probes
+        self.centres = centres
+        self.poses = poses
+
+        # Local variable columns: [q (6, if variables)] then 3 per ball variable of the pose.
+        qdim = 6 if self.joint_vars else 0
+        balls_per_pose = np.bincount(self.ball_pose, minlength=n) if nb else np.zeros(n, dtype=int)
+        self.ball_slot = np.zeros(nb, dtype=int)
+        counter = np.zeros(n, dtype=int)
+        for j, p in enumerate(self.ball_pose):
+            self.ball_slot[j] = counter[p]
+            counter[p] += 1
+        self.ball_col = qdim + 3 * self.ball_slot
+        self.nz = qdim + 3 * (int(balls_per_pose.max()) if nb else 0)
+        self.local_used = np.zeros((n, self.nz), dtype=bool)
+        self.local_used[:, :qdim] = True
+        for p, s in zip(self.ball_pose, self.ball_slot):
+            self.local_used[p, qdim + 3 * s:qdim + 3 * s + 3] = True
+
+        # Rows per pose, in this order: probes, kinematic, centres, poses, joints.
+        rows = np.zeros(n, dtype=int)
+
+        def take(pose_index, width):
+            pose_index = np.asarray(pose_index, dtype=int)
+            start = np.zeros(len(pose_index), dtype=int)
+            for k, p in enumerate(pose_index):
+                start[k] = rows[p]
+                rows[p] += width
+            return start
+
+        self.row = {}
+        self.level_rows = {}
+        if probes is not None:
+            self.row["probes"] = take(probes[0], 1)
+        if nb:
+            self.row["kinematic"] = take(self.ball_pose, 3)
+        if centres is not None:
+            self.row["centres"] = take(centres[0], 3)
+        if poses is not None:
+            self.row["poses"] = take(poses[0], 6)
+        if self.joint_vars:
+            self.row["joints"] = take(np.arange(n), 6)
+        self.m = int(rows.max()) if n else 0
+        self.rows_per_pose = rows
+        # Row lists per pose, for GTSAM factors: each ball's probe and kinematic rows, and the
+        # rows that touch only theta and q (centres, poses, joints).
+        self.ball_rows = [[] for _ in range(n)]
+        per_ball = {j: [] for j in range(nb)}
+        if probes is not None:
+            for j, start in zip(probes[1], self.row["probes"]):
+                per_ball[int(j)].append(int(start))
+        if nb:
+            for j, start in enumerate(self.row["kinematic"]):
+                per_ball[j] += [int(start), int(start) + 1, int(start) + 2]
+        for j, rws in per_ball.items():
+            self.ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
+        self.pose_rows = [[] for _ in range(n)]
+        for level, width in (("centres", 3), ("poses", 6), ("joints", 6)):
+            if level in self.row:
+                pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "joints": lambda: np.arange(n)}
+                for p, start in zip(pose_of[level](), self.row[level]):
+                    self.pose_rows[p] += list(range(int(start), int(start) + width))
+        self.pose_rows = [np.array(r, dtype=int) for r in self.pose_rows]
+
+    # ------------------------------------------------------------------ evaluation
+    def initial_state(self, theta, centres_guess=None) -> State:
+        c = np.zeros((len(self.ball_pose), 3)) if centres_guess is None else np.asarray(centres_guess, dtype=float)
+        return State(np.asarray(theta, dtype=float).copy(), self.readings.copy(), c.copy())
+
+    def joints(self, state: State) -> np.ndarray:
+        return state.q if self.joint_vars else self.readings
+
+    def linearise(self, state: State, weights=None) -> Linearisation:
+        """Whitened residuals and Jacobians at ``state``; robust weights from the state itself."""
+        n, m, P, nz = self.n_poses, self.m, len(self.index), self.nz
+        r = np.zeros((n, m))
+        Jt = np.zeros((n, m, P))
+        Jz = np.zeros((n, m, nz))
+        q = self.joints(state)
+        cost = 0.0
+        raw = {}
+
+        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0):
+            nonlocal cost
+            width = e.shape[1]
+            ew = e / sigma
+            s = np.linalg.norm(ew, axis=1)
+            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses") else None, self.robust_k)
+            raw[level] = (e, s, w)
+            cost += float(rho.sum())
+            sw = np.sqrt(w)[:, None] / sigma
+            rows_ = start[:, None] + np.arange(width)
+            r[pose[:, None], rows_] = e * sw
+            if J_t is not None:
+                Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
+            if J_q is not None and self.joint_vars:
+                Jz[pose[:, None, None], rows_[:, :, None], np.arange(6)[None, None, :]] = J_q * sw[:, :, None]
+            if J_c is not None:
+                cols = c_col[:, None] + np.arange(3)
+                Jz[pose[:, None, None], rows_[:, :, None], cols[:, None, :]] = J_c * sw[:, :, None]
+
+        if self.probes is not None:
+            pose_i, ball_var, xyz = self.probes
+            e, Jc = fx.probe_error(state.c[ball_var], xyz, self.radius)
+            put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
+                sigma=self.sigmas.probe)
+        if len(self.ball_pose):
+            e, J_t, J_q = fx.ball_centre_error(state.theta, q[self.ball_pose], self.ball_offset, state.c,
+                                               self.index, self.held)
+            J_c = np.broadcast_to(-np.eye(3), (len(self.ball_pose), 3, 3))
+            put("kinematic", self.ball_pose, self.row["kinematic"], e, J_t, J_q, J_c, self.ball_col,
+                sigma=self.sigmas.kinematic)
+        if self.centres is not None:
+            pose_i, offset, xyz = self.centres
+            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held)
+            put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
+        if self.poses is not None:
+            pose_i, T = self.poses
+            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held)
+            sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
+            put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
+        if self.joint_vars:
+            e = fx.joint_error(state.q, self.readings)
+            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(6), (n, 6, 6)),
+                sigma=self.sigmas.joint)
+        prior_r = np.zeros(0)
+        prior_J = np.zeros((0, P))
+        if self.prior is not None:
+            mean, sig = self.prior
+            prior_r = (state.theta - mean) / sig
+            prior_J = np.diag(1.0 / sig)
+            raw["prior"] = (state.theta - mean, np.abs(prior_r), np.ones(P))
+            cost += 0.5 * float(prior_r @ prior_r)
+        return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw)
+
+    def cost(self, state: State) -> float:
+        return self.linearise(state).cost
+
+    # ------------------------------------------------------------------ solving
+    def normal_equations(self, lin: Linearisation):
+        A = np.einsum("nmp,nmq->pq", lin.J_theta, lin.J_theta) + lin.prior_J.T @ lin.prior_J
+        B = np.einsum("nmp,nmz->npz", lin.J_theta, lin.J_local)
+        D = np.einsum("nmz,nmy->nzy", lin.J_local, lin.J_local)
+        g_t = np.einsum("nmp,nm->p", lin.J_theta, lin.r) + lin.prior_J.T @ lin.prior_r
+        g_z = np.einsum("nmz,nm->nz", lin.J_local, lin.r)
+        # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
+        D[~self.local_used] = 0.0
+        pad = ~self.local_used
+        D[:, np.arange(self.nz), np.arange(self.nz)] += pad
+        return A, B, D, g_t, g_z
+
+    def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0):
+        """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
+        if damping:
+            A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
+            dd = np.maximum(np.diagonal(D, axis1=1, axis2=2), 1e-12)
+            D = D + damping * np.einsum("nz,zy->nzy", dd, np.eye(self.nz))
+        Dinv = np.linalg.inv(D) if self.nz else D
+        BD = np.einsum("npz,nzy->npy", B, Dinv)
+        S = A - np.einsum("npz,nqz->pq", BD, B)
+        rhs = None
+        if g_t is not None:
+            rhs = g_t - np.einsum("npz,nz->p", BD, g_z)
+        return S, rhs, Dinv
+
+    def step(self, state: State, lin: Linearisation, damping: float):
+        A, B, D, g_t, g_z = self.normal_equations(lin)
+        S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping)
+        d_theta = -np.linalg.solve(S, rhs)
+        d_z = -np.einsum("nzy,ny->nz", Dinv, g_z + np.einsum("npz,p->nz", B, d_theta))
+        new = state.copy()
+        new.theta = state.theta + d_theta
+        if self.joint_vars:
+            new.q = state.q + d_z[:, :6]
+        if len(self.ball_pose):
+            cols = self.ball_col[:, None] + np.arange(3)
+            new.c = state.c + d_z[self.ball_pose[:, None], cols]
+        return new, d_theta, -float(rhs @ d_theta)
+
+    def parameter_information(self, state: State) -> np.ndarray:
+        """The (P, P) information of theta with the per-pose variables marginalised out."""
+        lin = self.linearise(state)
+        A, B, D, _, _ = self.normal_equations(lin)
+        S, _, _ = self.reduced(A, B, D)
+        return S
+
+    def leverage_by_level(self, state: State, covariance) -> dict:
+        """Redundancy of each factor level: rows minus the sum of the hat matrix diagonal."""
+        lin = self.linearise(state)
+        A, B, D, _, _ = self.normal_equations(lin)
+        _, _, Dinv = self.reduced(A, B, D)
+        St = covariance  # (P, P) = S^-1
+        E = -np.einsum("nzy,npy->nzp", Dinv, B)  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
+        Szt = np.einsum("nzp,pq->nzq", E, St)
+        Szz = Dinv + np.einsum("nzp,nyp->nzy", Szt, E)
+        Jt, Jz = lin.J_theta, lin.J_local
+        h = (np.einsum("nmp,pq,nmq->nm", Jt, St, Jt) + 2 * np.einsum("nmp,nzp,nmz->nm", Jt, Szt, Jz)
+             + np.einsum("nmz,nzy,nmy->nm", Jz, Szz, Jz))
+        out = {}
+        for level, start in self.row.items():
+            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": 6}[level]
+            pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
+                    "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                    "joints": lambda: np.arange(self.n_poses)}[level]()
+            rows_ = start[:, None] + np.arange(width)
+            out[level] = (rows_.size, float(h[pose[:, None], rows_].sum()))
+        if self.prior is not None:
+            hp = np.einsum("kp,pq,kq->k", lin.prior_J, St, lin.prior_J)
+            out["prior"] = (len(hp), float(hp.sum()))
+        return out

@@ -1,0 +1,166 @@
+"""Calibration results (``fgcal-result/1``, JSON): a typed dataclass, saved and loaded atomically."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FgcalError
+from .model import SLOT_NAMES, slots_from_file_units
+from .yamlio import atomic_write_text
+
+__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "CalibrationResult", "save_result", "load_result"]
+
+FORMAT = "fgcal-result/1"
+
+
+@dataclass
+class ParameterEstimate:
+    """One identified parameter in file units (mm or deg)."""
+
+    name: str
+    unit: str
+    nominal: float
+    estimate: float
+    sigma: float
+
+
+@dataclass
+class LevelSummary:
+    """Residuals of one measurement level after the solve.
+
+    ``rms`` is in ``unit`` (mm; for poses the position part, with ``rms_rotation_deg`` beside);
+    ``sigma`` is the noise assumed; ``variance_factor`` is the sum of squared whitened residuals
+    over the level's redundancy: near 1 when the assumed noise is right.
+    """
+
+    n: int
+    rms: float
+    unit: str
+    sigma: float
+    variance_factor: float
+    redundancy: float
+    rms_rotation_deg: float | None = None
+    sigma_rotation_deg: float | None = None
+
+
+@dataclass
+class CalibrationResult:
+    """What a calibration found, and how far to trust it.
+
+    Attributes
+    ----------
+    robot : str
+        Model reference as the dataset named it.
+    n_poses : int
+    parameters : list of ParameterEstimate
+        The identified parameters in DESIGN.md order.
+    covariance : ndarray, shape (P, P)
+        Joint covariance in file units.
+    slots : dict of str to float
+        All 37 slots of the calibrated chain (file units), held ones included.
+    held : list of dict
+        Parameters the data could not identify: ``{"name", "value", "reason"}``.
+    levels : dict of str to LevelSummary
+    singular_values : list of float
+        Of the information matrix scaled to unit diagonal (square roots of its eigenvalues).
+    """
+
+    robot: str
+    n_poses: int
+    parameters: list[ParameterEstimate]
+    covariance: np.ndarray
+    slots: dict[str, float]
+    held: list[dict] = field(default_factory=list)
+    levels: dict[str, LevelSummary] = field(default_factory=dict)
+    iterations: int = 0
+    converged: bool = True
+    cost: float = 0.0
+    singular_values: list[float] = field(default_factory=list)
+    condition_number: float = float("nan")
+    pose_ids: list[int] = field(default_factory=list)
+    options: dict = field(default_factory=dict)
+    dataset: str | None = None
+    fgcal_version: str = ""
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.parameters]
+
+    @property
+    def estimate(self) -> np.ndarray:
+        return np.array([p.estimate for p in self.parameters])
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.array([p.sigma for p in self.parameters])
+
+    def slot_vector(self) -> np.ndarray:
+        """The calibrated 37-slot vector in internal units (mm, rad)."""
+        return slots_from_file_units(np.array([self.slots[n] for n in SLOT_NAMES]))
+
+    def correlation(self) -> np.ndarray:
+        s = np.sqrt(np.diag(self.covariance))
+        return self.covariance / np.outer(s, s)
+
+    def to_dict(self) -> dict:
+        d = {"format": FORMAT, "robot": self.robot, "n_poses": self.n_poses,
+             "parameters": [asdict(p) for p in self.parameters],
+             "covariance": np.asarray(self.covariance).tolist()}
+        for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
+                    "pose_ids", "options", "dataset", "fgcal_version"):
+            d[key] = getattr(self, key)
+        d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
+        return d
+
+
+def _json_safe(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None if math.isnan(obj) else ("Infinity" if obj > 0 else "-Infinity")
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer)):
+        return _json_safe(obj.item())
+    return obj
+
+
+def save_result(result: CalibrationResult, path) -> None:
+    """Write ``result`` as ``fgcal-result/1`` JSON, atomically."""
+    atomic_write_text(path, json.dumps(_json_safe(result.to_dict()), indent=1) + "\n")
+
+
+def load_result(path) -> CalibrationResult:
+    """Read and check a result file; a malformed one raises ``FgcalError`` naming the file."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FgcalError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FgcalError(f"{path}: not a JSON result file ({exc})") from None
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        raise FgcalError(f"{path}: format {d.get('format') if isinstance(d, dict) else None!r} is not {FORMAT!r}")
+    try:
+        params = [ParameterEstimate(**p) for p in d["parameters"]]
+        cov = np.array(d["covariance"], dtype=float).reshape(len(params), len(params))
+        slots = {k: float(v) for k, v in d["slots"].items()}
+        missing = [n for n in SLOT_NAMES if n not in slots]
+        if missing:
+            raise ValueError(f"slots lack {', '.join(missing)}")
+        levels = {k: LevelSummary(**v) for k, v in d.get("levels", {}).items()}
+        cond = d.get("condition_number")
+        cond = float("inf") if cond == "Infinity" else (float("nan") if cond is None else float(cond))
+        return CalibrationResult(
+            robot=str(d["robot"]), n_poses=int(d["n_poses"]), parameters=params, covariance=cov, slots=slots,
+            held=list(d.get("held", [])), levels=levels, iterations=int(d.get("iterations", 0)),
+            converged=bool(d.get("converged", True)), cost=float(d.get("cost", 0.0)),
+            singular_values=[float(v) for v in d.get("singular_values", [])], condition_number=cond,
+            pose_ids=[int(v) for v in d.get("pose_ids", [])], options=dict(d.get("options", {})),
+            dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise FgcalError(f"{path}: malformed result: {exc}") from None

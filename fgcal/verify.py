@@ -1,0 +1,136 @@
+"""The paper's VERIFY: position and orientation errors of a calibrated model at other poses.
+
+At each pose of a verification dataset the calibrated (and, for comparison, the nominal) model's
+tool pose is compared with the measured pose, and with the true robot's where a simulated
+dataset has ``truth.yaml``, through the differential displacement and orientation of eq. (17).
+No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .dataset import Dataset
+from .errors import FgcalError
+from .kinematics import forward
+from .measure import measure_probes
+from .model import SLOT_NAMES, RobotModel, slots_from_file_units
+from .posefit import rigid_fit
+from .result import CalibrationResult
+from .transforms import pose_difference, quaternion_to_matrix
+
+__all__ = ["ErrorStats", "Verification", "measured_poses", "verify", "error_stats"]
+
+
+@dataclass
+class ErrorStats:
+    mean: float
+    rms: float
+    max: float
+
+
+def error_stats(values) -> ErrorStats:
+    v = np.asarray(values, dtype=float)
+    if not v.size:
+        return ErrorStats(float("nan"), float("nan"), float("nan"))
+    return ErrorStats(float(v.mean()), float(np.sqrt(np.mean(v**2))), float(v.max()))
+
+
+@dataclass
+class Comparison:
+    """Errors of one model against one reference, per pose (mm, deg) and summarised."""
+
+    position_mm: np.ndarray
+    orientation_deg: np.ndarray
+
+    def summary(self) -> dict:
+        return {"position_mm": vars(error_stats(self.position_mm)),
+                "orientation_deg": vars(error_stats(self.orientation_deg))}
+
+
+@dataclass
+class Verification:
+    """Calibrated and nominal errors against the measurements, and against the truth if known."""
+
+    pose_ids: np.ndarray
+    after: Comparison
+    before: Comparison
+    truth_after: Comparison | None = None
+    truth_before: Comparison | None = None
+    reference: str = "measured poses"
+    skipped: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
+        d.update(self.after.summary())
+        d["before"] = self.before.summary()
+        if self.truth_after is not None:
+            d["truth"] = self.truth_after.summary()
+            d["truth"]["before"] = self.truth_before.summary()
+        d["poses"] = [
+            {"pose": int(p), "position_mm": float(a), "orientation_deg": float(o),
+             "before_position_mm": float(bp), "before_orientation_deg": float(bo)}
+            for p, a, o, bp, bo in zip(self.pose_ids, self.after.position_mm, self.after.orientation_deg,
+                                       self.before.position_mm, self.before.orientation_deg)]
+        d["skipped"] = self.skipped
+        return d
+
+
+def measured_poses(ds: Dataset):
+    """Measured tool poses ``(pose_ids, T (K, 4, 4), skipped)`` from the richest level present.
+
+    ``poses.csv`` as it is; otherwise a rigid fit of three or more ball centres (from
+    ``centres.csv``, or fitted to ``probes.csv`` with the quality checks of ``fgcal measure``).
+    """
+    skipped = []
+    if ds.poses is not None:
+        T = np.tile(np.eye(4), (len(ds.poses), 1, 1))
+        T[:, :3, :3] = quaternion_to_matrix(ds.poses.quat)
+        T[:, :3, 3] = ds.poses.xyz
+        return ds.poses.pose.copy(), T, skipped
+    if ds.centres is not None:
+        ids, Ts = [], []
+        sigma = ds.noise.centre_sigma if ds.noise.centre_sigma is not None else ds.noise.cmm_sigma
+        for p in ds.pose_ids:
+            sel = ds.centres.pose == p
+            if sel.sum() < 3:
+                skipped.append(f"pose {p}: {int(sel.sum())} centre(s), a pose needs 3")
+                continue
+            fit = rigid_fit(ds.tooling.offsets(ds.centres.ball[sel]), ds.centres.xyz[sel], sigma=sigma)
+            if not fit.ok:
+                skipped.append(f"pose {p}: {fit.status}")
+                continue
+            ids.append(p)
+            Ts.append(fit.T)
+        return np.array(ids, dtype=int), np.array(Ts).reshape(-1, 4, 4), skipped
+    if ds.probes is not None:
+        m = measure_probes(ds)
+        skipped += [f"pose {q.pose}: {q.status}" for q in m.quality if q.ball == "*" and q.status != "ok"]
+        T = np.tile(np.eye(4), (len(m.poses), 1, 1))
+        T[:, :3, :3] = quaternion_to_matrix(m.poses.quat)
+        T[:, :3, 3] = m.poses.xyz
+        return m.poses.pose.copy(), T, skipped
+    raise FgcalError(f"{ds.path or 'dataset'}: no measurements to verify against")
+
+
+def _compare(T_model, T_ref) -> Comparison:
+    d, delta = pose_difference(T_ref, T_model)
+    return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)))
+
+
+def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
+    """Compare the calibrated and nominal models with ``ds``'s measurements (and truth)."""
+    ids, T_meas, skipped = measured_poses(ds)
+    if not len(ids):
+        raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
+    q = ds.joints_rad[ds.row_of(ids)]
+    T_cal = forward(result.slot_vector(), q)
+    T_nom = forward(model.nominal, q)
+    out = Verification(ids, _compare(T_cal, T_meas), _compare(T_nom, T_meas), skipped=skipped)
+    if ds.truth is not None:
+        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
+        T_true = forward(truth, q)
+        out.truth_after = _compare(T_cal, T_true)
+        out.truth_before = _compare(T_nom, T_true)
+    return out

@@ -1,0 +1,121 @@
+"""Every factor's analytic Jacobian against gtsam.utils.numerical_derivative at seeded random points."""
+import gtsam
+import numpy as np
+import pytest
+from gtsam.utils.numerical_derivative import numericalDerivative11
+
+import factors
+from fgcal.kinematics import forward
+from fgcal.model import SLOT_IS_ANGLE
+from fgcal.transforms import quaternion_to_matrix
+
+from conftest import random_joints
+
+
+def _setup(puma, seed):
+    rng = np.random.default_rng(seed)
+    params = puma.parameters()
+    held = puma.nominal + np.where(SLOT_IS_ANGLE, np.radians(0.3), 1.0) * rng.normal(size=37)
+    theta = params.take(held)
+    q = random_joints(puma, 1, seed=seed)[0]
+    return rng, params.index, held, theta, q
+
+
+def _check(factor, values, delta=1e-6, atol=1e-6):
+    """Compare the factor's whitened Jacobian blocks with numerical derivatives of its whitened error."""
+    jf = factor.linearize(values)
+    A, _ = jf.jacobian()
+    col = 0
+    for key in factor.keys():
+        x0 = values.atVector(key)
+
+        def h(x, key=key):
+            v = gtsam.Values(values)
+            v.update(key, x)
+            return factor.whitenedError(v)
+
+        num = numericalDerivative11(h, x0, delta)
+        analytic = A[:, col:col + len(x0)]
+        np.testing.assert_allclose(analytic, num, atol=atol * max(1.0, np.abs(num).max()), rtol=1e-5)
+        col += len(x0)
+    assert col == A.shape[1]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_probe_factor(seed):
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(0, 1000, 3)
+    p = c + 6.35 * rng.normal(size=3) / 2
+    f = factors.probe_factor(factors.centre_key(0), p, 6.35, 0.01)
+    v = gtsam.Values()
+    v.insert(factors.centre_key(0), c)
+    _check(f, v)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("variant", ["variables", "measured centre, fixed joints"])
+def test_ball_centre_factor(puma, seed, variant):
+    rng, index, held, theta, q = _setup(puma, seed)
+    offset = np.array([0.0, -90.0, 0.0])
+    T = forward(held, q)[0]
+    c = T[:3, :3] @ offset + T[:3, 3] + rng.normal(size=3)
+    v = gtsam.Values()
+    v.insert(factors.theta_key(), theta)
+    if variant == "variables":
+        v.insert(factors.joint_key(0), q)
+        v.insert(factors.centre_key(0), c)
+        f = factors.ball_centre_factor(index, held, offset, 0.01, t_key=factors.theta_key(),
+                                       q_key=factors.joint_key(0), c_key=factors.centre_key(0))
+    else:
+        f = factors.ball_centre_factor(index, held, offset, 0.01, t_key=factors.theta_key(), q_fixed=q, c_measured=c)
+    _check(f, v)
+    # the unwhitened error is exactly FK * offset - centre
+    np.testing.assert_allclose(f.unwhitenedError(v), T[:3, :3] @ offset + T[:3, 3] - c, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pose_factor(puma, seed):
+    rng, index, held, theta, q = _setup(puma, seed)
+    T = forward(held, q)[0]
+    T_meas = np.eye(4)
+    T_meas[:3, :3] = quaternion_to_matrix(np.r_[1.0, 0.2 * rng.normal(size=3)]) @ T[:3, :3]  # ~20 deg off
+    T_meas[:3, 3] = T[:3, 3] + rng.normal(size=3)
+    v = gtsam.Values()
+    v.insert(factors.theta_key(), theta)
+    v.insert(factors.joint_key(0), q)
+    f = factors.pose_factor(index, held, T_meas, 1e-4, 0.01, t_key=factors.theta_key(), q_key=factors.joint_key(0))
+    _check(f, v)
+
+
+def test_priors(puma):
+    rng, index, held, theta, q = _setup(puma, 3)
+    v = gtsam.Values()
+    v.insert(factors.theta_key(), theta)
+    v.insert(factors.joint_key(0), q)
+    _check(factors.joint_prior(factors.joint_key(0), q + 1e-4, 5e-5), v)
+    _check(factors.parameter_prior(factors.theta_key(), theta * 0.99, np.full(len(theta), 0.1)), v)
+
+
+def test_the_check_catches_a_wrong_jacobian():
+    """A deliberately wrong analytic Jacobian fails the same comparison."""
+    key = factors.centre_key(0)
+    p = np.array([1.0, 2.0, 3.0])
+
+    def error(this, values, H):
+        c = values.atVector(key)
+        if H is not None:
+            H[0] = ((p - c) / np.linalg.norm(p - c))[None]  # sign flipped
+        return np.array([np.linalg.norm(p - c) - 1.0])
+
+    f = gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, 0.1), [key], error)
+    v = gtsam.Values()
+    v.insert(key, np.array([0.5, 0.5, 0.5]))
+    with pytest.raises(AssertionError):
+        _check(f, v)
+
+
+def test_robust_noise_models():
+    assert isinstance(factors.noise_model([1.0], "huber"), gtsam.noiseModel.Robust)
+    assert isinstance(factors.noise_model([1.0], "cauchy"), gtsam.noiseModel.Robust)
+    with pytest.raises(ValueError, match="unknown robust"):
+        factors.noise_model([1.0], "tukey-ish")
