@@ -405,6 +405,18 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     levels_summary = _level_summaries(graph, state, cov)
     opts = asdict(options)
     opts["noise_scale"] = scale
+    raw = graph.linearise(state).raw
+    residuals = {}
+    if "probes" in raw:
+        residuals["probes_mm"] = raw["probes"][0][:, 0].tolist()
+    if "centres" in raw:
+        residuals["centres_mm"] = raw["centres"][0].ravel().tolist()
+    if "poses" in raw:
+        residuals["poses_position_mm"] = raw["poses"][0][:, 3:].ravel().tolist()
+        residuals["poses_rotation_deg"] = np.degrees(raw["poses"][0][:, :3]).ravel().tolist()
+    if "joints" in raw:
+        residuals["joints_deg"] = np.degrees(raw["joints"][0]).ravel().tolist()
+    tool_xyz = forward(slots, graph.joints(state))[:, :3, 3]
     return CalibrationResult(
         robot=ds.robot, n_poses=int(len(pose_ids)),
         parameters=[ParameterEstimate(n, u, float(a), float(b), float(s))
@@ -413,7 +425,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         levels=levels_summary, iterations=iterations, converged=converged, cost=float(graph.cost(state)),
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
-        fgcal_version=__version__)
+        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist())
 
 
 def nonlinear_graph(graph: Graph, state: State):

@@ -204,6 +204,35 @@ def _cmd_verify(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    import json
+
+    from .report import write_report
+    from .result import load_result
+
+    result = load_result(args.result)
+    verification = None
+    if args.verify is not None:
+        try:
+            verification = json.loads(args.verify.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise FgcalError(f"{args.verify}: file not found") from None
+        except (OSError, ValueError) as exc:
+            raise FgcalError(f"{args.verify}: not a verification file ({exc})") from None
+        if not isinstance(verification, dict) or verification.get("format") != "fgcal-verify/1":
+            raise FgcalError(f"{args.verify}: not an fgcal-verify/1 file")
+    volume = None
+    try:
+        from .robot_file import load_model
+
+        volume = load_model(result.robot).volume
+    except FgcalError:
+        log.info("robot %s not found: the pose plot has no measuring volume", result.robot)
+    path = write_report(result, args.out, verification, volume)
+    print(f"wrote {path} (and report.md, figures as PNG) in {args.out}")
+    return 0
+
+
 def _cmd_demo(args) -> int:
     """The paper's experiment on the bundled dataset: identify on 24 poses, verify on the other 24."""
     from .resources import default_dataset_dir
@@ -218,8 +247,9 @@ def _cmd_demo(args) -> int:
     _cmd_calibrate(argparse.Namespace(dataset=ds_dir, out=out / "result.json", poses="odd", levels=None, robust=None,
                                       prior="none", exact_joints=False, estimate_noise=False, extra=None, exclude=None))
     print("\n== verify on the even poses (the paper's VERIFY)")
-    return _cmd_verify(argparse.Namespace(result=out / "result.json", dataset=ds_dir, poses="even",
-                                          out=out / "verify.json"))
+    _cmd_verify(argparse.Namespace(result=out / "result.json", dataset=ds_dir, poses="even", out=out / "verify.json"))
+    print("\n== the uncertainty report")
+    return _cmd_report(argparse.Namespace(result=out / "result.json", verify=out / "verify.json", out=out / "report"))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -294,6 +324,12 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--poses", default=None, help="poses to use (as for calibrate)")
     v.add_argument("--out", type=Path, default=None, help="write verify.json")
     v.set_defaults(func=_cmd_verify)
+
+    r = sub.add_parser("report", help="the uncertainty report per parameter: HTML, Markdown and PNG figures")
+    r.add_argument("result", type=Path)
+    r.add_argument("--verify", type=Path, default=None, help="verify.json from fgcal verify")
+    r.add_argument("--out", type=Path, required=True, help="output directory")
+    r.set_defaults(func=_cmd_report)
 
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
     d.add_argument("--out", type=Path, default=Path("fgcal-demo"), help="output directory (default fgcal-demo)")

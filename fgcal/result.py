@@ -67,6 +67,12 @@ class CalibrationResult:
     levels : dict of str to LevelSummary
     singular_values : list of float
         Of the information matrix scaled to unit diagonal (square roots of its eigenvalues).
+    residuals : dict of str to list of float
+        Unwhitened residuals at the solution, per level: ``probes_mm`` (signed distance off the
+        sphere), ``centres_mm`` and ``poses_position_mm`` (per coordinate), ``poses_rotation_deg``
+        (per rotation-vector component), ``joints_deg`` (joint minus reading).
+    tool_xyz : list of [x, y, z]
+        Calibrated tool origin at each pose used (mm, world), for plots of where the poses were.
     """
 
     robot: str
@@ -85,6 +91,8 @@ class CalibrationResult:
     options: dict = field(default_factory=dict)
     dataset: str | None = None
     fgcal_version: str = ""
+    residuals: dict[str, list[float]] = field(default_factory=dict)
+    tool_xyz: list[list[float]] = field(default_factory=list)
 
     @property
     def names(self) -> list[str]:
@@ -111,7 +119,7 @@ class CalibrationResult:
              "parameters": [asdict(p) for p in self.parameters],
              "covariance": np.asarray(self.covariance).tolist()}
         for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
-                    "pose_ids", "options", "dataset", "fgcal_version"):
+                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         return d
@@ -161,6 +169,8 @@ def load_result(path) -> CalibrationResult:
             converged=bool(d.get("converged", True)), cost=float(d.get("cost", 0.0)),
             singular_values=[float(v) for v in d.get("singular_values", [])], condition_number=cond,
             pose_ids=[int(v) for v in d.get("pose_ids", [])], options=dict(d.get("options", {})),
-            dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")))
+            dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")),
+            residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
+            tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])])
     except (KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None

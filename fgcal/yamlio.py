@@ -10,7 +10,7 @@ import yaml
 
 from .errors import FgcalError
 
-__all__ = ["read_yaml", "atomic_write_text", "dump_yaml"]
+__all__ = ["read_yaml", "atomic_write_text", "atomic_write_bytes", "dump_yaml"]
 
 
 def read_yaml(path, error=FgcalError):
@@ -40,11 +40,16 @@ def dump_yaml(data) -> str:
 
 def atomic_write_text(path, text: str) -> None:
     """Write ``text`` to ``path`` so that the file is either the old one or complete, never half."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_bytes(path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (a temporary file in the same folder is renamed)."""
     path = Path(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)

@@ -1,0 +1,111 @@
+"""The uncertainty report's content: a row per parameter with its flags, and a plain verdict.
+
+Pure functions of a :class:`~fgcal.result.CalibrationResult` (and a verification summary); the
+writing of HTML, Markdown and figures is in :mod:`fgcal.report`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .result import CalibrationResult
+
+__all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations"]
+
+# Deviations beyond these (ten times the typical ones) are not a manufacturing error: a sign of a
+# wrong nominal model, a unit mix-up, or a parameter the data barely constrain.
+PLAUSIBLE = {"base": {"mm": 50.0, "deg": 5.0}, "other": {"mm": 5.0, "deg": 0.5}}
+CORRELATION_LIMIT = 0.95
+Z95 = 1.959963984540054
+
+
+@dataclass
+class ParameterRow:
+    """One row of the report's table (file units)."""
+
+    name: str
+    unit: str
+    nominal: float
+    estimate: float
+    deviation: float
+    sigma: float | None
+    interval95: tuple[float, float] | None
+    z: float | None
+    flags: list[str] = field(default_factory=list)
+
+
+def strong_correlations(result: CalibrationResult, limit: float = CORRELATION_LIMIT) -> list[tuple[str, str, float]]:
+    """Pairs of parameters whose correlation exceeds ``limit`` in magnitude, strongest first."""
+    if not len(result.parameters):
+        return []
+    rho = result.correlation()
+    names = result.names
+    pairs = [(names[i], names[j], float(rho[i, j])) for i in range(len(names)) for j in range(i + 1, len(names))
+             if abs(rho[i, j]) > limit]
+    return sorted(pairs, key=lambda p: -abs(p[2]))
+
+
+def parameter_table(result: CalibrationResult, correlation_limit: float = CORRELATION_LIMIT) -> list[ParameterRow]:
+    """A row per parameter: the identified ones in order, then those held at nominal."""
+    rho = result.correlation() if len(result.parameters) else np.zeros((0, 0))
+    names = result.names
+    rows = []
+    for i, p in enumerate(result.parameters):
+        dev = p.estimate - p.nominal
+        flags = []
+        others = [(names[j], rho[i, j]) for j in range(len(names)) if j != i and abs(rho[i, j]) > correlation_limit]
+        for other, r in sorted(others, key=lambda o: -abs(o[1])):
+            flags.append(f"strongly correlated with {other} ({r:+.3f})")
+        limit = PLAUSIBLE["base" if p.name.startswith("base.") else "other"][p.unit]
+        if abs(dev) > limit:
+            flags.append(f"deviation larger than a plausible manufacturing error (> {limit:g} {p.unit})")
+        rows.append(ParameterRow(p.name, p.unit, p.nominal, p.estimate, dev, p.sigma,
+                                 (p.estimate - Z95 * p.sigma, p.estimate + Z95 * p.sigma),
+                                 dev / p.sigma if p.sigma > 0 else None, flags))
+    for h in result.held:
+        unit = "deg" if h["name"].split(".")[1] in ("phi", "theta", "psi", "alpha", "beta") else "mm"
+        rows.append(ParameterRow(h["name"], unit, h["value"], h["value"], 0.0, None, None, None,
+                                 [f"not identifiable, held at nominal: {h['reason']}"]))
+    return rows
+
+
+def verdict(result: CalibrationResult, verification: dict | None = None) -> list[str]:
+    """Plain-language conclusions, most important first."""
+    out = []
+    if not result.converged:
+        out.append("The solve did not converge: the estimates below are not to be used.")
+    if result.held:
+        out.append("The data could not identify " + ", ".join(h["name"] for h in result.held)
+                   + ": they are held at nominal (" + "; ".join(f"{h['name']} {h['reason']}" for h in result.held) + ").")
+    pairs = strong_correlations(result)
+    if pairs:
+        shown = ", ".join(f"{a} and {b} ({r:+.3f})" for a, b, r in pairs[:5])
+        out.append(f"The data barely separate {len(pairs)} pair(s) of parameters: {shown}"
+                   f"{' ...' if len(pairs) > 5 else ''}. Their sum or difference is known better than each.")
+    for level, s in result.levels.items():
+        if level in ("kinematic", "prior", "joints") or not np.isfinite(s.variance_factor):
+            continue
+        vf = s.variance_factor
+        if vf > 2.0:
+            out.append(f"The {level} residuals are {np.sqrt(vf):.2g} times the assumed noise ({s.sigma:.3g} {s.unit}): "
+                       "the noise is larger than assumed, or the model misses something (non-geometric errors, "
+                       "outliers). Sigmas are optimistic by about that factor; consider --estimate-noise or --robust.")
+        elif vf < 0.5:
+            out.append(f"The {level} residuals are {np.sqrt(vf):.2g} times the assumed noise: the assumed noise "
+                       "is pessimistic, and so are the sigmas.")
+    implausible = [r.name for r in parameter_table(result) if any("plausible" in f for f in r.flags)]
+    if implausible:
+        out.append("Deviations larger than a plausible manufacturing error: " + ", ".join(implausible)
+                   + ". Check the nominal model and the units.")
+    if verification is not None:
+        after, before = verification["position_mm"], verification["before"]["position_mm"]
+        out.append(f"At {verification['n_poses']} verification poses the position error went from "
+                   f"{before['rms']:.3g} mm RMS (nominal) to {after['rms']:.3g} mm RMS "
+                   f"(max {after['max']:.3g} mm) against the measurements.")
+        if "truth" in verification:
+            t = verification["truth"]["position_mm"]
+            out.append(f"Against the simulated truth: {t['rms']:.3g} mm RMS, max {t['max']:.3g} mm.")
+    if not out or (len(out) == 1 and verification is not None):
+        out.insert(0, f"All {len(result.parameters)} parameters are identified; the residuals match the assumed noise.")
+    return out
