@@ -417,8 +417,10 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if "joints" in raw:
         residuals["joints_deg"] = np.degrees(raw["joints"][0]).ravel().tolist()
     tool_xyz = forward(slots, graph.joints(state))[:, :3, 3]
+    from .robot_file import model_to_dict
+
     return CalibrationResult(
-        robot=ds.robot, n_poses=int(len(pose_ids)),
+        robot=model.name, n_poses=int(len(pose_ids)), robot_model=model_to_dict(model),
         parameters=[ParameterEstimate(n, u, float(a), float(b), float(s))
                     for n, u, a, b, s in zip(final.names, final.units, nominal, est, sigma)],
         covariance=cov_file, slots={n: float(v) for n, v in zip(SLOT_NAMES, slots_file)}, held=held_info,

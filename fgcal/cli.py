@@ -223,13 +223,82 @@ def _cmd_report(args) -> int:
             raise FgcalError(f"{args.verify}: not an fgcal-verify/1 file")
     volume = None
     try:
-        from .robot_file import load_model
-
-        volume = load_model(result.robot).volume
+        volume = result.model().volume
     except FgcalError:
         log.info("robot %s not found: the pose plot has no measuring volume", result.robot)
     path = write_report(result, args.out, verification, volume)
     print(f"wrote {path} (and report.md, figures as PNG) in {args.out}")
+    return 0
+
+
+def _cmd_import(args) -> int:
+    from .dataset_io import save_dataset
+    from .landgraf import read_series, series_to_datasets
+    from .yamlio import dump_yaml
+
+    if args.format != "landgraf":
+        raise FgcalError(f"unknown import format {args.format!r} (landgraf)")
+    if not 0 <= args.holdout < 1:
+        raise FgcalError("--holdout is a fraction from 0 to below 1")
+    series = read_series(args.csv)
+    for s in series.skipped:
+        print(f"skipped {args.csv}: {s}")
+    calib, held, model_dict, rms = series_to_datasets(series, str(args.csv), args.position_only, args.holdout,
+                                                      np.random.default_rng(args.seed))
+    robot = {"robot.yaml": dump_yaml(model_dict)}
+    holdout_dir = args.out.with_name(args.out.name + "-holdout")
+    if held is not None and holdout_dir.exists() and not args.force:
+        raise FgcalError(f"{holdout_dir}: already exists (use --force to replace it)")
+    save_dataset(calib, args.out, overwrite=args.force, extra_files=robot)
+    print(f"wrote {args.out}: {calib.n_poses} poses ({'positions' if args.position_only else 'full poses'}); "
+          f"{len(series.skipped)} row(s) skipped; base and tool fitted to the data (RMS {rms:.3g} mm) "
+          f"in {args.out / 'robot.yaml'}")
+    if held is not None:
+        save_dataset(held, holdout_dir, overwrite=args.force, extra_files=robot)
+        print(f"wrote {holdout_dir}: {held.n_poses} held-out poses (repeated goals kept on one side)")
+    return 0
+
+
+def _cmd_compensate(args) -> int:
+    from .compensate import compensate
+    from .dataset_io import JOINT_COLUMNS, read_targets, write_csv
+    from .result import load_result
+
+    result = load_result(args.result)
+    ids, T, seeds = read_targets(args.targets)
+    q, pos_err, rot_err = compensate(result.model(), result.slot_vector(), T, seeds)
+    rows = [[int(p), *map(float, np.degrees(qi))] for p, qi in zip(ids, q)]
+    if args.out:
+        write_csv(args.out, JOINT_COLUMNS, rows)
+        print(f"wrote {args.out}: {len(ids)} joint commands; calibrated model reaches every target within "
+              f"{pos_err.max():.2g} mm and {rot_err.max():.2g} deg")
+    else:
+        print(",".join(JOINT_COLUMNS))
+        for r in rows:
+            print(",".join([str(r[0])] + [repr(v) for v in r[1:]]))
+    return 0
+
+
+def _cmd_export(args) -> int:
+    from .result import load_result
+    from .robot_file import save_model
+    from .urdf import to_urdf
+    from .yamlio import atomic_write_text
+
+    if args.model is None and args.urdf is None:
+        raise FgcalError("export: give --model FILE and/or --urdf FILE")
+    result = load_result(args.result)
+    model = result.model()
+    from dataclasses import replace
+
+    calibrated = replace(model, name=f"{model.name}-calibrated",
+                         description=f"{model.name} calibrated by fgcal from {result.n_poses} poses")
+    if args.model:
+        save_model(calibrated, args.model, slots=result.slot_vector())
+        print(f"wrote {args.model} (fgcal-robot/1)")
+    if args.urdf:
+        atomic_write_text(args.urdf, to_urdf(calibrated, result.slot_vector()))
+        print(f"wrote {args.urdf} (URDF)")
     return 0
 
 
@@ -331,6 +400,30 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", type=Path, required=True, help="output directory")
     r.set_defaults(func=_cmd_report)
 
+    i = sub.add_parser("import", help="turn another tool's measurement file into an fgcal dataset")
+    i.add_argument("format", choices=("landgraf",), help="landgraf: the UR10 laser-tracker series (Landgraf 2021)")
+    i.add_argument("csv", type=Path)
+    i.add_argument("out", type=Path)
+    i.add_argument("--position-only", action="store_true",
+                   help="keep only the probe's position (centres.csv of one reflector)")
+    i.add_argument("--holdout", type=float, default=0.0,
+                   help="fraction of the goals to write to OUT-holdout for verification (default 0)")
+    i.add_argument("--seed", type=int, default=0, help="seed of the held-out draw")
+    i.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    i.set_defaults(func=_cmd_import)
+
+    c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
+    c2.add_argument("result", type=Path)
+    c2.add_argument("targets", type=Path, help="CSV: pose,x,y,z,qw,qx,qy,qz[,q1..q6 seed joints in deg]")
+    c2.add_argument("--out", type=Path, default=None, help="CSV of pose,q1..q6 (deg); standard output if omitted")
+    c2.set_defaults(func=_cmd_compensate)
+
+    e = sub.add_parser("export", help="the calibrated model as a robot model file and/or URDF")
+    e.add_argument("result", type=Path)
+    e.add_argument("--model", type=Path, default=None, help="fgcal-robot/1 YAML file to write")
+    e.add_argument("--urdf", type=Path, default=None, help="URDF file to write")
+    e.set_defaults(func=_cmd_export)
+
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
     d.add_argument("--out", type=Path, default=Path("fgcal-demo"), help="output directory (default fgcal-demo)")
     d.set_defaults(func=_cmd_demo)
@@ -350,6 +443,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("fgcal: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into head and the like
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from .model import SLOT_NAMES, RobotModel, Tooling
 from .robot_file import load_model
 from .yamlio import atomic_write_text, dump_yaml, read_yaml
 
-__all__ = ["load_dataset", "save_dataset", "dataset_model", "write_csv", "load_truth"]
+__all__ = ["load_dataset", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +47,8 @@ def _integer(text: str, where: str, what: str) -> int:
         raise DatasetError(f"{where}: {what} must be an integer id, got {text!r}") from None
 
 
-def _read_table(path: Path, columns: list[str]):
-    """Rows of a CSV file as (line number, dict); the header must hold exactly ``columns``."""
+def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
+    """Rows of a CSV file as (line number, dict); the header holds ``columns`` and maybe ``optional``."""
     try:
         fh = path.open(newline="", encoding="utf-8")
     except FileNotFoundError:
@@ -64,10 +64,10 @@ def _read_table(path: Path, columns: list[str]):
             if missing:
                 raise DatasetError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
                                    f"(expected {','.join(columns)})")
-            unknown = [h for h in header if h not in columns]
+            unknown = [h for h in header if h not in columns and h not in optional]
             if unknown:
                 raise DatasetError(f"{path}: line 1: unknown column(s) {', '.join(unknown)} "
-                                   f"(expected {','.join(columns)})")
+                                   f"(expected {','.join(list(columns) + list(optional))})")
             if len(set(header)) != len(header):
                 raise DatasetError(f"{path}: line 1: a column is repeated in the header")
             rows = []
@@ -161,8 +161,6 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
             raise DatasetError(f"{path}: tool.balls.{name} must be [x, y, z] (mm)")
         balls[str(name)] = np.array([num(c, f"tool.balls.{name}") for c in centre])
     tooling = Tooling(radius=num(tool["radius"], "tool.radius", 0.0), balls=balls)
-    if tooling.radius <= 0:
-        raise DatasetError(f"{path}: tool.radius must be positive")
 
     noise_raw = data["noise"]
     allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
@@ -229,6 +227,8 @@ def load_dataset(directory) -> Dataset:
     ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.array(ids),
                  joints_deg=np.array(q), path=directory)
     if (directory / "probes.csv").exists():
+        if tooling.radius <= 0:
+            raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
     if (directory / "centres.csv").exists():
         ds.centres = _point_table(directory / "centres.csv", known, tooling.balls, unique=True)
@@ -239,6 +239,40 @@ def load_dataset(directory) -> Dataset:
     if not ds.levels():
         log.warning("%s: no measurements (probes.csv, centres.csv or poses.csv); joint readings only", directory)
     return ds
+
+
+def read_targets(path):
+    """Target tool poses: ``pose,x,y,z,qw,qx,qy,qz`` and optionally seed joints ``q1..q6`` (deg).
+
+    Returns ``(ids (N,), T (N, 4, 4) mm, seeds (N, 6) rad or None)``.
+    """
+    from .transforms import quaternion_to_matrix
+
+    path = Path(path)
+    rows = _read_table(path, POSE_COLUMNS, optional=JOINT_COLUMNS[1:])
+    if not rows:
+        raise DatasetError(f"{path}: no targets")
+    has_q = [c in rows[0][1] for c in JOINT_COLUMNS[1:]]
+    if any(has_q) and not all(has_q):
+        raise DatasetError(f"{path}: line 1: give all of q1..q6 or none")
+    ids, T, seeds, seen = [], [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        quat = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
+        if abs(np.linalg.norm(quat) - 1.0) > 1e-3:
+            raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {np.linalg.norm(quat):.6g}, expected 1")
+        M = np.eye(4)
+        M[:3, :3] = quaternion_to_matrix(quat)
+        M[:3, 3] = [_number(r[c], where, c) for c in "xyz"]
+        ids.append(pid)
+        T.append(M)
+        if all(has_q):
+            seeds.append(np.radians([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]]))
+    return np.array(ids), np.array(T), (np.array(seeds) if seeds else None)
 
 
 def dataset_model(ds: Dataset) -> RobotModel:

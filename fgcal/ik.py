@@ -18,7 +18,7 @@ from scipy.optimize import least_squares
 from .errors import FgcalError
 from .kinematics import forward, jacobians
 from .model import RobotModel, slot
-from .transforms import check_transform, euler_zyx_trans, pose_difference, rot
+from .transforms import check_transform, euler_zyx_trans, pose_difference, rot, so3_left_jacobian_inverse
 
 __all__ = ["Branch", "BRANCHES", "solve_puma", "solve_puma_batch", "solve_numeric", "wrap_into_limits", "IKError"]
 
@@ -184,12 +184,17 @@ def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_s
         return np.concatenate([d, delta]) * w
 
     def jac(q):
-        # residual = model - target, so to first order its Jacobian is the pose Jacobian.
-        return jacobians(x, q).pose_joints[0] * w[:, None]
+        # residual = [p - p_t; log(R R_t^T)]: d log = J_l^-1(log) w_world
+        J = jacobians(x, q).pose_joints[0].copy()
+        _, delta = pose_difference(forward(x, q)[0], T_target)
+        J[3:] = so3_left_jacobian_inverse(delta) @ J[3:]
+        return J * w[:, None]
 
     sol = least_squares(residual, seed, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
                         max_nfev=200, method="trf")
     err = np.linalg.norm(sol.fun)
     if err > 1e-6:
-        raise IKError(f"numerical IK did not reach the target (pose error {err:.3g} mm)")
+        at_limit = [f"q{j + 1}" for j in range(6) if min(sol.x[j] - lo[j], hi[j] - sol.x[j]) < 1e-6]
+        why = f"; {', '.join(at_limit)} at the joint limit" if at_limit else ""
+        raise IKError(f"numerical IK did not reach the target (pose error {err:.3g} mm{why})")
     return sol.x

@@ -73,6 +73,8 @@ class CalibrationResult:
         (per rotation-vector component), ``joints_deg`` (joint minus reading).
     tool_xyz : list of [x, y, z]
         Calibrated tool origin at each pose used (mm, world), for plots of where the poses were.
+    robot_model : dict
+        The nominal robot model (``fgcal-robot/1`` as a mapping), so a result stands on its own.
     """
 
     robot: str
@@ -93,6 +95,7 @@ class CalibrationResult:
     fgcal_version: str = ""
     residuals: dict[str, list[float]] = field(default_factory=dict)
     tool_xyz: list[list[float]] = field(default_factory=list)
+    robot_model: dict = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -110,6 +113,14 @@ class CalibrationResult:
         """The calibrated 37-slot vector in internal units (mm, rad)."""
         return slots_from_file_units(np.array([self.slots[n] for n in SLOT_NAMES]))
 
+    def model(self):
+        """The robot model (nominal) the result was computed with."""
+        from .robot_file import load_model, model_from_dict
+
+        if self.robot_model:
+            return model_from_dict(self.robot_model, source=f"result of {self.robot}")
+        return load_model(self.robot)
+
     def correlation(self) -> np.ndarray:
         s = np.sqrt(np.diag(self.covariance))
         return self.covariance / np.outer(s, s)
@@ -119,7 +130,7 @@ class CalibrationResult:
              "parameters": [asdict(p) for p in self.parameters],
              "covariance": np.asarray(self.covariance).tolist()}
         for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
-                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz"):
+                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         return d
@@ -171,6 +182,7 @@ def load_result(path) -> CalibrationResult:
             pose_ids=[int(v) for v in d.get("pose_ids", [])], options=dict(d.get("options", {})),
             dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")),
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
-            tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])])
+            tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
+            robot_model=dict(d.get("robot_model") or {}))
     except (KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None

@@ -94,6 +94,15 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
         elif vf < 0.5:
             out.append(f"The {level} residuals are {np.sqrt(vf):.2g} times the assumed noise: the assumed noise "
                        "is pessimistic, and so are the sigmas.")
+    for level, scale in (result.options.get("noise_scale") or {}).items():
+        s = result.levels.get(level)
+        if s is None or scale < 2.0:
+            continue
+        stated = s.sigma / scale
+        out.append(f"The {level} scatter is {scale:.3g} times the instrument's stated noise ({stated:.3g} {s.unit} "
+                   f"-> {s.sigma:.3g} {s.unit} estimated): about {np.sqrt(max(s.sigma**2 - stated**2, 0)):.3g} {s.unit} "
+                   "per coordinate is what no geometric model explains here (compliance under gravity, gears, "
+                   "temperature); the calibrated geometry cannot remove it, and the sigmas use the estimated noise.")
     implausible = [r.name for r in parameter_table(result) if any("plausible" in f for f in r.flags)]
     if implausible:
         out.append("Deviations larger than a plausible manufacturing error: " + ", ".join(implausible)
