@@ -8,10 +8,10 @@ directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as 
 * measured tool pose against the forward kinematics,
 * joint readings as priors on joint variables, and a prior on the parameters.
 """
-from .errors import ball_centre_error, joint_error, pose_error, probe_error, slots_of
-from .gtsam_factors import (ball_centre_factor, centre_key, joint_key, joint_prior, noise_model,
-                            parameter_prior, pose_factor, probe_factor, theta_key)
+from .errors import ball_centre_error, joint_error, pose_ball_centres_error, pose_error, probe_error, slots_of
+from .gtsam_factors import (ball_centre_factor, ball_centres_factor, centre_key, joint_key, joint_prior, noise_model,
+                            parameter_prior, pose_factor, probe_factor, probes_factor, theta_key)
 
-__all__ = ["ball_centre_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor",
+__all__ = ["ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
            "centre_key", "joint_key", "joint_prior", "noise_model", "parameter_prior", "pose_factor",
-           "probe_factor", "theta_key"]
+           "probe_factor", "probes_factor", "theta_key"]

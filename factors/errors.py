@@ -12,7 +12,7 @@ import numpy as np
 from fgcal.kinematics import jacobians
 from fgcal.transforms import so3_left_jacobian_inverse, so3_log
 
-__all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_error", "joint_error"]
+__all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_ball_centres_error", "pose_error", "joint_error"]
 
 
 def slots_of(theta, index, held) -> np.ndarray:
@@ -69,6 +69,24 @@ def ball_centre_error(theta, q, offset, centre, index, held):
     jac = jacobians(x, q, offsets=np.asarray(offset, dtype=float).reshape(-1, 1, 3))
     e = jac.points[:, 0] - np.atleast_2d(centre)
     return e, jac.point_slots[:, 0][:, :, index], jac.point_joints[:, 0]
+
+
+def pose_ball_centres_error(theta, q, offsets, centres, index, held):
+    """:func:`ball_centre_error` for B balls of one pose, with one kinematics evaluation.
+
+    Parameters
+    ----------
+    q : array_like, shape (6,)
+    offsets, centres : array_like, shape (B, 3)
+
+    Returns
+    -------
+    e : ndarray, shape (B, 3); J_theta : (B, 3, P); J_q : (B, 3, 6)
+    """
+    x = slots_of(theta, index, held)
+    jac = jacobians(x, np.asarray(q, dtype=float).reshape(1, 6), offsets=np.asarray(offsets, dtype=float).reshape(-1, 3))
+    e = jac.points[0] - np.asarray(centres, dtype=float).reshape(-1, 3)
+    return e, jac.point_slots[0][:, :, index], jac.point_joints[0]
 
 
 def pose_error(theta, q, T_measured, index, held):

@@ -12,9 +12,9 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from .errors import ball_centre_error, pose_error, probe_error
+from .errors import ball_centre_error, pose_ball_centres_error, pose_error, probe_error
 
-__all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "ball_centre_factor",
+__all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "probes_factor", "ball_centre_factor", "ball_centres_factor",
            "pose_factor", "joint_prior", "parameter_prior"]
 
 
@@ -62,11 +62,27 @@ def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None) ->
     return gtsam.CustomFactor(noise_model([sigma], robust), [c_key], error)
 
 
+def probes_factor(c_key: int, points, radius: float, sigma: float, robust=None) -> gtsam.CustomFactor:
+    """All probe points (n, 3) of one ball in one factor (n-dim error): fewer Python callbacks."""
+    points = np.array(points, dtype=float).reshape(-1, 3)
+
+    def error(this, values, H):
+        c = _vector(values, c_key)
+        e, J = probe_error(np.broadcast_to(c, points.shape), points, radius)
+        if H is not None:
+            H[0] = J[:, 0, :]
+        return e[:, 0]
+
+    return gtsam.CustomFactor(noise_model([sigma] * len(points), robust), [c_key], error)
+
+
 def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: int | None = None,
-                       q_fixed=None, c_key: int | None = None, c_measured=None, robust=None) -> gtsam.CustomFactor:
+                       q_fixed=None, c_key: int | None = None, c_measured=None, robust=None,
+                       covariance=None) -> gtsam.CustomFactor:
     """A ball centre (variable ``c_key`` or ``c_measured``) at FK(theta, q) times ``offset``.
 
-    Joints are the variable ``q_key`` or the constant ``q_fixed`` (6,) rad.
+    Joints are the variable ``q_key`` or the constant ``q_fixed`` (6,) rad. A full ``covariance``
+    (3, 3) mm^2, for example a sphere fit's, replaces the isotropic ``sigma``.
     """
     if (q_key is None) == (q_fixed is None) or (c_key is None) == (c_measured is None):
         raise ValueError("give exactly one of q_key/q_fixed and one of c_key/c_measured")
@@ -92,7 +108,36 @@ def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: 
                 H[i] = -np.eye(3)
         return e[0]
 
-    return gtsam.CustomFactor(noise_model([sigma] * 3, robust), keys, error)
+    noise = (gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)) if covariance is not None
+             else noise_model([sigma] * 3, robust))
+    return gtsam.CustomFactor(noise, keys, error)
+
+
+def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int, q_key: int | None = None,
+                        q_fixed=None) -> gtsam.CustomFactor:
+    """B measured ball centres (B, 3) of one pose in one factor (3B-dim error, one kinematics call).
+
+    ``covariance`` is (3B, 3B) mm^2 (block diagonal for independent balls).
+    """
+    if (q_key is None) == (q_fixed is None):
+        raise ValueError("give exactly one of q_key and q_fixed")
+    offsets = np.array(offsets, dtype=float).reshape(-1, 3)
+    centres = np.array(centres, dtype=float).reshape(-1, 3)
+    index = np.array(index, dtype=int)
+    held = np.array(held, dtype=float)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(6)
+    keys = [t_key] + ([q_key] if q_key is not None else [])
+
+    def error(this, values, H):
+        q = q_const if q_key is None else _vector(values, q_key)
+        e, J_t, J_q = pose_ball_centres_error(_vector(values, t_key), q, offsets, centres, index, held)
+        if H is not None:
+            H[0] = J_t.reshape(-1, J_t.shape[-1])
+            if q_key is not None:
+                H[1] = J_q.reshape(-1, 6)
+        return e.ravel()
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)), keys, error)
 
 
 def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, t_key: int,

@@ -316,7 +316,7 @@ def _level_summaries(graph: Graph, state: State, cov_internal) -> dict[str, Leve
             out[level] = LevelSummary(len(e), rms_pos, "mm", sig.pose_position, vf, redundancy, rms_rot,
                                       float(np.degrees(sig.pose_rotation)))
             continue
-        norms = np.linalg.norm(e, axis=1)
+        norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
         scale = np.degrees(1.0) if level == "joints" else 1.0
         sigma = {"probes": sig.probe, "kinematic": sig.kinematic, "centres": sig.centre,
                  "joints": sig.joint * np.degrees(1.0), "prior": float("nan")}[level]

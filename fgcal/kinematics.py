@@ -56,6 +56,13 @@ def _build_chain() -> tuple[ChainOp, ...]:
 CHAIN: tuple[ChainOp, ...] = _build_chain()
 
 
+def _cross(a, b) -> np.ndarray:
+    """Cross product over the last axis; np.cross costs ~20 us of overhead per call on small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def check_joints(q) -> np.ndarray:
     """Convert joint readings to a float ``(N, 6)`` array (rad); raise with the expected shape."""
     q = np.asarray(q, dtype=float)
@@ -71,6 +78,41 @@ def _check_slots(x) -> np.ndarray:
     if x.shape != (N_SLOTS,):
         raise ValueError(f"slot vector must have shape ({N_SLOTS},), got {x.shape}")
     return x
+
+
+_KIND_ROT = np.array([op.kind == "R" for op in CHAIN])
+_AXIS = np.array([op.axis for op in CHAIN])
+_SLOT_MAP = np.zeros((len(CHAIN), N_SLOTS))
+_JOINT_MAP = np.zeros((len(CHAIN), N_JOINTS))
+for _k, _op in enumerate(CHAIN):
+    if _op.slot is not None:
+        _SLOT_MAP[_k, _op.slot] = 1.0
+    if _op.joint is not None:
+        _JOINT_MAP[_k, _op.joint] = 1.0
+
+
+_CONST_ROT = [[k for k, op in enumerate(CHAIN) if op.kind == "R" and op.joint is None and op.axis == a]
+              for a in range(3)]
+_JOINT_ROT = [k for k, op in enumerate(CHAIN) if op.joint is not None]
+_JOINT_SLOT = np.array([CHAIN[k].slot if CHAIN[k].slot is not None else -1 for k in _JOINT_ROT])
+
+
+def _op_rotations(x, q):
+    """Per chain operation: its rotation, (3, 3) or (N, 3, 3), or None for a translation.
+
+    Built with four vectorised calls (constant rotations by axis, then all joints), since
+    per-operation calls dominate the cost for a few poses.
+    """
+    out = [None] * len(CHAIN)
+    for axis, ks in enumerate(_CONST_ROT):
+        mats = rot(axis, x[[CHAIN[k].slot for k in ks]])
+        for k, M in zip(ks, mats):
+            out[k] = M
+    offsets = np.where(_JOINT_SLOT >= 0, x[np.maximum(_JOINT_SLOT, 0)], 0.0)
+    mats = rot(2, q[:, [CHAIN[k].joint for k in _JOINT_ROT]] + offsets)  # (N, 6, 3, 3)
+    for i, k in enumerate(_JOINT_ROT):
+        out[k] = mats[:, i]
+    return out
 
 
 def forward_frames(x, q):
@@ -95,19 +137,17 @@ def forward_frames(x, q):
     x = _check_slots(x)
     q = check_joints(q)
     n = q.shape[0]
-    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    p = np.zeros((n, 3))
     R_before = np.empty((len(CHAIN), n, 3, 3))
     p_before = np.empty((len(CHAIN), n, 3))
-    for k, op in enumerate(CHAIN):
+    R = np.broadcast_to(np.eye(3), (n, 3, 3))
+    p = np.zeros((n, 3))
+    for k, (op, M) in enumerate(zip(CHAIN, _op_rotations(x, q))):
         R_before[k] = R
         p_before[k] = p
-        value = x[op.slot] if op.slot is not None else 0.0
-        if op.kind == "R":
-            angle = value + q[:, op.joint] if op.joint is not None else value
-            R = R @ rot(op.axis, angle)
+        if M is not None:
+            R = R @ M
         else:
-            p = p + R[:, :, op.axis] * value
+            p = p + R[:, :, op.axis] * x[op.slot]
     T = np.zeros((n, 4, 4))
     T[:, :3, :3] = R
     T[:, :3, 3] = p
@@ -196,8 +236,15 @@ def jacobians(x, q, offsets=None) -> ChainJacobians:
     R_before, p_before, T = forward_frames(x, q)
     n = T.shape[0]
     p_tool = T[:, :3, 3]
-    pose_slots = np.zeros((n, 6, N_SLOTS))
-    pose_joints = np.zeros((n, 6, N_JOINTS))
+    # World direction of every operation's local axis: (K, N, 3).
+    axes = R_before[np.arange(len(CHAIN)), :, :, _AXIS]
+    rot_ops = _KIND_ROT[:, None, None]
+    # A rotation moves a point by axis x (point - origin); a translation by the axis itself.
+    d_pos = np.where(rot_ops, _cross(axes, p_tool[None] - p_before), axes)
+    d_rot = np.where(rot_ops, axes, 0.0)
+    d_pose = np.concatenate([d_pos, d_rot], axis=2)  # (K, N, 6)
+    pose_slots = np.einsum("knr,ks->nrs", d_pose, _SLOT_MAP)
+    pose_joints = np.einsum("knr,kj->nrj", d_pose, _JOINT_MAP)
     have_points = offsets is not None
     if have_points:
         offsets = np.asarray(offsets, dtype=float)
@@ -205,31 +252,10 @@ def jacobians(x, q, offsets=None) -> ChainJacobians:
         if offsets.ndim == 3 and offsets.shape[0] != n:
             raise ValueError(f"per-pose offsets must have shape ({n}, B, 3), got {offsets.shape}")
         points = tool_points(T, offsets)
-        nb = offsets.shape[-2]
-        point_slots = np.zeros((n, nb, 3, N_SLOTS))
-        point_joints = np.zeros((n, nb, 3, N_JOINTS))
-    for k, op in enumerate(CHAIN):
-        axis = R_before[k][:, :, op.axis]  # (N, 3) world direction of the local axis
-        if op.kind == "R":
-            d_pos = np.cross(axis, p_tool - p_before[k])
-            d_rot = axis
-            if have_points:
-                d_pts = np.cross(axis[:, None, :], points - p_before[k][:, None, :])
-        else:
-            d_pos = axis
-            d_rot = np.zeros_like(axis)
-            if have_points:
-                d_pts = np.broadcast_to(axis[:, None, :], (n, nb, 3))
-        targets = []
-        if op.slot is not None:
-            targets.append((pose_slots, point_slots if have_points else None, op.slot))
-        if op.joint is not None:
-            targets.append((pose_joints, point_joints if have_points else None, op.joint))
-        for pose_J, point_J, col in targets:
-            pose_J[:, :3, col] += d_pos
-            pose_J[:, 3:, col] += d_rot
-            if have_points:
-                point_J[:, :, :, col] += d_pts
+        d_pts = np.where(rot_ops[..., None], _cross(axes[:, :, None, :], points[None] - p_before[:, :, None, :]),
+                         axes[:, :, None, :])  # (K, N, B, 3)
+        point_slots = np.einsum("knbr,ks->nbrs", d_pts, _SLOT_MAP)
+        point_joints = np.einsum("knbr,kj->nbrj", d_pts, _JOINT_MAP)
     out = ChainJacobians(T=T, pose_slots=pose_slots, pose_joints=pose_joints)
     if have_points:
         out.points, out.point_slots, out.point_joints = points, point_slots, point_joints

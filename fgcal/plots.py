@@ -141,6 +141,8 @@ def plot_convergence(n_poses, estimates, sigmas, names, truth=None, ax=None):
         ax.fill_between(n_poses, est[:, k] - ref[k] - sig[:, k], est[:, k] - ref[k] + sig[:, k],
                         color=line.get_color(), alpha=0.15)
     ax.axhline(0, color="k", lw=0.6)
+    # symmetric log: the first poses move by the prior's spread, the last by a fraction of sigma
+    ax.set_yscale("symlog", linthresh=max(float(np.min(sig[-1])), 1e-12))
     ax.set_xlabel("poses")
     ax.set_ylabel("estimate - " + ("truth" if truth is not None else "final"))
     ax.legend(fontsize=7, ncol=2)

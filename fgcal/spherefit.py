@@ -15,7 +15,7 @@ import numpy as np
 from scipy.stats import chi2
 
 __all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "fit_spheres_batch", "best_of_candidates",
-           "mirror_through_points", "default_threshold", "check_points"]
+           "mirror_through_points", "fit_spheres_checked", "default_threshold", "check_points"]
 
 FALSE_ALARM = 1e-3  # probability that a good fit is flagged by the default threshold
 MIN_THRESHOLD_MM = 1e-6  # exact data still carries floating-point noise
@@ -71,17 +71,57 @@ def fit_spheres_batch(points, radius: float, iterations: int = 20, guess=None) -
     K, n, _ = points.shape
     if guess is not None:
         return _gauss_newton_batch(points, np.asarray(guess, dtype=float).copy(), radius, iterations)
-    A = np.concatenate([2.0 * points, np.ones((K, n, 1))], axis=2)
-    b = np.sum(points**2, axis=2)
-    AtA = np.einsum("kni,knj->kij", A, A)
-    Atb = np.einsum("kni,kn->ki", A, b)
-    good = np.abs(np.linalg.det(AtA)) > 1e-12 * np.maximum(np.einsum("kii->k", AtA), 1.0) ** 4
+    mean = points.mean(axis=1, keepdims=True)
+    local = points - mean  # centred: the algebraic fit is far better conditioned
+    A = np.concatenate([2.0 * local, np.ones((K, n, 1))], axis=2)
+    b = np.sum(local**2, axis=2)
+    sv = np.linalg.svd(A, compute_uv=False)
+    good = sv[:, -1] > 1e-9 * sv[:, 0]
     centre = np.full((K, 3), np.nan)
     if not good.any():
         return centre
-    sol = np.linalg.solve(AtA[good], Atb[good][..., None])[..., 0]
-    centre[good] = _gauss_newton_batch(points[good], sol[:, :3], radius, iterations)
+    AtA = np.einsum("kni,knj->kij", A[good], A[good])
+    Atb = np.einsum("kni,kn->ki", A[good], b[good])
+    sol = np.linalg.solve(AtA, Atb[..., None])[..., 0]
+    centre[good] = _gauss_newton_batch(points[good], sol[:, :3] + mean[good, 0], radius, iterations)
     return centre
+
+
+def fit_spheres_checked(point_sets, radius: float, sigma: float, threshold: float | None = None):
+    """:func:`fit_sphere` (known radius) for several balls at once, fast for the common case.
+
+    Balls with equal point counts are fitted together (vectorised Gauss-Newton from algebraic
+    starts); a ball that fails the residual check, or whose fit is doubtful, is refitted by
+    :func:`fit_sphere` to get its full diagnosis. Returns a list of :class:`SphereFit`.
+    """
+    out: list[SphereFit | None] = [None] * len(point_sets)
+    by_count: dict[int, list[int]] = {}
+    for i, pts in enumerate(point_sets):
+        by_count.setdefault(len(pts), []).append(i)
+    for n, idx in by_count.items():
+        if n < 4:
+            for i in idx:
+                out[i] = fit_sphere(point_sets[i], radius=radius, sigma=sigma, threshold=threshold)
+            continue
+        pts = np.array([point_sets[i] for i in idx], dtype=float)
+        centres = fit_spheres_batch(pts, radius)
+        diff = pts - centres[:, None, :]
+        dist = np.linalg.norm(diff, axis=2)
+        res = dist - radius
+        rms = np.sqrt(np.mean(res**2, axis=1))
+        limit = default_threshold(sigma, n, 3) if threshold is None else threshold
+        J = -diff / dist[..., None]
+        info = np.einsum("kni,knj->kij", J, J)
+        finite = np.all(np.isfinite(info), axis=(1, 2))
+        eig = np.linalg.eigvalsh(np.where(finite[:, None, None], info, np.eye(3)))
+        well = finite & (eig[:, 0] > 1e-12 * eig[:, -1])
+        cov = np.linalg.inv(np.where(well[:, None, None], info, np.eye(3))) * sigma**2
+        for k, i in enumerate(idx):
+            if well[k] and np.all(np.isfinite(centres[k])) and rms[k] <= limit:
+                out[i] = SphereFit(centres[k], float(radius), res[k], float(rms[k]), cov[k], True, "ok")
+            else:
+                out[i] = fit_sphere(point_sets[i], radius=radius, sigma=sigma, threshold=threshold)
+    return out
 
 
 def best_of_candidates(points, radius: float, candidates, sigma: float, prediction=None) -> np.ndarray:
@@ -123,7 +163,7 @@ def _gauss_newton_batch(pts, c, radius, iterations):
         Jtr = np.einsum("kni,kn->ki", J, res)
         step = -np.linalg.solve(JtJ + 1e-12 * np.eye(3), Jtr[..., None])[..., 0]
         c = c + step
-        if np.max(np.abs(step)) < 1e-12:
+        if not np.max(np.abs(step)) > 1e-10:  # mm; also stops on NaN
             break
     return c
 

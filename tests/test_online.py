@@ -1,0 +1,122 @@
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from fgcal.calibrate import CalibrationOptions, calibrate
+from fgcal.dataset_io import load_dataset, save_dataset
+from fgcal.online import make_engine, pose_records
+from fgcal.online_run import OnlineRun
+from fgcal.simulate import SimulationSettings, simulate
+
+
+@pytest.fixture(scope="module")
+def dataset(puma, tmp_path_factory):
+    ds, _ = simulate(puma, np.random.default_rng(110), SimulationSettings(n_poses=40))
+    path = tmp_path_factory.mktemp("online") / "d"
+    save_dataset(ds, path)
+    return load_dataset(path)
+
+
+def _run(engine, ds, model):
+    e = make_engine(engine, ds, model)
+    accepted = [rec.pose for rec in pose_records(ds) if e.update(rec).accepted]
+    e.finish()
+    theta, cov = e.estimate()
+    est = e.params.to_file_units(theta)
+    sig = np.sqrt(np.diag(e.params.covariance_to_file_units(cov)))
+    return est, sig, accepted
+
+
+@pytest.mark.parametrize("engine, tolerance", [("isam2", 0.1), ("ekf", 0.5), ("ukf", 1.0)])
+def test_online_ends_at_the_batch_estimate(puma, dataset, engine, tolerance):
+    est, sig, accepted = _run(engine, dataset, puma)
+    # the same information as the batch solve: the same poses, the same weak prior
+    batch = calibrate(dataset.select(accepted), puma, CalibrationOptions(prior="weak"))
+    assert np.abs((est - batch.estimate) / batch.sigma).max() < tolerance
+    ratio = sig / batch.sigma
+    assert ratio.min() > 0.75 and ratio.max() < 1.25
+
+
+def test_a_bad_pose_is_rejected_and_leaves_the_state(puma, dataset):
+    e = make_engine("ekf", dataset, puma)
+    records = pose_records(dataset)
+    accepted = [e.update(rec).accepted for rec in records[:20]]
+    assert sum(accepted) >= 18  # the sphere checks' false alarm rate is 0.1% per ball
+    before = e.estimate()
+    bad = records[20]
+    ball, pts = bad.probes[0]
+    bad.probes[0] = (ball, pts + np.array([0.0, 0.0, 0.5]) * (np.arange(len(pts)) == 1)[:, None])
+    report = e.update(bad)
+    assert not report.accepted and "good ball(s)" in report.reason and f"ball {ball}" in report.reason
+    after = e.estimate()
+    np.testing.assert_array_equal(before[0], after[0])
+    np.testing.assert_array_equal(before[1], after[1])
+    # a pose whose balls are fine but far off the prediction fails the innovation test
+    shifted = records[21]
+    shifted.probes = [(b, p + 3.0) for b, p in shifted.probes]
+    report = e.update(shifted)
+    assert not report.accepted and "innovation implausible" in report.reason
+
+
+@pytest.mark.parametrize("engine", ["ekf", "isam2"])
+def test_resume_gives_the_same_result(puma, dataset, engine, tmp_path):
+    whole = OnlineRun(dataset, puma, engine, tmp_path / "a.json")
+    for rec in whole.pending():
+        whole.feed(rec)
+    expected = whole.result()
+    first = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
+    for rec in first.pending()[:17]:
+        first.feed(rec)
+    del first  # "crash"
+    second = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
+    assert second.resume() == 17
+    for rec in second.pending():
+        second.feed(rec)
+    got = second.result()
+    np.testing.assert_allclose(got.estimate, expected.estimate, rtol=0, atol=1e-9 * np.abs(expected.estimate).max())
+    np.testing.assert_allclose(got.covariance, expected.covariance, rtol=1e-7, atol=1e-12)
+    assert got.pose_ids == expected.pose_ids
+
+
+def test_cli_online_follows_a_growing_dataset(puma, dataset, tmp_path):
+    live = tmp_path / "live"
+    save_dataset(dataset.select(dataset.pose_ids[:8]), live)
+    ckpt = tmp_path / "ck.json"
+    proc = subprocess.Popen([sys.executable, "-m", "fgcal.cli", "online", str(live), "--engine", "ekf", "--follow",
+                             "--interval", "0.2", "--checkpoint", str(ckpt), "--out", str(tmp_path / "r.json")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        time.sleep(4.0)
+        save_dataset(dataset.select(dataset.pose_ids[:14]), live, overwrite=True)  # six more poses arrive
+        deadline = time.time() + 20
+        while time.time() < deadline:
+            if ckpt.exists() and len(json.loads(ckpt.read_text())["processed"]) == 14:
+                break
+            time.sleep(0.3)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    state = json.loads(ckpt.read_text())
+    assert [p["pose"] for p in state["processed"]] == dataset.pose_ids[:14].tolist()
+    assert "pose 14 (14)" in out and "accepted" in out  # plain lines when not on a terminal
+    accepted = sum(p["accepted"] for p in state["processed"])
+    assert accepted >= 12 and json.loads((tmp_path / "r.json").read_text())["n_poses"] == accepted
+
+
+def test_cli_online_writes_result_and_plot(puma, dataset, tmp_path):
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(dataset.path), "--engine", "isam2",
+                          "--checkpoint", str(tmp_path / "c.json"), "--out", str(tmp_path / "r.json"), "--plot",
+                          str(tmp_path / "conv.png")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert (tmp_path / "conv.png").stat().st_size > 5000
+    r = json.loads((tmp_path / "r.json").read_text())
+    assert r["format"] == "fgcal-result/1" and r["n_poses"] >= 38 and len(r["parameters"]) == 30
+    again = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(dataset.path), "--engine", "isam2",
+                            "--checkpoint", str(tmp_path / "c.json")], capture_output=True, text=True)
+    assert "resumed" in again.stdout and "40 pose(s) already processed" in again.stdout
