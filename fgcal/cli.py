@@ -357,6 +357,22 @@ def _cmd_online(args) -> int:
     return 0
 
 
+def _cmd_study(args) -> int:
+    from .study import trials_for
+    from .study_run import run_study, study_figures, summary, write_figures
+
+    trials = trials_for(args.name, trials=args.trials, poses=args.poses, seed=args.seed)
+    out = args.out or Path(f"study-{args.name}")
+    t0 = __import__("time").perf_counter()
+    rows = run_study(trials, out, workers=args.workers, scheduler=args.scheduler)
+    elapsed = __import__("time").perf_counter() - t0
+    paths = write_figures(study_figures(args.name, rows), out)
+    print(summary(args.name, rows))
+    print(f"{out / 'trials.csv'} ({len(rows)} rows; this run {elapsed:.1f} s); figures: "
+          + ", ".join(p.name for p in paths))
+    return 0
+
+
 def _cmd_demo(args) -> int:
     """The paper's experiment on the bundled dataset: identify on 24 poses, verify on the other 24."""
     from .resources import default_dataset_dir
@@ -490,6 +506,17 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--interval", type=float, default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
     o.set_defaults(func=_cmd_online)
+
+    st = sub.add_parser("study", help="simulation studies: the paper's Figs. 8, 9, 13, its experiment, noise sweeps")
+    st.add_argument("name", choices=("fig8-9", "fig13", "experiment", "sweep-cmm", "sweep-joint",
+                                     "sweep-repeatability"))
+    st.add_argument("--out", type=Path, default=None, help="output directory (default study-NAME); resumes")
+    st.add_argument("--trials", type=int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
+    st.add_argument("--poses", type=int, default=None, help="observations per calibration (fig13, sweeps)")
+    st.add_argument("--seed", type=int, default=0)
+    st.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    st.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
+    st.set_defaults(func=_cmd_study)
 
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
     d.add_argument("--out", type=Path, default=Path("fgcal-demo"), help="output directory (default fgcal-demo)")

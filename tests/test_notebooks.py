@@ -17,4 +17,4 @@ def test_notebook_runs(path, tmp_path):
 
 
 def test_there_are_notebooks():
-    assert {p.stem for p in NOTEBOOKS} >= {"calibrate_puma", "online_convergence"}
+    assert {p.stem for p in NOTEBOOKS} >= {"calibrate_puma", "online_convergence", "paper_figures"}
