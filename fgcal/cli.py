@@ -373,6 +373,36 @@ def _cmd_study(args) -> int:
     return 0
 
 
+def _cmd_design(args) -> int:
+    from .dataset import Noise
+    from .dataset_io import JOINT_COLUMNS, write_csv
+    from .design import INDICES, Candidates, candidate_pool, design_plan, random_design_values
+    from .robot_file import load_model
+    from .simulate import random_plan
+
+    if args.poses < 5:
+        raise FgcalError("--poses must be at least 5 (30 parameters, 6 equations per pose)")
+    model = load_model(args.robot)
+    if model.tooling is None:
+        raise FgcalError(f"robot model {model.name} has no tooling (balls) to plan for")
+    rng = np.random.default_rng(args.seed)
+    noise = Noise(args.cmm_sigma, args.joint_resolution, args.repeatability)
+    pool = candidate_pool(model, args.candidates, rng)
+    q_verify = random_plan(model, model.nominal, 1000, rng, model.tooling, model.volume)
+    prepared = Candidates.build(model, pool, noise, q_verify)
+    d = design_plan(model, args.poses, pool, noise, index=args.index, prepared=prepared)
+    write_csv(args.out, JOINT_COLUMNS, [[i + 1, *map(float, np.degrees(q))] for i, q in enumerate(d.q)])
+    random_pred = [random_design_values(prepared, args.poses, np.random.default_rng([args.seed, k]))[1]["pred"]
+                   for k in range(200)]
+    print(f"designed {args.poses} poses from {len(pool)} candidates by {args.index} ({d.iterations} DETMAX steps); "
+          f"wrote {args.out}")
+    print("  " + ", ".join(f"{k} {d.values[k]:.4g}" for k in INDICES if k != "pred"))
+    print(f"  predicted position error RMS at new poses: {d.values['pred']:.4g} mm "
+          f"(random {args.poses}-pose sets from the same candidates: median {np.median(random_pred):.4g}, "
+          f"25th percentile {np.percentile(random_pred, 25):.4g} mm)")
+    return 0
+
+
 def _cmd_demo(args) -> int:
     """The paper's experiment on the bundled dataset: identify on 24 poses, verify on the other 24."""
     from .resources import default_dataset_dir
@@ -509,7 +539,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     st = sub.add_parser("study", help="simulation studies: the paper's Figs. 8, 9, 13, its experiment, noise sweeps")
     st.add_argument("name", choices=("fig8-9", "fig13", "experiment", "sweep-cmm", "sweep-joint",
-                                     "sweep-repeatability"))
+                                     "sweep-repeatability", "design"))
     st.add_argument("--out", type=Path, default=None, help="output directory (default study-NAME); resumes")
     st.add_argument("--trials", type=int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
     st.add_argument("--poses", type=int, default=None, help="observations per calibration (fig13, sweeps)")
@@ -517,6 +547,19 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
     st.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
     st.set_defaults(func=_cmd_study)
+
+    de = sub.add_parser("design", help="which poses to measure: an optimal plan from a candidate pool")
+    de.add_argument("--robot", default="puma560")
+    de.add_argument("--poses", type=int, default=12)
+    de.add_argument("--candidates", type=int, default=2000, help="random reachable candidate poses (default 2000)")
+    de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default="pred",
+                    help="criterion: observability index O1-O5, or pred (predicted accuracy; default)")
+    de.add_argument("--seed", type=int, default=0)
+    de.add_argument("--cmm-sigma", type=float, default=0.01)
+    de.add_argument("--joint-resolution", type=float, default=0.01)
+    de.add_argument("--repeatability", type=float, default=0.0)
+    de.add_argument("--out", type=Path, required=True, help="plan CSV: pose,q1..q6 (deg)")
+    de.set_defaults(func=_cmd_design)
 
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
     d.add_argument("--out", type=Path, default=Path("fgcal-demo"), help="output directory (default fgcal-demo)")

@@ -40,6 +40,9 @@ def read_rows(path) -> list[dict]:
         for k in RESULT_COLUMNS:
             if k in ("study", "robot", "plan", "design"):
                 continue
+            if k not in d:  # a column added since the file was written
+                d[k] = float("nan")
+                continue
             try:
                 d[k] = float(d[k]) if d.get(k) not in (None, "") else float("nan")
             except ValueError:
@@ -182,6 +185,26 @@ def study_figures(study: str, rows: list[dict]) -> dict:
                           "experiment": f"Experiment: {name} error at 21 verification poses"}.get(
                               study, f"{study}: {name} error"))
             figs[f"{study}_{name}"] = fig
+    if study == "design":
+        groups = _group(rows, "design")
+        order = [k for k in ("random", "O1", "O2", "O3", "O4", "O5", "pred") if k in groups]
+        fig = Figure(figsize=(6.4, 4.2), layout="constrained")
+        ax = fig.add_subplot()
+        for x, name in enumerate(order):
+            vals = [r["position_rms_mm"] for r in groups[name]]
+            ax.plot(np.full(len(vals), x) + np.linspace(-0.15, 0.15, len(vals)), vals, "o", ms=3,
+                    color="0.6" if name == "random" else "tab:blue")
+            ax.plot([x - 0.25, x + 0.25], [np.mean([r["predicted_position_rms_mm"] for r in groups[name]])] * 2,
+                    "r-", lw=2, label="predicted" if x == 0 else None)
+        if "random" in groups:
+            ax.axhline(np.percentile([r["position_rms_mm"] for r in groups["random"]], 25), color="k", ls=":",
+                       label="25th percentile of random sets")
+        ax.set_xticks(range(len(order)), ["random sets" if k == "random" else f"designed ({k})" for k in order],
+                      rotation=20, fontsize=8)
+        ax.set_ylabel("position error RMS at new poses (mm)")
+        ax.legend(fontsize=8)
+        ax.set_title("Which poses to measure: designed plans against random sets")
+        figs["design"] = fig
     if study == "fig13":
         values = np.array([r["position_rms_mm"] for r in sorted(rows, key=lambda r: r["trial"])])
         fig = Figure(figsize=(6.4, 4.2), layout="constrained")
@@ -214,6 +237,28 @@ def summary(study: str, rows: list[dict]) -> str:
     pos = np.array([r["position_rms_mm"] for r in rows])
     lines = [f"{study}: {len(rows)} trials; position RMS at verification poses: median {np.median(pos):.4g} mm, "
              f"10-90% {np.percentile(pos, 10):.4g}-{np.percentile(pos, 90):.4g} mm, max/min {pos.max() / pos.min():.2g}"]
+    if study == "design":
+        from scipy.stats import spearmanr
+
+        groups = _group(rows, "design")
+        rand = groups.get("random", [])
+        realised = [r["position_rms_mm"] for r in rand]
+        p25 = np.percentile(realised, 25) if rand else float("nan")
+        lines.append(f"  random 12-pose sets: realised median {np.median(realised):.4g} mm, 25th percentile {p25:.4g}")
+        for name, rs in groups.items():
+            if name == "random":
+                continue
+            real = np.mean([r["position_rms_mm"] for r in rs])
+            pred = np.mean([r["predicted_position_rms_mm"] for r in rs])
+            lines.append(f"  designed by {name:4s}: realised {real:.4g} mm over {len(rs)} truths "
+                         f"({'below' if real < p25 else 'NOT below'} the 25th percentile), predicted {pred:.4g} "
+                         f"({100 * (pred - real) / real:+.0f}%)")
+        if len(rand) > 3:
+            lines.append("  how well each index predicts a random set's accuracy (Spearman rank correlation with "
+                         "the realised error; -1 or +1 is perfect):")
+            for col in ("predicted_position_rms_mm", "O1", "O2", "O3", "O4", "O5"):
+                rho = spearmanr([r[col] for r in rand], realised).correlation
+                lines.append(f"    {'pred' if col.startswith('pred') else col:5s} {rho:+.2f}")
     if study == "experiment":
         for n, rs in _group(rows, "n_poses").items():
             m = [r["measured_position_rms_mm"] for r in rs]
