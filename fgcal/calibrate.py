@@ -23,6 +23,7 @@ from .model import EULER_FIELDS, SLOT_NAMES, RobotModel, slot, slots_to_file_uni
 from .posefit import rigid_fit
 from .result import CalibrationResult, LevelSummary, ParameterEstimate
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points
+from .simulate import Deviations
 from .transforms import quaternion_to_matrix, to_euler_zyx_trans
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
@@ -31,7 +32,7 @@ __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquard
 log = logging.getLogger(__name__)
 
 # Weak prior: ten times the typical deviations of DESIGN.md (mm, deg).
-WEAK_PRIOR = {"base_length": 50.0, "base_angle": 5.0, "length": 5.0, "angle": 0.5}
+WEAK_PRIOR = Deviations(length=5.0, angle=0.5, base_length=50.0, base_angle=5.0)
 MIN_SIGMA = 1e-6  # exact data (sigma 0) still has floating-point noise
 
 
@@ -190,15 +191,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         for i, Ti in zip(idx, T):
             world_points[i] = (axes, axes @ Ti[:3, :3].T + Ti[:3, 3])
     if options.prior == "weak":
-        sig_p = []
-        for n in names:
-            block, f = n.split(".")
-            is_angle = f in ("phi", "theta", "psi", "alpha", "beta")
-            if block == "base":
-                sig_p.append(np.radians(WEAK_PRIOR["base_angle"]) if is_angle else WEAK_PRIOR["base_length"])
-            else:
-                sig_p.append(np.radians(WEAK_PRIOR["angle"]) if is_angle else WEAK_PRIOR["length"])
-        kw["prior"] = (params.take(model.nominal), np.array(sig_p))
+        kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
     graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)

@@ -81,15 +81,7 @@ def pose_records(ds: Dataset, levels=None) -> list[PoseData]:
 
 def weak_prior(params: ParameterSet) -> np.ndarray:
     """Standard deviations (P,) of the weak prior, internal units."""
-    out = []
-    for n in params.names:
-        block, f = n.split(".")
-        angle = f in ("phi", "theta", "psi", "alpha", "beta")
-        if block == "base":
-            out.append(np.radians(WEAK_PRIOR["base_angle"]) if angle else WEAK_PRIOR["base_length"])
-        else:
-            out.append(np.radians(WEAK_PRIOR["angle"]) if angle else WEAK_PRIOR["length"])
-    return np.array(out)
+    return WEAK_PRIOR.sigmas(params.names)
 
 
 @dataclass

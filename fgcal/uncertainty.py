@@ -9,13 +9,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .calibrate import WEAK_PRIOR
 from .result import CalibrationResult
 
 __all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations"]
 
-# Deviations beyond these (ten times the typical ones) are not a manufacturing error: a sign of a
-# wrong nominal model, a unit mix-up, or a parameter the data barely constrain.
-PLAUSIBLE = {"base": {"mm": 50.0, "deg": 5.0}, "other": {"mm": 5.0, "deg": 0.5}}
+# Deviations beyond these (the weak prior: ten times the typical ones) are not a manufacturing
+# error: a sign of a wrong nominal model, a unit mix-up, or a parameter the data barely constrain.
+PLAUSIBLE = {"base": {"mm": WEAK_PRIOR.base_length, "deg": WEAK_PRIOR.base_angle},
+             "other": {"mm": WEAK_PRIOR.length, "deg": WEAK_PRIOR.angle}}
 CORRELATION_LIMIT = 0.95
 Z95 = 1.959963984540054
 
