@@ -312,7 +312,16 @@ def _cmd_online(args) -> int:
     checkpoint = args.checkpoint or Path(f"fgcal-online-{args.engine}.checkpoint.json")
     if args.restart and checkpoint.exists():
         checkpoint.unlink()
-    run = OnlineRun(ds, model, args.engine, checkpoint)
+    if args.drift and args.engine == "isam2":
+        raise FgcalError("--drift is for the filters (ekf, ukf): iSAM2 keeps the parameters constant")
+    engine_kw = {}
+    if args.drift:
+        length, angle = args.drift
+        if length < 0 or angle < 0:
+            raise FgcalError("--drift takes two non-negative numbers: mm and deg per pose")
+        params = model.parameters()
+        engine_kw["drift"] = np.where(params.is_angle, np.radians(angle), length)
+    run = OnlineRun(ds, model, args.engine, checkpoint, engine_kw=engine_kw)
     restored = run.resume()
     if restored:
         print(f"resumed from {checkpoint}: {restored} pose(s) already processed")
@@ -535,6 +544,8 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--follow", action="store_true", help="keep reading poses appended to the dataset")
     o.add_argument("--interval", type=float, default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
+    o.add_argument("--drift", type=float, nargs=2, metavar=("MM", "DEG"), default=None,
+                   help="random-walk drift of the parameters per pose for ekf/ukf (default none)")
     o.set_defaults(func=_cmd_online)
 
     st = sub.add_parser("study", help="simulation studies: the paper's Figs. 8, 9, 13, its experiment, noise sweeps")

@@ -50,9 +50,10 @@ class OnlineRun:
     options: CalibrationOptions = field(default_factory=CalibrationOptions)
     processed: list[dict] = field(default_factory=list)
     history: list[dict] = field(default_factory=list)
+    engine_kw: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options)
+        self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options, **self.engine_kw)
 
     # ------------------------------------------------------------- checkpoints
     def _state(self) -> dict:

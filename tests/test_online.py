@@ -120,3 +120,15 @@ def test_cli_online_writes_result_and_plot(puma, dataset, tmp_path):
     again = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(dataset.path), "--engine", "isam2",
                             "--checkpoint", str(tmp_path / "c.json")], capture_output=True, text=True)
     assert "resumed" in again.stdout and "40 pose(s) already processed" in again.stdout
+
+
+def test_drift_keeps_the_filter_open(puma, dataset):
+    """With a random-walk drift the filter's sigmas stop shrinking: it follows a changing robot."""
+    still = make_engine("ekf", dataset, puma)
+    drifting = make_engine("ekf", dataset, puma, drift=np.where(still.params.is_angle, np.radians(1e-3), 0.01))
+    for rec in pose_records(dataset):
+        still.update(rec)
+        drifting.update(rec)
+    s_still = np.sqrt(np.diag(still.estimate()[1]))
+    s_drift = np.sqrt(np.diag(drifting.estimate()[1]))
+    assert np.all(s_drift > s_still) and np.median(s_drift / s_still) > 1.5
