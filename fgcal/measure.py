@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .dataset import Dataset, Noise, PointObservations, PoseObservations
+from .dataset import Dataset, PointObservations, PoseObservations
 from .errors import FgcalError
 from .posefit import check_homogeneous, nearest_rotation, paper_pose, rigid_fit
 from .spherefit import fit_sphere

@@ -32,7 +32,6 @@ from .calibrate import WEAK_PRIOR, CalibrationOptions, _sigmas
 from .dataset import Dataset
 from .errors import FgcalError
 from .graph import Sigmas
-from .kinematics import jacobians
 from .model import ParameterSet, RobotModel
 from .spherefit import fit_spheres_checked
 from .transforms import quaternion_to_matrix

@@ -24,7 +24,7 @@ from .errors import FgcalError
 from .ik import BRANCHES, solve_puma_batch
 from .kinematics import forward, tool_points
 from .model import SLOT_NAMES, RobotModel, Tooling, slots_to_file_units
-from .transforms import matrix_to_quaternion, quaternion_to_matrix, rot
+from .transforms import matrix_to_quaternion, quaternion_to_matrix
 
 __all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
 
@@ -79,11 +79,9 @@ def draw_truth(model: RobotModel, rng: np.random.Generator, deviations: Deviatio
     Only the identifiable parameters deviate by default, so the truth is recoverable exactly.
     """
     names = model.identifiable_names() if names is None else list(names)
-    params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
     x = model.nominal.copy()
     idx = [SLOT_NAMES.index(n) for n in names]
     x[idx] += rng.normal(size=len(idx)) * deviations.sigmas(names)
-    del params
     return x
 
 

@@ -163,7 +163,7 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     from .calibrate import calibrate
     from .dataset import Noise
     from .robot_file import load_model
-    from .simulate import SimulationSettings, draw_truth, measure, random_plan
+    from .simulate import draw_truth, measure, random_plan
     from .verify import measured_poses
 
     t0 = time.perf_counter()

@@ -11,7 +11,6 @@ from fgcal.baseline import two_stage
 from fgcal.calibrate import (CalibrationOptions, build_graph, calibrate, gtsam_covariance, levenberg_marquardt,
                              nonlinear_graph)
 from fgcal.dataset import Noise
-from fgcal.dataset_io import save_dataset
 from fgcal.errors import FgcalError
 from fgcal.kinematics import forward
 from fgcal.model import SLOT_NAMES, slots_from_file_units

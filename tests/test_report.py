@@ -1,5 +1,3 @@
-import json
-import re
 import subprocess
 import sys
 
@@ -9,7 +7,7 @@ import pytest
 from fgcal.calibrate import CalibrationOptions, calibrate
 from fgcal.plots import plot_convergence, plot_correlation, plot_poses, plot_residuals, plot_sigmas
 from fgcal.report import write_report
-from fgcal.result import load_result, save_result
+from fgcal.result import save_result
 from fgcal.simulate import SimulationSettings, simulate
 from fgcal.uncertainty import parameter_table, verdict
 
