@@ -307,7 +307,14 @@ def _cmd_online(args) -> int:
     from .online_run import Display, OnlineRun, follow
     from .result import save_result
 
-    ds = load_dataset(args.dataset)
+    if args.stdin and args.follow:
+        raise FgcalError("--stdin and --follow: choose one source of new poses")
+    if args.stdin:
+        from .dataset_io import load_dataset_meta
+
+        ds = load_dataset_meta(args.dataset)  # robot, tool and noise; poses come on standard input
+    else:
+        ds = load_dataset(args.dataset)
     model = dataset_model(ds)
     checkpoint = args.checkpoint or Path(f"fgcal-online-{args.engine}.checkpoint.json")
     if args.restart and checkpoint.exists():
@@ -327,7 +334,12 @@ def _cmd_online(args) -> int:
         print(f"resumed from {checkpoint}: {restored} pose(s) already processed")
     display = Display(run)
     try:
-        if args.follow:
+        if args.stdin:
+            from .online_run import read_stream
+
+            for rec in read_stream(sys.stdin, ds.tooling.balls):
+                display.show(run.feed(rec, streamed=True))
+        elif args.follow:
             print(f"following {args.dataset} (Ctrl-C to stop); checkpoint {checkpoint}")
             for rec in run.pending():
                 display.show(run.feed(rec))
@@ -542,6 +554,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="state after every pose (default fgcal-online-ENGINE.checkpoint.json here)")
     o.add_argument("--restart", action="store_true", help="ignore an existing checkpoint and start over")
     o.add_argument("--follow", action="store_true", help="keep reading poses appended to the dataset")
+    o.add_argument("--stdin", action="store_true",
+                   help="read poses from standard input (DATASET gives robot, tool and noise); "
+                        "records: joints,POSE,q1..q6 / probe,POSE,BALL,x,y,z / centre,... / pose,... / end,POSE")
     o.add_argument("--interval", type=float, default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
     o.add_argument("--drift", type=float, nargs=2, metavar=("MM", "DEG"), default=None,

@@ -21,7 +21,7 @@ from .model import SLOT_NAMES, RobotModel, Tooling
 from .robot_file import load_model
 from .yamlio import atomic_write_text, dump_yaml, read_yaml
 
-__all__ = ["load_dataset", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
+__all__ = ["load_dataset", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -196,6 +196,16 @@ def load_truth(path) -> tuple[dict, list]:
             raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index]")
         outliers.append((int(item[0]), str(item[1]), int(item[2])))
     return truth, outliers
+
+
+def load_dataset_meta(directory) -> Dataset:
+    """Only ``dataset.yaml`` of a dataset directory, as a dataset with no poses (for streams)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance = _meta(directory / "dataset.yaml")
+    return Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.zeros(0, dtype=int),
+                   joints_deg=np.zeros((0, 6)), path=directory)
 
 
 def load_dataset(directory) -> Dataset:

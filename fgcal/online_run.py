@@ -22,12 +22,91 @@ from .dataset import Dataset
 from .dataset_io import load_dataset
 from .errors import DatasetError, FgcalError
 from .model import SLOT_NAMES, RobotModel, slots_to_file_units
-from .online import make_engine, pose_records
+from .online import PoseData, make_engine, pose_records
 from .result import CalibrationResult, ParameterEstimate
 from .robot_file import model_to_dict
 from .yamlio import atomic_write_text
 
-__all__ = ["OnlineRun", "CHECKPOINT_FORMAT"]
+__all__ = ["OnlineRun", "CHECKPOINT_FORMAT", "read_stream", "STREAM_FORMAT"]
+
+STREAM_FORMAT = """\
+One record a line, comma-separated (lines starting with # and blank lines are ignored):
+  joints,POSE,q1,q2,q3,q4,q5,q6      joint readings (deg); starts pose POSE
+  probe,POSE,BALL,x,y,z              a probe point (mm, world)
+  centre,POSE,BALL,x,y,z             a ball centre (mm, world)
+  pose,POSE,x,y,z,qw,qx,qy,qz        a measured tool pose (mm, unit quaternion)
+  end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
+
+
+def _record_to_json(rec: PoseData) -> dict:
+    return {"pose": rec.pose, "q": rec.q.tolist(), "probes": [[b, p.tolist()] for b, p in rec.probes],
+            "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist()}
+
+
+def _record_from_json(d: dict) -> PoseData:
+    return PoseData(int(d["pose"]), np.array(d["q"], dtype=float),
+                    [(b, np.array(p, dtype=float)) for b, p in d["probes"]],
+                    [(b, np.array(c, dtype=float)) for b, c in d["centres"]],
+                    None if d["T"] is None else np.array(d["T"], dtype=float))
+
+
+def read_stream(lines, balls, warn=None):
+    """Pose records from a stream of lines (:data:`STREAM_FORMAT`), each as soon as it is complete.
+
+    A malformed line is reported through ``warn(message)`` with its line number and skipped; the
+    stream goes on (an operator's typo should not end a measuring session).
+    """
+    from .transforms import quaternion_to_matrix
+
+    warn = warn or (lambda m: print(m, file=sys.stderr))
+    current: PoseData | None = None
+    widths = {"joints": 8, "probe": 6, "centre": 6, "pose": 9, "end": 2}
+    for n, raw in enumerate(lines, start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        f = [c.strip() for c in line.split(",")]
+        tag = f[0]
+        try:
+            if tag not in widths:
+                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, end)")
+            if len(f) != widths[tag]:
+                raise ValueError(f"{tag} takes {widths[tag] - 1} fields, got {len(f) - 1}")
+            pose = int(f[1])
+            if tag != "joints" and (current is None or current.pose != pose):
+                raise ValueError(f"{tag} for pose {pose} before its joints line")
+            if tag in ("probe", "centre") and f[2] not in balls:
+                raise ValueError(f"unknown ball {f[2]!r} (dataset.yaml has {', '.join(balls)})")
+            values = [float(v) for v in f[3 if tag in ("probe", "centre") else 2:]]
+            if not all(np.isfinite(values)):
+                raise ValueError("a number is not finite")
+        except ValueError as exc:
+            warn(f"stdin: line {n} skipped: {exc}")
+            continue
+        if tag == "joints":
+            if current is not None:
+                yield current
+            current = PoseData(pose, np.radians(values))
+        elif tag == "probe":
+            pts = dict(current.probes)
+            pts[f[2]] = np.vstack([pts.get(f[2], np.zeros((0, 3))), values])
+            current.probes = list(pts.items())
+        elif tag == "centre":
+            current.centres.append((f[2], np.array(values)))
+        elif tag == "pose":
+            q = np.array(values[3:])
+            if abs(np.linalg.norm(q) - 1) > 1e-3:
+                warn(f"stdin: line {n} skipped: quaternion norm {np.linalg.norm(q):.6g}, expected 1")
+                continue
+            T = np.eye(4)
+            T[:3, :3] = quaternion_to_matrix(q)
+            T[:3, 3] = values[:3]
+            current.T = T
+        else:  # end
+            yield current
+            current = None
+    if current is not None:
+        yield current
 
 log = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = "fgcal-online-checkpoint/1"
@@ -51,6 +130,7 @@ class OnlineRun:
     processed: list[dict] = field(default_factory=list)
     history: list[dict] = field(default_factory=list)
     engine_kw: dict = field(default_factory=dict)
+    streamed: dict = field(default_factory=dict)  # pose -> PoseData received from a stream
 
     def __post_init__(self):
         self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options, **self.engine_kw)
@@ -59,7 +139,8 @@ class OnlineRun:
     def _state(self) -> dict:
         d = {"format": CHECKPOINT_FORMAT, "engine": self.engine_kind,
              "dataset": str(Path(self.ds.path).resolve()) if self.ds.path else None,
-             "processed": self.processed, "history": self.history}
+             "processed": self.processed, "history": self.history,
+             "streamed": [_record_to_json(r) for r in self.streamed.values()]}
         if hasattr(self.engine, "state"):
             d["state"] = self.engine.state()
         return d
@@ -82,7 +163,9 @@ class OnlineRun:
         here = str(Path(self.ds.path).resolve()) if self.ds.path else None
         if d.get("dataset") != here:
             raise FgcalError(f"{self.checkpoint}: written for {d.get('dataset')}, not {here}; use --restart")
+        self.streamed = {int(r["pose"]): _record_from_json(r) for r in d.get("streamed", [])}
         records = {r.pose: r for r in pose_records(self.ds)}
+        records.update(self.streamed)
         missing = [p["pose"] for p in d["processed"] if p["pose"] not in records]
         if missing:
             raise FgcalError(f"{self.checkpoint}: pose(s) {missing[:5]} are no longer in the dataset; use --restart")
@@ -103,7 +186,11 @@ class OnlineRun:
         done = {p["pose"] for p in self.processed}
         return [r for r in pose_records(ds or self.ds) if r.pose not in done]
 
-    def feed(self, rec) -> dict:
+    def feed(self, rec, streamed: bool = False) -> dict:
+        if streamed:
+            if rec.pose in {p["pose"] for p in self.processed}:
+                return {"pose": rec.pose, "accepted": False, "reason": "already processed (ignored)"}
+            self.streamed[rec.pose] = rec
         report = self.engine.update(rec)
         entry = {"pose": rec.pose, "accepted": report.accepted, "reason": report.reason}
         self.processed.append(entry)
