@@ -22,9 +22,9 @@ from .kinematics import forward, tool_points
 from .model import EULER_FIELDS, SLOT_NAMES, RobotModel, slot, slots_to_file_units
 from .posefit import rigid_fit
 from .result import CalibrationResult, LevelSummary, ParameterEstimate
-from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points
+from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from .simulate import Deviations
-from .transforms import quaternion_to_matrix, to_euler_zyx_trans
+from .transforms import to_euler_zyx_trans
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "gtsam_covariance"]
@@ -156,14 +156,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         # Start each centre from a sphere fit of its points (batched over balls with equal counts).
         init_c = np.full((len(keys), 3), np.nan)
         var_of_probe = np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int)
-        counts = np.bincount(var_of_probe, minlength=len(keys))
-        order = np.argsort(var_of_probe, kind="stable")
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        for n_pts in np.unique(counts):
-            if n_pts < 4:
-                continue
-            vs = np.nonzero(counts == n_pts)[0]
-            pts = pr.xyz[order[starts[vs][:, None] + np.arange(n_pts)]]
+        for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=4):
             init_c[vs] = fit_spheres_batch(pts, ds.tooling.radius)
         for j, (p, b) in enumerate(keys):
             if np.all(np.isfinite(init_c[j])):
@@ -183,9 +176,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     if "poses" in levels:
         po = ds.poses
         idx = np.array([row[p] for p in po.pose], dtype=int)
-        T = np.tile(np.eye(4), (len(po), 1, 1))
-        T[:, :3, :3] = quaternion_to_matrix(po.quat)
-        T[:, :3, 3] = po.xyz
+        T = po.matrices()
         kw["poses"] = (idx, T)
         axes = np.array([[0.0, 0, 0], [100.0, 0, 0], [0, 100.0, 0], [0, 0, 100.0]])
         for i, Ti in zip(idx, T):
@@ -204,11 +195,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         # not fit a sphere start at the prediction itself.
         T0 = forward(params.full(theta0, start), q)
         predicted = tool_points(T0[graph.ball_pose], graph.ball_offset[:, None, :])[:, 0]
-        for n_pts in np.unique(counts):
-            if n_pts < 3:
-                continue
-            vs = np.nonzero(counts == n_pts)[0]
-            pts = pr.xyz[order[starts[vs][:, None] + np.arange(n_pts)]]
+        for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=3):
             first = init_c[vs]
             ok = np.all(np.isfinite(first), axis=1)
             first_ok = np.where(ok[:, None], first, predicted[vs])
@@ -251,7 +238,7 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
     return state, max_iterations, False
 
 
-def gtsam_covariance(graph: Graph, state: State) -> np.ndarray:
+def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     """Covariance of theta from ``gtsam.Marginals`` on the graph linearised at ``state``.
 
     The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
@@ -259,7 +246,7 @@ def gtsam_covariance(graph: Graph, state: State) -> np.ndarray:
     """
     import factors as fx
 
-    lin = graph.linearise(state)
+    lin = graph.linearise(state) if lin is None else lin
     gfg = gtsam.GaussianFactorGraph()
     t_key = fx.theta_key()
     qdim = 6 if graph.joint_vars else 0
@@ -293,9 +280,9 @@ def gtsam_covariance(graph: Graph, state: State) -> np.ndarray:
     return gtsam.Marginals(gfg, sol).marginalCovariance(t_key)
 
 
-def _level_summaries(graph: Graph, state: State, cov_internal) -> dict[str, LevelSummary]:
-    lin = graph.linearise(state)
-    red = graph.leverage_by_level(state, cov_internal)
+def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
+    lin = graph.linearise(state) if lin is None else lin
+    red = graph.leverage_by_level(state, cov_internal, lin)
     out = {}
     units = {"probes": "mm", "kinematic": "mm", "centres": "mm", "poses": "mm", "joints": "deg", "prior": "-"}
     sig = graph.sigmas
@@ -366,8 +353,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     scale = {}
     if options.estimate_noise:
         for _ in range(8):
-            S = graph.parameter_information(state)
-            summaries = _level_summaries(graph, state, np.linalg.inv(S))
+            lin = graph.linearise(state)
+            summaries = _level_summaries(graph, state, np.linalg.inv(graph.parameter_information(state, lin)), lin)
             factors_ = {lv: s.variance_factor for lv, s in summaries.items()
                         if lv in ("probes", "centres", "poses") and np.isfinite(s.variance_factor)}
             if all(abs(f - 1) < 0.01 for f in factors_.values()):
@@ -380,13 +367,13 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
             state, it2, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
             iterations += it2
 
-    cov = gtsam_covariance(graph, state)
+    # Everything below works from one linearisation at the solution.
+    lin = graph.linearise(state)
+    cov = gtsam_covariance(graph, state, lin)
     final = graph.params
-    Sinfo = graph.parameter_information(state)
-    dscale = 1.0 / np.sqrt(np.diag(Sinfo))
-    eig = np.linalg.eigvalsh(Sinfo * np.outer(dscale, dscale))
-    sv = np.sqrt(np.clip(eig, 0.0, None))[::-1]
-    still = _unidentifiable(graph, state)
+    identifiability = analyse_information(graph.parameter_information(state, lin), final.names)
+    sv = identifiability.singular_values
+    still = identifiability.redundant
     if still:
         log.warning("at the solution these parameters are not identifiable: %s", ", ".join(still))
     slots = final.full(state.theta, graph.held)
@@ -395,10 +382,10 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     nominal = final.to_file_units(final.nominal())
     cov_file = final.covariance_to_file_units(cov)
     sigma = np.sqrt(np.diag(cov_file))
-    levels_summary = _level_summaries(graph, state, cov)
+    levels_summary = _level_summaries(graph, state, cov, lin)
     opts = asdict(options)
     opts["noise_scale"] = scale
-    raw = graph.linearise(state).raw
+    raw = lin.raw
     residuals = {}
     if "probes" in raw:
         residuals["probes_mm"] = raw["probes"][0][:, 0].tolist()
@@ -417,7 +404,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         parameters=[ParameterEstimate(n, u, float(a), float(b), float(s))
                     for n, u, a, b, s in zip(final.names, final.units, nominal, est, sigma)],
         covariance=cov_file, slots={n: float(v) for n, v in zip(SLOT_NAMES, slots_file)}, held=held_info,
-        levels=levels_summary, iterations=iterations, converged=converged, cost=float(graph.cost(state)),
+        levels=levels_summary, iterations=iterations, converged=converged, cost=float(lin.cost),
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
         fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist())

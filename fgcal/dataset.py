@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .model import Tooling
+from .transforms import pose_matrices
 
 __all__ = ["FORMAT", "Noise", "PointObservations", "PoseObservations", "Dataset"]
 
@@ -105,6 +106,10 @@ class PoseObservations:
 
     def subset(self, mask) -> "PoseObservations":
         return PoseObservations(self.pose[mask], self.xyz[mask], self.quat[mask], self.line[mask])
+
+    def matrices(self) -> np.ndarray:
+        """The poses as homogeneous transforms ``(K, 4, 4)`` (mm)."""
+        return pose_matrices(self.xyz, self.quat)
 
 
 @dataclass

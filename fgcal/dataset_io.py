@@ -109,25 +109,31 @@ def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> Poi
                              np.array(xyz, dtype=float).reshape(-1, 3), np.array(lines, dtype=int))
 
 
+def _pose_row(where: str, r: dict) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(pose, xyz, unit quaternion)`` of a ``pose,x,y,z,qw,qx,qy,qz`` row; the norm is checked."""
+    pid = _integer(r["pose"], where, "pose")
+    q = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
+    norm = np.linalg.norm(q)
+    if abs(norm - 1.0) > 1e-3:
+        raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {norm:.6g}, expected 1")
+    return pid, np.array([_number(r[c], where, c) for c in "xyz"]), q / norm
+
+
 def _pose_table(path: Path, known_poses: set) -> PoseObservations:
     rows = _read_table(path, POSE_COLUMNS)
     pose, xyz, quat, lines = [], [], [], []
     seen = {}
     for line, r in rows:
         where = f"{path}: line {line}"
-        pid = _integer(r["pose"], where, "pose")
+        pid, p, q = _pose_row(where, r)
         if pid not in known_poses:
             raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
         if pid in seen:
             raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
         seen[pid] = line
-        q = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
-        norm = np.linalg.norm(q)
-        if abs(norm - 1.0) > 1e-3:
-            raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {norm:.6g}, expected 1")
         pose.append(pid)
-        xyz.append([_number(r[c], where, c) for c in "xyz"])
-        quat.append(q / norm)
+        xyz.append(p)
+        quat.append(q)
         lines.append(line)
     return PoseObservations(np.array(pose, dtype=int), np.array(xyz).reshape(-1, 3), np.array(quat).reshape(-1, 4),
                             np.array(lines, dtype=int))
@@ -256,7 +262,7 @@ def read_targets(path):
 
     Returns ``(ids (N,), T (N, 4, 4) mm, seeds (N, 6) rad or None)``.
     """
-    from .transforms import quaternion_to_matrix
+    from .transforms import pose_matrices
 
     path = Path(path)
     rows = _read_table(path, POSE_COLUMNS, optional=JOINT_COLUMNS[1:])
@@ -268,18 +274,12 @@ def read_targets(path):
     ids, T, seeds, seen = [], [], [], {}
     for line, r in rows:
         where = f"{path}: line {line}"
-        pid = _integer(r["pose"], where, "pose")
+        pid, xyz, quat = _pose_row(where, r)
         if pid in seen:
             raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
         seen[pid] = line
-        quat = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
-        if abs(np.linalg.norm(quat) - 1.0) > 1e-3:
-            raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {np.linalg.norm(quat):.6g}, expected 1")
-        M = np.eye(4)
-        M[:3, :3] = quaternion_to_matrix(quat)
-        M[:3, 3] = [_number(r[c], where, c) for c in "xyz"]
         ids.append(pid)
-        T.append(M)
+        T.append(pose_matrices(xyz, quat))
         if all(has_q):
             seeds.append(np.radians([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]]))
     return np.array(ids), np.array(T), (np.array(seeds) if seeds else None)

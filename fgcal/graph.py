@@ -199,7 +199,7 @@ class Graph:
     def joints(self, state: State) -> np.ndarray:
         return state.q if self.joint_vars else self.readings
 
-    def linearise(self, state: State, weights=None) -> Linearisation:
+    def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself."""
         n, m, P, nz = self.n_poses, self.m, len(self.index), self.nz
         r = np.zeros((n, m))
@@ -306,16 +306,19 @@ class Graph:
             new.c = state.c + d_z[self.ball_pose[:, None], cols]
         return new, d_theta, -float(rhs @ d_theta)
 
-    def parameter_information(self, state: State) -> np.ndarray:
-        """The (P, P) information of theta with the per-pose variables marginalised out."""
-        lin = self.linearise(state)
+    def parameter_information(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
+        """The (P, P) information of theta with the per-pose variables marginalised out.
+
+        ``lin``: the linearisation at ``state`` when the caller has it already.
+        """
+        lin = self.linearise(state) if lin is None else lin
         A, B, D, _, _ = self.normal_equations(lin)
         S, _, _ = self.reduced(A, B, D)
         return S
 
-    def leverage_by_level(self, state: State, covariance) -> dict:
+    def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
         """Redundancy of each factor level: rows minus the sum of the hat matrix diagonal."""
-        lin = self.linearise(state)
+        lin = self.linearise(state) if lin is None else lin
         A, B, D, _, _ = self.normal_equations(lin)
         _, _, Dinv = self.reduced(A, B, D)
         St = covariance  # (P, P) = S^-1

@@ -34,7 +34,7 @@ from .errors import FgcalError
 from .graph import Sigmas
 from .model import ParameterSet, RobotModel
 from .spherefit import fit_spheres_checked
-from .transforms import quaternion_to_matrix
+from .transforms import pose_matrices
 
 __all__ = ["PoseData", "pose_records", "weak_prior", "UpdateReport", "ISAM2Engine", "KalmanEngine", "make_engine"]
 
@@ -70,10 +70,7 @@ def pose_records(ds: Dataset, levels=None) -> list[PoseData]:
         if "poses" in levels and ds.poses is not None:
             sel = np.nonzero(ds.poses.pose == pid)[0]
             if len(sel):
-                T = np.eye(4)
-                T[:3, :3] = quaternion_to_matrix(ds.poses.quat[sel[0]])
-                T[:3, 3] = ds.poses.xyz[sel[0]]
-                rec.T = T
+                rec.T = pose_matrices(ds.poses.xyz[sel[0]], ds.poses.quat[sel[0]])
         out.append(rec)
     return out
 

@@ -56,7 +56,7 @@ def read_stream(lines, balls, warn=None):
     A malformed line is reported through ``warn(message)`` with its line number and skipped; the
     stream goes on (an operator's typo should not end a measuring session).
     """
-    from .transforms import quaternion_to_matrix
+    from .transforms import pose_matrices
 
     warn = warn or (lambda m: print(m, file=sys.stderr))
     current: PoseData | None = None
@@ -98,10 +98,7 @@ def read_stream(lines, balls, warn=None):
             if abs(np.linalg.norm(q) - 1) > 1e-3:
                 warn(f"stdin: line {n} skipped: quaternion norm {np.linalg.norm(q):.6g}, expected 1")
                 continue
-            T = np.eye(4)
-            T[:3, :3] = quaternion_to_matrix(q)
-            T[:3, 3] = values[:3]
-            current.T = T
+            current.T = pose_matrices(values[:3], q)
         else:  # end
             yield current
             current = None

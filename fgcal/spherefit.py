@@ -87,6 +87,33 @@ def fit_spheres_batch(points, radius: float, iterations: int = 20, guess=None) -
     return centre
 
 
+def point_groups(owner, xyz, minimum: int = 1):
+    """Points grouped by owner (for example a ball variable), stacked by equal count.
+
+    Parameters
+    ----------
+    owner : array_like of int, shape (M,)
+        Index of the sphere each point belongs to (0 .. K-1).
+    xyz : array_like, shape (M, 3)
+
+    Yields
+    ------
+    spheres : ndarray of int, shape (k,)
+        The spheres with ``n`` points each (``n >= minimum``).
+    points : ndarray, shape (k, n, 3)
+    """
+    owner = np.asarray(owner, dtype=int)
+    xyz = np.asarray(xyz, dtype=float)
+    counts = np.bincount(owner)
+    order = np.argsort(owner, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    for n in np.unique(counts):
+        if n < minimum:
+            continue
+        spheres = np.nonzero(counts == n)[0]
+        yield spheres, xyz[order[starts[spheres][:, None] + np.arange(n)]]
+
+
 def fit_spheres_checked(point_sets, radius: float, sigma: float, threshold: float | None = None):
     """:func:`fit_sphere` (known radius) for several balls at once, fast for the common case.
 

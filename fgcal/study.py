@@ -144,16 +144,6 @@ def _paper_plan(robot: str):
     return q
 
 
-def _errors(slots, truth, q):
-    from .kinematics import forward
-    from .transforms import pose_difference
-
-    d, delta = pose_difference(forward(slots, q), forward(truth, q))
-    pos = np.linalg.norm(d, axis=1)
-    ori = np.degrees(np.linalg.norm(delta, axis=1))
-    return float(np.sqrt(np.mean(pos**2))), float(pos.max()), float(np.sqrt(np.mean(ori**2))), float(ori.max())
-
-
 def run_trial(trial: Trial, q_identify=None) -> dict:
     """Simulate, calibrate and verify one trial; a row of :data:`RESULT_COLUMNS`.
 
@@ -164,7 +154,8 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     from .dataset import Noise
     from .robot_file import load_model
     from .simulate import draw_truth, measure, random_plan
-    from .verify import measured_poses
+    from .kinematics import forward
+    from .verify import compare_poses, measured_poses
 
     t0 = time.perf_counter()
     model = load_model(trial.robot)
@@ -195,15 +186,14 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     result = calibrate(ident, model)
     ver = dataset(verify_q)
     q_ver = ver.joints_rad
-    pos_rms, pos_max, ori_rms, ori_max = _errors(result.slot_vector(), truth, q_ver)
+    after = compare_poses(forward(result.slot_vector(), q_ver), forward(truth, q_ver)).summary()
+    pos_rms, pos_max = after["position_mm"]["rms"], after["position_mm"]["max"]
+    ori_rms, ori_max = after["orientation_deg"]["rms"], after["orientation_deg"]["max"]
     ids, T_meas, _ = measured_poses(ver)
     if len(ids):
-        from .kinematics import forward
-        from .transforms import pose_difference
-
-        d, delta = pose_difference(forward(result.slot_vector(), ver.joints_rad[ver.row_of(ids)]), T_meas)
-        measured_pos = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
-        measured_ori = float(np.degrees(np.sqrt(np.mean(np.sum(delta**2, axis=1)))))
+        against = compare_poses(forward(result.slot_vector(), ver.joints_rad[ver.row_of(ids)]), T_meas).summary()
+        measured_pos = against["position_mm"]["rms"]
+        measured_ori = against["orientation_deg"]["rms"]
     row = asdict(trial)
     for k in ("n_verify", "q_plan", "predicted", "index_values"):
         row.pop(k)

@@ -14,6 +14,7 @@ __all__ = [
     "to_euler_zyx_trans",
     "matrix_to_quaternion",
     "quaternion_to_matrix",
+    "pose_matrices",
     "so3_log",
     "pose_difference",
 ]
@@ -124,6 +125,16 @@ def quaternion_to_matrix(q) -> np.ndarray:
     R[..., 2, 1] = 2 * (y * z + w * x)
     R[..., 2, 2] = 1 - 2 * (x * x + y * y)
     return R
+
+
+def pose_matrices(xyz, quat) -> np.ndarray:
+    """Homogeneous transforms ``(..., 4, 4)`` from positions ``(..., 3)`` and quaternions ``(..., 4)``."""
+    xyz = np.asarray(xyz, dtype=float)
+    T = np.zeros(xyz.shape[:-1] + (4, 4))
+    T[..., :3, :3] = quaternion_to_matrix(quat)
+    T[..., :3, 3] = xyz
+    T[..., 3, 3] = 1.0
+    return T
 
 
 def so3_log(R) -> np.ndarray:

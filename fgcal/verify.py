@@ -18,9 +18,9 @@ from .measure import measure_probes
 from .model import SLOT_NAMES, RobotModel, slots_from_file_units
 from .posefit import rigid_fit
 from .result import CalibrationResult
-from .transforms import pose_difference, quaternion_to_matrix
+from .transforms import pose_difference
 
-__all__ = ["ErrorStats", "Verification", "measured_poses", "verify", "error_stats"]
+__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses"]
 
 
 @dataclass
@@ -85,10 +85,7 @@ def measured_poses(ds: Dataset):
     """
     skipped = []
     if ds.poses is not None:
-        T = np.tile(np.eye(4), (len(ds.poses), 1, 1))
-        T[:, :3, :3] = quaternion_to_matrix(ds.poses.quat)
-        T[:, :3, 3] = ds.poses.xyz
-        return ds.poses.pose.copy(), T, skipped
+        return ds.poses.pose.copy(), ds.poses.matrices(), skipped
     if ds.centres is not None:
         ids, Ts = [], []
         sigma = ds.noise.centre_sigma if ds.noise.centre_sigma is not None else ds.noise.cmm_sigma
@@ -107,14 +104,11 @@ def measured_poses(ds: Dataset):
     if ds.probes is not None:
         m = measure_probes(ds)
         skipped += [f"pose {q.pose}: {q.status}" for q in m.quality if q.ball == "*" and q.status != "ok"]
-        T = np.tile(np.eye(4), (len(m.poses), 1, 1))
-        T[:, :3, :3] = quaternion_to_matrix(m.poses.quat)
-        T[:, :3, 3] = m.poses.xyz
-        return m.poses.pose.copy(), T, skipped
+        return m.poses.pose.copy(), m.poses.matrices(), skipped
     raise FgcalError(f"{ds.path or 'dataset'}: no measurements to verify against")
 
 
-def _compare(T_model, T_ref) -> Comparison:
+def compare_poses(T_model, T_ref) -> Comparison:
     d, delta = pose_difference(T_ref, T_model)
     return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)))
 
@@ -127,10 +121,10 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
     q = ds.joints_rad[ds.row_of(ids)]
     T_cal = forward(result.slot_vector(), q)
     T_nom = forward(model.nominal, q)
-    out = Verification(ids, _compare(T_cal, T_meas), _compare(T_nom, T_meas), skipped=skipped)
+    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
     if ds.truth is not None:
         truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
         T_true = forward(truth, q)
-        out.truth_after = _compare(T_cal, T_true)
-        out.truth_before = _compare(T_nom, T_true)
+        out.truth_after = compare_poses(T_cal, T_true)
+        out.truth_before = compare_poses(T_nom, T_true)
     return out
