@@ -1,0 +1,167 @@
+"""From a tracker export to a calibrated robot: ``fgcal import csv`` on a simulated UR10.
+
+The simulated tracker stands 2.5 m from the robot, at a bearing of 120 deg and turned by 120 deg;
+its export holds joints in radians (as ROS logs them), positions in metres and ``xyzw``
+quaternions, with semicolons and decimal commas. One command imports it; calibrate and verify
+then recover the simulated robot within the reported uncertainty.
+"""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fgcal.dataset_io import dataset_model, load_dataset
+from fgcal.kinematics import forward
+from fgcal.calibrate import CalibrationOptions, calibrate
+from fgcal.model import SLOT_NAMES, slot, slots_to_file_units
+from fgcal.result import load_result
+from fgcal.robot_file import load_model
+from fgcal.table_io import ColumnSpec, read_measurements
+from fgcal.transforms import to_euler_zyx_trans
+
+JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
+SIGMA_MM, SIGMA_DEG = 0.02, 0.005
+ANGLES = ("theta", "alpha", "beta", "phi", "psi")
+
+
+def _place(slots, part, T):
+    slots[[slot(f"{part}.{f}") for f in ("phi", "theta", "psi", "px", "py", "pz")]] = to_euler_zyx_trans(T)
+
+
+def simulated_ur10(rng, n):
+    """``(model, truth slots (37,), q (n, 6) rad, measured T (n, 4, 4) mm)`` of a UR10 seen by a tracker."""
+    model = load_model("ur10")
+    truth = model.nominal.copy()
+    for name in model.identifiable_names():
+        angle = name.split(".")[1] in ANGLES
+        truth[slot(name)] += rng.normal() * (np.radians(0.05) if angle else 0.5)
+    base = np.eye(4)  # the robot seen from the tracker: 2.5 m away at 120 deg, turned by 120 deg, 0.4 m lower
+    base[:3, :3] = Rotation.from_euler("zyx", [120, 0.3, -0.2], degrees=True).as_matrix()
+    base[:3, 3] = [2500 * np.cos(np.radians(120)), 2500 * np.sin(np.radians(120)), -400]
+    tool = np.eye(4)  # a 6-DoF probe 180 mm out on the flange
+    tool[:3, :3] = Rotation.from_euler("zyx", [90, 2, -1], degrees=True).as_matrix()
+    tool[:3, 3] = [25, -15, 180]
+    _place(truth, "base", base)
+    _place(truth, "tool", tool)
+    lo = np.array([-np.pi, -2.6, -2.4, -np.pi, -np.pi, -np.pi])
+    hi = np.array([np.pi, -0.5, 2.4, np.pi, np.pi, np.pi])
+    q = rng.uniform(lo, hi, size=(n, 6))
+    T = forward(truth, q)
+    T[:, :3, 3] += rng.normal(size=(n, 3)) * SIGMA_MM
+    dR = Rotation.from_rotvec(rng.normal(size=(n, 3)) * np.radians(SIGMA_DEG)).as_matrix()
+    T[:, :3, :3] = dR @ T[:, :3, :3]
+    return model, truth, q, T
+
+
+def _comma(v, digits):
+    return f"{v:.{digits}f}".replace(".", ",")
+
+
+def tracker_export(path, q, T):
+    """A tracker's export: ``;``, decimal commas, joints in rad, metres, xyzw quaternions; two bad rows."""
+    quat = Rotation.from_matrix(T[:, :3, :3]).as_quat()  # x, y, z, w
+    lines = ["stamp;" + ";".join(JOINTS) + ";x;y;z;qx;qy;qz;qw"]
+    for i in range(len(q)):
+        lines.append(";".join([_comma(1700000000 + 0.5 * i, 3)] + [_comma(v, 9) for v in q[i]]
+                              + [_comma(v / 1000, 8) for v in T[i, :3, 3]] + [_comma(v, 9) for v in quat[i]]))
+    lines.insert(4, lines[3].rsplit(";", 1)[0] + ";")  # line 5: qw missing
+    bad = lines[6].split(";")
+    bad[-1] = "0,2"  # line 7: not a unit quaternion
+    lines[6] = ";".join(bad)
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return {5: "missing or unreadable qw", 7: "quaternion norm"}
+
+
+def _cli(*args):
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", *map(str, args)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    return run.stdout
+
+
+def test_tracker_csv_to_calibrated_ur10(tmp_path):
+    model, truth, q, T = simulated_ur10(np.random.default_rng(150), 80)
+    export = tmp_path / "tracker.csv"
+    bad = tracker_export(export, q, T)
+    out = _cli("import", "csv", export, tmp_path / "ur10", "--robot", "ur10", "--joints", ",".join(JOINTS),
+               "--joint-unit", "rad", "--pose", "x,y,z,qx,qy,qz,qw", "--length-unit", "m", "--holdout", "0.25",
+               "--sigma", SIGMA_MM, "--orientation-sigma", SIGMA_DEG)
+    for line, reason in bad.items():
+        assert f"line {line}: {reason}" in out
+    calib, held = load_dataset(tmp_path / "ur10"), load_dataset(tmp_path / "ur10-holdout")
+    assert calib.n_poses + held.n_poses == 79 and set(calib.pose_ids).isdisjoint(held.pose_ids)
+    assert calib.poses is not None and calib.noise.pose_position_sigma == SIGMA_MM
+
+    _cli("calibrate", tmp_path / "ur10", "--out", tmp_path / "result.json")
+    _cli("verify", tmp_path / "result.json", tmp_path / "ur10-holdout", "--out", tmp_path / "verify.json")
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert result["converged"] and result["held"] == []
+    truth_file = dict(zip(SLOT_NAMES, slots_to_file_units(truth)))
+    z = np.array([(p["estimate"] - truth_file[p["name"]]) / p["sigma"] for p in result["parameters"]])
+    assert len(z) == 30
+    assert np.abs(z).max() < 4.0 and 0.5 < np.sqrt(np.mean(z**2)) < 1.6  # the sigmas are honest
+
+    # At the held-out poses: the fitted-base-and-tool model is mm off, the calibrated one at the noise.
+    v = json.loads((tmp_path / "verify.json").read_text())
+    assert v["n_poses"] == held.n_poses
+    assert v["before"]["position_mm"]["rms"] > 0.5
+    assert v["position_mm"]["rms"] < 3 * np.sqrt(3) * SIGMA_MM
+    assert v["orientation_deg"]["rms"] < 3 * np.sqrt(3) * SIGMA_DEG
+    cal = load_result(tmp_path / "result.json").slot_vector()
+    err = np.linalg.norm(forward(cal, held.joints_rad)[:, :3, 3] - forward(truth, held.joints_rad)[:, :3, 3], axis=1)
+    assert np.sqrt(np.mean(err**2)) < 0.03  # the calibrated robot, not only its residuals
+
+
+def test_position_only_import_of_a_reflector(tmp_path):
+    """Tab-separated, degrees, millimetres, one reflector: the base and its offset are found from the points."""
+    model, truth, q, T = simulated_ur10(np.random.default_rng(151), 60)
+    path = tmp_path / "points.txt"
+    rows = ["j1\tj2\tj3\tj4\tj5\tj6\tX\tY\tZ"]
+    rows += ["\t".join([f"{v:.7f}" for v in np.degrees(qi)] + [f"{v:.5f}" for v in Ti[:3, 3]]) for qi, Ti in zip(q, T)]
+    path.write_text("\n".join(rows) + "\n")
+    out = _cli("import", "csv", path, tmp_path / "refl", "--robot", "ur10", "--joints", "j1,j2,j3,j4,j5,j6",
+               "--joint-unit", "deg", "--point", "X,Y,Z", "--sigma", SIGMA_MM, "--holdout", "0.2")
+    assert "0 row(s) skipped" in out and "positions" in out
+    ds, held = load_dataset(tmp_path / "refl"), load_dataset(tmp_path / "refl-holdout")
+    assert ds.poses is None and len(ds.centres) == ds.n_poses == 48
+    assert ds.tooling.radius == 0.0 and list(ds.tooling.balls) == ["P"]
+    # The fitted start already places the reflector: its offset on the flange is the simulated one.
+    start = dataset_model(ds).nominal
+    bare = truth.copy()
+    bare[[slot(f"tool.{f}") for f in ("phi", "theta", "psi", "px", "py", "pz")]] = 0.0
+    qh = held.joints_rad
+    at = np.einsum("nij,nj->ni", np.linalg.inv(forward(bare, qh)), np.c_[forward(start, qh)[:, :3, 3], np.ones(len(qh))])
+    np.testing.assert_allclose(at[:, :3], np.tile([25, -15, 180], (len(qh), 1)), atol=5.0)
+
+    r = calibrate(ds, dataset_model(ds), CalibrationOptions())
+    held_names = {h["name"] for h in r.held}  # a point shows 3 of the tool's 6 parameters
+    assert r.converged and len(held_names) == 3 and all(n.startswith("tool.") for n in held_names)
+    err = np.linalg.norm(forward(r.slot_vector(), qh)[:, :3, 3] - forward(truth, qh)[:, :3, 3], axis=1)
+    before = np.linalg.norm(forward(start, qh)[:, :3, 3] - forward(truth, qh)[:, :3, 3], axis=1)
+    assert np.sqrt(np.mean(before**2)) > 0.5 and np.sqrt(np.mean(err**2)) < 0.05
+    assert np.sqrt(np.mean(np.sum((held.centres.xyz - forward(r.slot_vector(), qh)[:, :3, 3]) ** 2, axis=1))) < \
+        3 * np.sqrt(3) * SIGMA_MM
+
+
+@pytest.mark.parametrize("order", ["wxyz", "xyzw"])
+def test_quaternion_orders_and_euler_conventions_agree(tmp_path, order):
+    rng = np.random.default_rng(152)
+    R = Rotation.random(5, random_state=rng.integers(1 << 31))
+    xyzw = R.as_quat()
+    quat = xyzw if order == "xyzw" else xyzw[:, [3, 0, 1, 2]]
+    eul_in, eul_ex = R.as_euler("XYZ", degrees=True), R.as_euler("zyx", degrees=True)
+    lines = ["a,b,x,y,z,r1,r2,r3,r4,i1,i2,i3,e1,e2,e3"]
+    lines += [",".join(repr(float(v)) for v in [0.1, 0.2, 1.0, 2.0, 3.0, *qq, *ei, *ee]) for qq, ei, ee in zip(quat, eul_in, eul_ex)]
+    path = tmp_path / "t.csv"
+    path.write_text("\n".join(lines) + "\n")
+    common = dict(joints=("a", "b"), joint_unit="rad")
+    mq = read_measurements(path, ColumnSpec(pose=("x", "y", "z", "r1", "r2", "r3", "r4"), quaternion_order=order,
+                                            length_unit="m", **common))
+    mi = read_measurements(path, ColumnSpec(pose=("x", "y", "z", "i1", "i2", "i3"), euler_convention="XYZ", **common))
+    me = read_measurements(path, ColumnSpec(pose=("x", "y", "z", "e1", "e2", "e3"), euler_convention="zyx", **common))
+    for m in (mq, mi, me):
+        np.testing.assert_allclose(m.R, R.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(mq.xyz[0], [1000, 2000, 3000])
+    np.testing.assert_allclose(mi.xyz[0], [1, 2, 3])
