@@ -165,3 +165,81 @@ def test_quaternion_orders_and_euler_conventions_agree(tmp_path, order):
         np.testing.assert_allclose(m.R, R.as_matrix(), atol=1e-12)
     np.testing.assert_allclose(mq.xyz[0], [1000, 2000, 3000])
     np.testing.assert_allclose(mi.xyz[0], [1, 2, 3])
+
+
+def test_tum_trajectory_joined_with_a_joint_log(tmp_path):
+    """evo's TUM format (s, m, xyzw) plus a 50 Hz joint log: nearest reading within the tolerance, others named."""
+    from fgcal.tum import read_tum_with_joint_log
+
+    rng = np.random.default_rng(153)
+    _, truth, q, T = simulated_ur10(rng, 12)
+    t_pose = 100.0 + 2.0 * np.arange(12)
+    quat = Rotation.from_matrix(T[:, :3, :3]).as_quat()
+    tum = ["# timestamp tx ty tz qx qy qz qw"]
+    tum += [" ".join(f"{v:.9f}" for v in [t, *(p / 1000), *qq]) for t, p, qq in zip(t_pose, T[:, :3, 3], quat)]
+    (tmp_path / "traj.tum").write_text("\n".join(tum) + "\n")
+    # The log samples the robot standing still at each pose, 3 ms off the tracker's clock; pose 5 has no reading.
+    log = ["time,j1,j2,j3,j4,j5,j6"]
+    for i in range(12):
+        if i != 4:
+            log += [",".join(f"{v:.9f}" for v in [t_pose[i] + dt, *q[i]]) for dt in (-0.497, -0.003, 0.503)]
+    (tmp_path / "joints.csv").write_text("\n".join(log) + "\n")
+    m = read_tum_with_joint_log(tmp_path / "traj.tum", tmp_path / "joints.csv", [f"j{k}" for k in range(1, 7)],
+                                tolerance=0.01)
+    keep = np.arange(12) != 4
+    assert m.skipped == ["line 6: no joint reading within 0.01 (nearest 1.5 away)"]
+    np.testing.assert_array_equal(m.line, np.arange(2, 14)[keep])
+    np.testing.assert_allclose(m.joints_rad, q[keep], atol=1e-9)
+    np.testing.assert_allclose(m.xyz, T[keep, :3, 3], atol=1e-6)
+    np.testing.assert_allclose(m.R, T[keep, :3, :3], atol=1e-8)
+    out = _cli("import", "tum", tmp_path / "traj.tum", tmp_path / "ds", "--robot", "ur10", "--joint-log",
+               tmp_path / "joints.csv", "--joints", "j1,j2,j3,j4,j5,j6")
+    assert "line 6: no joint reading" in out
+    assert load_dataset(tmp_path / "ds").n_poses == 11
+
+
+def test_landgraf_series_without_std_columns(tmp_path):
+    """Series A has no measurement-std columns: read with the default noise, same poses as with them."""
+    from fgcal.landgraf import read_series, series_to_datasets
+
+    _, _, q, T = simulated_ur10(np.random.default_rng(154), 10)
+    eul = Rotation.from_matrix(T[:, :3, :3]).as_euler("XYZ", degrees=True)
+    header = ("Timestamp;Goal x;Goal y;Goal z;Goal roll;Goal pitch;Goal yaw;" + ";".join(JOINTS)
+              + ";measurement_temperature;measurement_x;measurement_y;measurement_z;measurement_rx;measurement_ry;"
+              "measurement_rz")
+    lines = [header] + [";".join(["2,02E+13"] + [_comma(v, 9) for v in [i, 0, 0, 0, 0, 0, *q[i], 21.5, *T[i, :3, 3],
+                                                                        *eul[i]]]) for i in range(10)]
+    (tmp_path / "a.csv").write_text("\n".join(lines) + "\n")
+    s = read_series(tmp_path / "a.csv")
+    assert s.position_std is None and s.rotation_std_deg is None and s.skipped == []
+    np.testing.assert_allclose(s.T[:, :3, 3], T[:, :3, 3], atol=1e-8)
+    np.testing.assert_allclose(s.T[:, :3, :3], T[:, :3, :3], atol=1e-8)
+    calib, _, robot, rms = series_to_datasets(s, "a.csv")
+    assert calib.n_poses == 10 and calib.noise.pose_position_sigma == 0.02 and robot["name"] == "ur10-landgraf"
+    assert rms < 10.0  # nominal links, fitted base and tool: the simulated deviations only
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("a;b;c\n1,5;2;3\n", (";", True)), ("a;b;c\n1.5;2;3\n", (";", False)), ("a,b,c\n1.5,2,3\n", (",", False)),
+    ("a\tb\tc\n1,5\t2\t3\n", ("\t", True)), ("a b  c\n1.5 2 3\n", (" ", False)), ("a b c\n1,5 2 3\n", (" ", True))])
+def test_delimiter_and_decimal_comma_are_detected(text, expected):
+    from fgcal.table_io import detect_format
+
+    assert detect_format(text.splitlines()) == expected
+
+
+def test_bad_input_is_one_line_naming_the_file(tmp_path):
+    path = tmp_path / "t.csv"
+    path.write_text("q1;q2;x;y;z\n1;2;3;4;5\n")
+
+    def run(*args):
+        r = subprocess.run([sys.executable, "-m", "fgcal.cli", "import", "csv", path, tmp_path / "o", "--robot", "ur10",
+                            *args], capture_output=True, text=True)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
+        return r.stderr
+
+    assert "missing column(s) q3" in run("--joints", "q1,q3", "--joint-unit", "deg", "--point", "x,y,z")
+    assert "2 joint columns, robot ur10 has 6" in run("--joints", "q1,q2", "--joint-unit", "deg", "--point", "x,y,z")
+    assert "--euler-convention" in run("--joints", "q1,q2", "--joint-unit", "deg", "--pose", "x,y,z,q1,q2,x")
+    assert "--quaternion-order" in run("--joints", "q1,q2", "--joint-unit", "deg", "--pose", "x,y,z,q1,q2,x,y")
+    assert str(path) in run("--joints", "q1,q2", "--joint-unit", "deg", "--point", "x,y,z")
