@@ -30,34 +30,35 @@ def _measurements(args):
     from .table_io import ColumnSpec, read_measurements
 
     if args.format == "landgraf":
-        from .landgraf import read_series
+        from .landgraf import CITATION, read_series
 
-        return read_series(args.file), "ur10", "ur10-landgraf"
+        return read_series(args.file), "ur10", "ur10-landgraf", {"citation": CITATION}
     if args.format == "tum":
         from .tum import read_tum_with_joint_log
 
         m = read_tum_with_joint_log(args.file, args.joint_log, _columns(args.joints), args.time_column,
                                     args.joint_unit, args.max_time_difference, args.length_unit,
                                     _delimiter(args.delimiter), True if args.decimal_comma else None)
-        return m, args.robot, None
+        return m, args.robot, None, {"joint_log": str(args.joint_log), "joints": list(_columns(args.joints)),
+                                     "time_column": args.time_column, "max_time_difference": args.max_time_difference}
     spec = ColumnSpec(joints=_columns(args.joints), joint_unit=args.joint_unit, point=_columns(args.point),
                       pose=_columns(args.pose), quaternion_order=args.quaternion_order,
                       euler_convention=args.euler_convention, rotation_unit=args.rotation_unit,
                       length_unit=args.length_unit, group=_columns(args.group), delimiter=_delimiter(args.delimiter),
                       decimal_comma=True if args.decimal_comma else None)
-    return read_measurements(args.file, spec), args.robot, None
+    return read_measurements(args.file, spec), args.robot, None, {"columns": spec.describe()}
 
 
 def _cmd_import(args) -> int:
     from .importer import to_datasets
 
-    m, robot, name = _measurements(args)
+    m, robot, name, settings = _measurements(args)
     for s in m.skipped:
         print(f"skipped {args.file}: {s}")
     result = to_datasets(m, robot, position_only=args.position_only, holdout=args.holdout,
                          rng=np.random.default_rng(args.seed), position_sigma=args.sigma,
                          orientation_sigma=args.orientation_sigma, joint_resolution=args.joint_resolution, name=name,
-                         provenance={"importer": f"fgcal import {args.format}"})
+                         provenance={"importer": f"fgcal import {args.format}", **settings})
     written = result.save(args.out, overwrite=args.force)
     kind = "positions" if result.calibration.centres is not None else "full poses"
     print(f"wrote {written[0]}: {result.calibration.n_poses} poses ({kind}); {len(m.skipped)} row(s) skipped; "

@@ -168,5 +168,5 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
 def import_table(path, robot: str, spec: ColumnSpec, **options) -> ImportResult:
     """:func:`read_measurements` then :func:`to_datasets` (``options`` are the latter's)."""
     m = read_measurements(path, spec)
-    return to_datasets(m, robot, provenance={"importer": "fgcal import csv", **options.pop("provenance", {})},
-                       **options)
+    prov = {"importer": "fgcal import csv", "columns": spec.describe(), **options.pop("provenance", {})}
+    return to_datasets(m, robot, provenance=prov, **options)

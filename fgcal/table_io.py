@@ -134,6 +134,15 @@ class ColumnSpec:
             if v is not None and not isinstance(v, enum):
                 object.__setattr__(self, name, enum(v))
 
+    def describe(self) -> dict:
+        """The spec as plain values (for a dataset's provenance)."""
+        out = {}
+        for k, v in vars(self).items():
+            if v is None or k == "label":
+                continue
+            out[k] = v.value if isinstance(v, Enum) else list(v) if isinstance(v, tuple) else v
+        return out
+
     @property
     def required(self) -> tuple:
         return self.joints + (self.point or self.pose)
