@@ -102,7 +102,8 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
     robot : str
         Built-in model name or model file of the measured robot (its nominal links are kept).
     position_only : bool
-        Keep only the measured positions of pose data (``centres.csv``).
+        Keep only the measured positions of pose data (``centres.csv``); base and tool are still
+        fitted to the full poses.
     holdout : float
         Fraction of the groups (repeated measurements) written to the held-out dataset, in [0, 1).
     position_sigma, orientation_sigma : float, optional
@@ -132,8 +133,9 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
     if (~hold).sum() < MIN_ROWS:
         raise DatasetError(f"{m.source}: {(~hold).sum()} rows to calibrate from; the base and tool fit needs at least "
                            f"{MIN_ROWS}")
-    # Fitted on the calibration rows only, so the held-out rows stay unseen.
-    if points:
+    # Fitted on the calibration rows only, so the held-out rows stay unseen; measured orientations
+    # are used for the start even when only positions are kept.
+    if m.R is None:
         slots, rms = fit_base_and_point(model, m.joints_rad[~hold], m.xyz[~hold])
     else:
         slots, rms = fit_base_and_tool(model, m.joints_rad[~hold], m.T[~hold])
@@ -141,7 +143,7 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
     model_dict = model_to_dict(model, slots)
     model_dict["name"] = name or f"{model.name}-imported"
     model_dict["description"] = (f"{model.name} nominal links; base (instrument to robot) and tool (flange to the "
-                                 f"measured {'point' if points else 'frame'}) fitted to {int((~hold).sum())} rows of "
+                                 f"measured {'point' if m.R is None else 'frame'}) fitted to {int((~hold).sum())} rows of "
                                  f"{Path(m.source).name} (RMS {rms:.3g} mm before calibration)")
     model_dict.pop("volume", None)
     model_dict["tooling"] = {"radius": 0.0, "balls": {PROBE: [0.0, 0.0, 0.0]}}

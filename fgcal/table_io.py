@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from .errors import DatasetError
 
 __all__ = ["AngleUnit", "LengthUnit", "QuaternionOrder", "ColumnSpec", "Measurements", "detect_format",
-           "read_columns", "read_measurements", "rotation_from_columns"]
+           "read_lines", "read_columns", "read_measurements", "rotation_from_columns"]
 
 _MISSING = ("", "nan", "na", "n/a", "none", "null")
 _DECIMAL_COMMA = re.compile(r"^\s*[+-]?\d*,\d+([eE][+-]?\d+)?\s*$")
@@ -215,18 +215,17 @@ class Measurements:
                             cut(self.rotation_std_deg), cut(self.group_values), list(self.skipped), self.source)
 
 
-def detect_format(lines) -> tuple[str, bool]:
+def detect_format(lines, delimiter: str | None = None) -> tuple[str, bool]:
     """``(delimiter, decimal_comma)`` of a table from its first lines (header first).
 
-    The delimiter is the most frequent of ``;``, tab and ``,`` in the header, else whitespace
-    (``" "``). Decimal commas are assumed when the delimiter is not a comma and a data field looks
-    like ``12,5``.
+    The delimiter (unless given) is the most frequent of ``;``, tab and ``,`` in the header, else
+    whitespace (``" "``). Decimal commas are assumed when the delimiter is not a comma and a data
+    field looks like ``12,5``.
     """
     lines = [ln for ln in lines if ln.strip()]
-    if not lines:
-        return ",", False
-    counts = {d: lines[0].count(d) for d in (";", "\t", ",")}
-    delimiter = max(counts, key=counts.get) if max(counts.values()) > 0 else " "
+    if delimiter is None:
+        counts = {d: lines[0].count(d) for d in (";", "\t", ",")} if lines else {",": 1}
+        delimiter = max(counts, key=counts.get) if max(counts.values()) > 0 else " "
     decimal_comma = False
     if delimiter != ",":
         for ln in lines[1:]:
@@ -256,17 +255,20 @@ def rotation_from_columns(values, spec: ColumnSpec) -> np.ndarray:
     return Rotation.from_quat(xyzw).as_matrix()
 
 
-def _rows(path: Path, delimiter: str | None, decimal_comma: bool | None):
-    """``(header, decimal_comma, iterator of (line, fields))``."""
+def read_lines(path: Path) -> list[str]:
+    """The lines of a text file (UTF-8, byte-order mark ignored); :class:`DatasetError` when unreadable."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        return Path(path).read_text(encoding="utf-8-sig").splitlines()
     except FileNotFoundError:
         raise DatasetError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{path}: cannot read ({exc})") from None
-    lines = text.splitlines()
-    found, comma = detect_format(lines[:50])
-    delimiter = delimiter or found
+
+
+def _rows(path: Path, delimiter: str | None, decimal_comma: bool | None):
+    """``(header, decimal_comma, iterator of (line, fields))``."""
+    lines = read_lines(path)
+    delimiter, comma = detect_format(lines[:50], delimiter)
     decimal_comma = comma if decimal_comma is None else decimal_comma
     if delimiter == " ":
         rows = ((i + 1, ln.split()) for i, ln in enumerate(lines))

@@ -15,22 +15,15 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .errors import DatasetError
-from .table_io import AngleUnit, LengthUnit, Measurements, read_columns
+from .table_io import QUATERNION_NORM_TOLERANCE, AngleUnit, LengthUnit, Measurements, read_columns, read_lines
 
 __all__ = ["read_tum", "join_by_time", "read_tum_with_joint_log"]
 
 
 def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
     """``(line, t, xyz, R, skipped)`` of a TUM trajectory file; xyz (N, 3) in mm, R (N, 3, 3)."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read ({exc})") from None
     rows, lines, skipped = [], [], []
-    for i, raw in enumerate(text.splitlines(), start=1):
+    for i, raw in enumerate(read_lines(path), start=1):
         s = raw.strip()
         if not s or s.startswith("#"):
             continue
@@ -46,7 +39,7 @@ def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
         if not all(math.isfinite(x) for x in v):
             skipped.append(f"line {i}: not finite")
             continue
-        if abs(np.linalg.norm(v[4:]) - 1.0) > 0.01:
+        if abs(np.linalg.norm(v[4:]) - 1.0) > QUATERNION_NORM_TOLERANCE:
             skipped.append(f"line {i}: quaternion norm {np.linalg.norm(v[4:]):.4g} is not 1")
             continue
         rows.append(v)

@@ -16,6 +16,7 @@ import subprocess
 import sys
 import sysconfig
 import venv
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -65,11 +66,16 @@ def installed(tmp_path_factory):
     (site / "_fgcal_test_dependencies.pth").write_text("\n".join(sorted(parents)) + "\n")
     # pip sees the dependencies through the .pth file, so this also checks they are declared satisfiably.
     _run([sys.executable, "-m", "pip", "--python", python, "install", "--no-index", "-q", wheels[0]], tmp, env)
-    return python, bindir / ("fgcal.exe" if os.name == "nt" else "fgcal"), env, tmp
+    return python, bindir / ("fgcal.exe" if os.name == "nt" else "fgcal"), env, tmp, wheels[0]
 
 
 def test_wheel_carries_the_data_and_no_top_level_datasets(installed):
-    python, _, env, tmp = installed
+    python, _, env, tmp, wheel = installed
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert "datasets" not in {n.split("/")[0] for n in names}
+    shipped = {f"fgcal/_data/{p.relative_to(ROOT / 'datasets').as_posix()}" for p in (ROOT / "datasets").rglob("*")
+               if p.is_file()}
+    assert shipped <= names and "fgcal/_data/robots/ur10.yaml" in shipped
     code = ("import fgcal, importlib.util, json; from fgcal.resources import builtin_robot_names, default_dataset_dir;"
             "print(json.dumps([fgcal.__file__, builtin_robot_names(), str(default_dataset_dir()),"
             " importlib.util.find_spec('datasets') is not None and 'fgcal' in str(importlib.util.find_spec('datasets').origin)]))")
@@ -81,7 +87,7 @@ def test_wheel_carries_the_data_and_no_top_level_datasets(installed):
 
 
 def test_fgcal_demo_runs_from_the_wheel(installed):
-    _, fgcal, env, tmp = installed
+    _, fgcal, env, tmp, _ = installed
     run = _run([fgcal, "demo", "--out", tmp / "demo"], tmp, env)
     assert "_data" in run.stdout.splitlines()[0]
     out = tmp / "demo"
