@@ -32,6 +32,16 @@ def _exp(w):
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
+def _flange_poses(model: RobotModel, q, slots):
+    """``(slots with base and tool zeroed, base indices, tool indices, flange poses (N, 4, 4))``."""
+    x = np.array(model.nominal if slots is None else slots, dtype=float)
+    base = [slot(f"base.{f}") for f in EULER_FIELDS]
+    tool = [slot(f"tool.{f}") for f in EULER_FIELDS]
+    x[base] = 0.0
+    x[tool] = 0.0
+    return x, base, tool, forward(x, q)
+
+
 def fit_base_and_tool(model: RobotModel, q, T_measured, slots=None, orientation_scale: float = 100.0):
     """Slot vector (37,) with base and tool fitted to measured tool poses.
 
@@ -52,12 +62,7 @@ def fit_base_and_tool(model: RobotModel, q, T_measured, slots=None, orientation_
     rms : float
         RMS distance (mm) between measured and fitted tool origins.
     """
-    x = np.array(model.nominal if slots is None else slots, dtype=float)
-    base = [slot(f"base.{f}") for f in EULER_FIELDS]
-    tool = [slot(f"tool.{f}") for f in EULER_FIELDS]
-    x[base] = 0.0
-    x[tool] = 0.0
-    F = forward(x, q)
+    x, base, tool, F = _flange_poses(model, q, slots)
     M = np.asarray(T_measured, dtype=float)
     n = len(F)
     # Base rotation from relative rotations: axis(M_i M_0^T) = R_b axis(F_i F_0^T).
@@ -131,12 +136,7 @@ def fit_base_and_point(model: RobotModel, q, points, slots=None, iterations: int
     rms : float
         RMS distance (mm) between measured and fitted points.
     """
-    x = np.array(model.nominal if slots is None else slots, dtype=float)
-    base = [slot(f"base.{f}") for f in EULER_FIELDS]
-    tool = [slot(f"tool.{f}") for f in EULER_FIELDS]
-    x[base] = 0.0
-    x[tool] = 0.0
-    F = forward(x, q)
+    x, base, tool, F = _flange_poses(model, q, slots)
     P = np.asarray(points, dtype=float).reshape(-1, 3)
     Fr, Fp = F[:, :3, :3], F[:, :3, 3]
     p = np.zeros(3)
