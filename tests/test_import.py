@@ -246,3 +246,42 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path, capsys):
     assert "--quaternion-order" in run("--joints", "q1,q2", "--joint-unit", "deg", "--pose", "x,y,z,q1,q2,x,y")
     assert str(path) in run("--joints", "q1,q2", "--joint-unit", "deg", "--point", "x,y,z")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("points", [False, True])
+def test_base_and_tool_fits_recover_exact_data(points):
+    """Noise-free data of the nominal links: the fitted base and tool reproduce the simulated ones."""
+    from fgcal.initial import fit_base_and_point, fit_base_and_tool
+
+    model, truth, q, _ = simulated_ur10(np.random.default_rng(155), 30)
+    nominal_links = model.nominal.copy()
+    for part in ("base", "tool"):
+        idx = [slot(f"{part}.{f}") for f in ("phi", "theta", "psi", "px", "py", "pz")]
+        nominal_links[idx] = truth[idx]
+    T = forward(nominal_links, q)
+    if points:
+        x, rms = fit_base_and_point(model, q, T[:, :3, 3])
+        got = forward(x, q)[:, :3, 3]
+        np.testing.assert_allclose(got, T[:, :3, 3], atol=1e-6)
+    else:
+        x, rms = fit_base_and_tool(model, q, T)
+        np.testing.assert_allclose(x, nominal_links, atol=1e-7)
+    assert rms < 1e-6
+
+
+def test_group_columns_keep_repeats_on_one_side_of_the_holdout(tmp_path):
+    _, _, q, T = simulated_ur10(np.random.default_rng(156), 20)
+    goal = np.repeat(np.arange(10), 2)  # every configuration measured twice
+    lines = ["goal,a1,a2,a3,a4,a5,a6,px,py,pz"]
+    lines += [",".join(str(float(v)) for v in [g, *q[g * 2], *T[g * 2, :3, 3]]) for g in goal]
+    (tmp_path / "g.csv").write_text("\n".join(lines) + "\n")
+    spec = ColumnSpec(joints=tuple(f"a{k}" for k in range(1, 7)), joint_unit="rad", point=("px", "py", "pz"),
+                      group=("goal",))
+    m = read_measurements(tmp_path / "g.csv", spec)
+    np.testing.assert_array_equal(m.groups(), goal)
+    from fgcal.importer import to_datasets
+
+    r = to_datasets(m, "ur10", holdout=0.3, rng=np.random.default_rng(0))
+    line_goal = dict(zip(m.line, goal))
+    assert r.holdout.n_poses == 6
+    assert {line_goal[p] for p in r.calibration.pose_ids}.isdisjoint({line_goal[p] for p in r.holdout.pose_ids})
