@@ -189,7 +189,7 @@ def _cmd_calibrate(args) -> int:
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
         extra=tuple(args.extra.split(",")) if args.extra else (),
-        exclude=tuple(args.exclude.split(",")) if args.exclude else (), engine=args.engine)
+        exclude=tuple(args.exclude.split(",")) if args.exclude else (), engine=getattr(args, "engine", "batch"))
     result = calibrate(ds, model, options)
     save_result(result, args.out)
     _print_result(result)
@@ -261,34 +261,6 @@ def _cmd_report(args) -> int:
         log.info("robot %s not found: the pose plot has no measuring volume", result.robot)
     path = write_report(result, args.out, verification, volume)
     print(f"wrote {path} (and report.md, figures as PNG) in {args.out}")
-    return 0
-
-
-def _cmd_import(args) -> int:
-    from .dataset_io import save_dataset
-    from .landgraf import read_series, series_to_datasets
-    from .yamlio import dump_yaml
-
-    if args.format != "landgraf":
-        raise FgcalError(f"unknown import format {args.format!r} (landgraf)")
-    if not 0 <= args.holdout < 1:
-        raise FgcalError("--holdout is a fraction from 0 to below 1")
-    series = read_series(args.csv)
-    for s in series.skipped:
-        print(f"skipped {args.csv}: {s}")
-    calib, held, model_dict, rms = series_to_datasets(series, str(args.csv), args.position_only, args.holdout,
-                                                      np.random.default_rng(args.seed))
-    robot = {"robot.yaml": dump_yaml(model_dict)}
-    holdout_dir = args.out.with_name(args.out.name + "-holdout")
-    if held is not None and holdout_dir.exists() and not args.force:
-        raise FgcalError(f"{holdout_dir}: already exists (use --force to replace it)")
-    save_dataset(calib, args.out, overwrite=args.force, extra_files=robot)
-    print(f"wrote {args.out}: {calib.n_poses} poses ({'positions' if args.position_only else 'full poses'}); "
-          f"{len(series.skipped)} row(s) skipped; base and tool fitted to the data (RMS {rms:.3g} mm) "
-          f"in {args.out / 'robot.yaml'}")
-    if held is not None:
-        save_dataset(held, holdout_dir, overwrite=args.force, extra_files=robot)
-        print(f"wrote {holdout_dir}: {held.n_poses} held-out poses (repeated goals kept on one side)")
     return 0
 
 
@@ -567,17 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", type=Path, required=True, help="output directory")
     r.set_defaults(func=_cmd_report)
 
-    i = sub.add_parser("import", help="turn another tool's measurement file into an fgcal dataset")
-    i.add_argument("format", choices=("landgraf",), help="landgraf: the UR10 laser-tracker series (Landgraf 2021)")
-    i.add_argument("csv", type=Path)
-    i.add_argument("out", type=Path)
-    i.add_argument("--position-only", action="store_true",
-                   help="keep only the probe's position (centres.csv of one reflector)")
-    i.add_argument("--holdout", type=float, default=0.0,
-                   help="fraction of the goals to write to OUT-holdout for verification (default 0)")
-    i.add_argument("--seed", type=int, default=0, help="seed of the held-out draw")
-    i.add_argument("--force", action="store_true", help="replace OUT if it exists")
-    i.set_defaults(func=_cmd_import)
+    from .cli_import import add_import_parser
+
+    add_import_parser(sub)
 
     c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
     c2.add_argument("result", type=Path)
