@@ -187,6 +187,8 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         if missing:
             raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
         truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if ds.distances is not None and not ({"probes", "centres", "poses"} & set(ds.levels())):
+        return _verify_distances(ds, model, slots, truth)
     if _full_pose_data(ds):
         ids, T_meas, skipped = measured_poses(ds)
         reference = "measured poses"
@@ -211,4 +213,26 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
             true_pts = [tool_points(T[None], o)[0] for T, o in zip(T_true, offs)]
             out.truth_after = compare_points(T_cal, offs, true_pts)
             out.truth_before = compare_points(T_nom, offs, true_pts)
+    return out
+
+
+def _verify_distances(ds: Dataset, model: RobotModel, slots, truth) -> Verification:
+    """Ballbar data: per pose, the RMS over its balls of ``|model ball - pivot| - measured length`` (mm)."""
+    d = ds.distances
+    ids = np.array([p for p in ds.pose_ids if np.any(d.pose == p)], dtype=int)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    rows = [np.nonzero(d.pose == p)[0] for p in ids]
+    offs = [ds.tooling.offsets(d.ball[r]) for r in rows]
+
+    def errors(x, reference_lengths):
+        T = model.forward(x, q)
+        return Comparison(np.array([np.sqrt(np.mean((np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) - L) ** 2))
+                                    for Ti, o, L in zip(T, offs, reference_lengths)]), None)
+
+    measured = [d.length[r] for r in rows]
+    out = Verification(ids, errors(slots, measured), errors(model.nominal, measured), reference="measured distances")
+    if truth is not None:
+        T_true = model.forward(truth, q)
+        true_lengths = [np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) for Ti, o in zip(T_true, offs)]
+        out.truth_after, out.truth_before = errors(slots, true_lengths), errors(model.nominal, true_lengths)
     return out
