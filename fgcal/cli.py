@@ -290,8 +290,8 @@ def _cmd_export(args) -> int:
     from .urdf import export_urdf
     from .yamlio import atomic_write_text
 
-    if args.model is None and args.urdf is None:
-        raise FgcalError("export: give --model FILE and/or --urdf FILE")
+    if args.model is None and args.urdf is None and args.deltas is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
     result = load_result(args.result)
     model = result.model()
     from dataclasses import replace
@@ -306,6 +306,19 @@ def _cmd_export(args) -> int:
         atomic_write_text(args.urdf, export_urdf(calibrated, slots))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
         print(f"wrote {args.urdf} ({kind})")
+    if args.deltas:
+        from .dataset_io import write_csv
+
+        rows = [[p.name, p.unit, p.nominal, p.estimate, p.estimate - p.nominal, p.sigma, "identified"]
+                for p in result.parameters]
+        nominal = model.slots_to_file_units(model.nominal)
+        for h in result.held:
+            unit = "deg" if model.slot_is_angle[model.slot(h["name"])] else "mm"
+            value = float(h["value"])
+            rows.append([h["name"], unit, float(nominal[model.slot(h["name"])]), value,
+                         value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
+        write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
+        print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
     return 0
 
 
@@ -553,6 +566,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("result", type=Path)
     e.add_argument("--model", type=Path, default=None, help="fgcal-robot/1 YAML file to write")
     e.add_argument("--urdf", type=Path, default=None, help="URDF file to write")
+    e.add_argument("--deltas", type=Path, default=None,
+                   help="CSV of the identified parameters: name,unit,nominal,estimate,delta,sigma (and held ones)")
     e.set_defaults(func=_cmd_export)
 
     o = sub.add_parser("online", help="incremental calibration as poses arrive (iSAM2, iterated EKF, UKF)")

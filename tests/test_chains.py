@@ -207,3 +207,25 @@ def test_ballbar_only_dataset_calibrates_with_its_pivot(puma, tmp_path):
     d = verify(result, test, puma).to_dict()
     assert d["reference"] == "measured distances" and d["orientation_deg"] is None
     assert d["truth"]["position_mm"]["rms"] < 0.02 < d["before"]["position_mm"]["rms"]
+
+
+def test_export_writes_the_identified_deltas(puma, tmp_path):
+    import csv
+    import subprocess
+    import sys
+
+    from fgcal.result import save_result
+
+    ds, _ = simulate(puma, np.random.default_rng(12), SimulationSettings(n_poses=10))
+    result = calibrate(ds, puma, CalibrationOptions(exclude=("j2.beta",)))
+    save_result(result, tmp_path / "r.json")
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "export", str(tmp_path / "r.json"), "--deltas",
+                          str(tmp_path / "d.csv")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    with open(tmp_path / "d.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["name"] for r in rows[:len(result.parameters)]] == result.names
+    for r, p in zip(rows, result.parameters):
+        assert float(r["delta"]) == pytest.approx(p.estimate - p.nominal, abs=1e-12)
+        assert float(r["sigma"]) == pytest.approx(p.sigma)
+    assert len(rows) == len(result.parameters) + len(result.held)
