@@ -20,7 +20,8 @@ from .posefit import rigid_fit
 from .result import CalibrationResult
 from .transforms import pose_difference
 
-__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses"]
+__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses",
+           "check_same_robot"]
 
 
 @dataclass
@@ -60,9 +61,12 @@ class Verification:
     truth_before: Comparison | None = None
     reference: str = "measured poses"
     skipped: list[str] = field(default_factory=list)
+    robot: str | None = None
 
     def to_dict(self) -> dict:
         d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
+        if self.robot is not None:
+            d["robot"] = self.robot
         d.update(self.after.summary())
         d["before"] = self.before.summary()
         if self.truth_after is not None:
@@ -108,6 +112,30 @@ def measured_poses(ds: Dataset):
     raise FgcalError(f"{ds.path or 'dataset'}: no measurements to verify against")
 
 
+def check_same_robot(result: CalibrationResult, model: RobotModel, where="dataset",
+                     length_tol_mm: float = 1.0, angle_tol_deg: float = 0.5) -> None:
+    """Raise ``FgcalError`` unless ``result`` was computed for a robot with ``model``'s link geometry.
+
+    Base and tool may differ (they are refitted per set-up); the joints' nominal geometry (the
+    ``j*`` slots) must agree within the tolerances.
+    """
+    mine = result.model()
+    a, b = np.asarray(mine.nominal, dtype=float), np.asarray(model.nominal, dtype=float)
+    names = list(getattr(model, "slot_names", SLOT_NAMES))
+    if a.shape != b.shape:
+        raise FgcalError(f"{where}: robot {model.name} ({len(b)} geometric slots) is not the robot of the result "
+                         f"({mine.name}, {len(a)} slots)")
+    angle = np.array([n.split(".")[-1] in ("phi", "theta", "psi", "alpha", "beta") for n in names])
+    link = np.array([n.startswith("j") for n in names])
+    tol = np.where(angle, np.radians(angle_tol_deg), length_tol_mm)
+    off = link & (np.abs(a - b) > tol)
+    if off.any():
+        i = int(np.argmax(np.where(off, np.abs(a - b) / tol, 0)))
+        scale, unit = (np.degrees(1.0), "deg") if angle[i] else (1.0, "mm")
+        raise FgcalError(f"{where}: robot {model.name} is not the robot of the result ({mine.name}): "
+                         f"{names[i]} is {b[i] * scale:.6g} {unit} here and {a[i] * scale:.6g} {unit} in the result")
+
+
 def compare_poses(T_model, T_ref) -> Comparison:
     d, delta = pose_difference(T_ref, T_model)
     return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)))
@@ -116,12 +144,17 @@ def compare_poses(T_model, T_ref) -> Comparison:
 def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
     """Compare the calibrated and nominal models with ``ds``'s measurements (and truth)."""
     ids, T_meas, skipped = measured_poses(ds)
+    named = {s.split(":", 1)[0] for s in skipped}
+    have = set(np.asarray(ids).tolist())
+    skipped += [f"pose {p}: no measurement of this pose" for p in ds.pose_ids.tolist()
+                if p not in have and f"pose {p}" not in named]
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
     q = ds.joints_rad[ds.row_of(ids)]
     T_cal = forward(result.slot_vector(), q)
     T_nom = forward(model.nominal, q)
-    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
+    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped,
+                       robot=result.model().name)
     if ds.truth is not None:
         truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
         T_true = forward(truth, q)
