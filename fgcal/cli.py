@@ -60,7 +60,7 @@ def _cmd_simulate(args) -> int:
 
 def _cmd_check(args) -> int:
     from .dataset_io import dataset_model, load_dataset
-    from .identifiability import analyse, identification_jacobian
+    from .identifiability import analyse, compact_jacobian
 
     ds = load_dataset(args.dataset)
     model = dataset_model(ds)
@@ -72,7 +72,7 @@ def _cmd_check(args) -> int:
     if outside.any():
         print(f"  warning: {outside.sum()} pose(s) outside the joint limits: {ds.pose_ids[outside].tolist()}")
     params = model.parameters()
-    J = identification_jacobian(params, ds.joints_rad, measurement=ds.tooling.offsets())
+    J = compact_jacobian(params, ds.joints_rad, measurement=ds.tooling.offsets())
     result = analyse(J, params.names)
     print("identifiability (ball centres at these poses): " + result.summary())
     return 0

@@ -73,6 +73,8 @@ def _link_transform(row: dict) -> np.ndarray:
 def model_from_dict(data, source: str = "<model>") -> RobotModel:
     """Build a :class:`RobotModel` from a parsed model file; ``ModelError`` names ``source``."""
     top = ("format", "name", "description", "base", "links", "tool", "joint_limits", "tooling", "volume", "paper_box")
+    if isinstance(data, dict) and "format" not in data:
+        raise ModelError(f"{source}: not an {FORMAT} model file (no format key)")
     data = _mapping(data, top, source, required=("format", "base", "links", "tool", "joint_limits"))
     if data["format"] != FORMAT:
         raise ModelError(f"{source}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
@@ -147,7 +149,7 @@ def load_model(name_or_path) -> RobotModel:
     path = Path(text)
     if path.suffix.lower() not in (".yaml", ".yml"):
         if text not in builtin_robot_names():
-            raise ModelError(f"unknown robot model {short_repr(text, 60)}; built-in: {', '.join(builtin_robot_names())}"
+            raise ModelError(f"unknown robot model {short_repr(text, 40)}; built-in: {', '.join(builtin_robot_names())}"
                              ", or the path of a model file (.yaml or .yml)")
         path = builtin_robot_path(text)
     data = read_yaml(path, error=ModelError)

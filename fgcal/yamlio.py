@@ -27,14 +27,19 @@ MAX_YAML_BYTES = 16 * 1024 * 1024  # model files and dataset.yaml are a few kB
 MAX_YAML_DEPTH = 64
 
 
-def short_repr(value, limit: int = 40) -> str:
-    """A repr of ``value`` for an error message: the type for containers, a short scalar otherwise."""
+def short_repr(value, limit: int = 24) -> str:
+    """``value`` for an error message: a short scalar as it is, otherwise only its type and size.
+
+    A long text is not quoted, so that a message never carries a file's content.
+    """
     if isinstance(value, dict):
         return f"a mapping of {len(value)} key(s)"
     if isinstance(value, (list, tuple)):
         return f"a list of {len(value)} item(s)"
     text = repr(value)
-    return text if len(text) <= limit else f"{text[:limit - 5]}...{text[-1]} ({len(text)} characters)"
+    if len(text) <= limit:
+        return text
+    return f"a text of {len(value)} characters" if isinstance(value, str) else f"a {type(value).__name__}"
 
 
 def check_regular_file(path, error=FgcalError, max_bytes: int | None = None) -> int:
