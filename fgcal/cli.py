@@ -143,20 +143,17 @@ def parse_pose_selection(text: str | None, available) -> np.ndarray:
             return available[:n] if prefix == "first:" else available[-n:]
     chosen = []
     for part in text.split(","):
+        part = part.strip()
         try:
-            if "-" in part.strip()[1:]:
-                a, b = part.strip().split("-", 1) if not part.strip().startswith("-") else (part, part)
-                a, b = int(a), int(b)
-                if b < a:
-                    raise FgcalError(f"--poses: range {a}-{b} is empty (write it as {b}-{a})")
-                if b - a >= len(available):
-                    raise FgcalError(f"--poses: range {a}-{b} spans more ids than the {len(available)} poses "
-                                     "of the dataset")
-                chosen.extend(range(a, b + 1))
-            else:
-                chosen.append(int(part))
+            a, b = part.split("-", 1) if "-" in part[1:] and not part.startswith("-") else (part, part)
+            a, b = int(a), int(b)
         except ValueError:
             raise FgcalError(f"--poses {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
+        if b < a:
+            raise FgcalError(f"--poses: range {a}-{b} is empty (write it as {b}-{a})")
+        if b - a >= len(available):
+            raise FgcalError(f"--poses: range {a}-{b} spans more ids than the {len(available)} poses of the dataset")
+        chosen.extend(range(a, b + 1))
     missing = sorted(set(chosen) - set(available.tolist()))
     if missing:
         raise FgcalError(f"--poses: pose(s) {', '.join(map(str, missing[:10]))} not in the dataset")
@@ -513,8 +510,15 @@ def _cmd_demo(args) -> int:
     return _cmd_report(argparse.Namespace(result=out / "result.json", verify=out / "verify.json", out=out / "report"))
 
 
+class _Parser(argparse.ArgumentParser):
+    """Option errors in one line (no usage block), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
+    p = _Parser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
     p.add_argument("--version", action="version", version=f"fgcal {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress to standard error")
     sub = p.add_subparsers(dest="command", required=True)

@@ -37,7 +37,7 @@ def one_line_error(code, err, *words):
     assert code == 2, err
     assert "Traceback" not in err
     lines = [ln for ln in err.splitlines() if ln.strip()]
-    assert len(lines) == 1 or (lines[0].startswith("usage:") and len(lines) == 2), err
+    assert len(lines) == 1, err
     for w in words:
         assert w in err, (w, err)
 
