@@ -102,6 +102,10 @@ class Progress:
 SETTINGS = ("seed", "n_poses", "plan", "robot", "design", "cmm_sigma", "joint_resolution", "repeatability")
 
 
+def _show(v) -> str:
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)[:20]
+
+
 def _check_settings(csv_path: Path, rows: list[dict], trials: list[Trial]) -> None:
     """Refuse to resume when a finished trial was run with other settings than this run's."""
     by_key = {(t.study, t.trial): t for t in trials}
@@ -120,7 +124,7 @@ def _check_settings(csv_path: Path, rows: list[dict], trials: list[Trial]) -> No
                 except (TypeError, ValueError):
                     same = False
             if not same:
-                diff.append(f"{k} {theirs!s:.20} there, {mine!s:.20} now")
+                diff.append(f"{k} {_show(theirs)} there, {_show(mine)} now")
         if diff:
             raise FgcalError(f"{csv_path}: trial {r['trial']} of study {r['study']} was run with other settings "
                              f"({'; '.join(diff[:3])}); refusing to resume: give another --out or remove "
