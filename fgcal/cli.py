@@ -19,6 +19,8 @@ from .errors import FgcalError
 
 log = logging.getLogger("fgcal")
 
+MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
+
 
 def _cmd_simulate(args) -> int:
     from .dataset import Noise
@@ -30,6 +32,9 @@ def _cmd_simulate(args) -> int:
         raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")
     if not 0 <= args.outliers < 1:
         raise FgcalError("--outliers is a fraction of probe points, from 0 to below 1")
+    if (args.poses or 0) > MAX_POSES or args.probes_per_ball > 1000:
+        raise FgcalError(f"--poses at most {MAX_POSES} and --probes-per-ball at most 1000 (a dataset that large "
+                         "would not fit in memory)")
     check_output_dir(args.out, [args.truth, Path(args.robot)], option="OUT", must_be_new=True, force=args.force)
     model = load_model(args.robot)
     settings = SimulationSettings(
@@ -268,8 +273,9 @@ def _cmd_report(args) -> int:
         except ValueError as exc:
             raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
                              f"line {getattr(exc, 'lineno', '?')})") from None
-        if not isinstance(verification, dict) or verification.get("format") != "fgcal-verify/1":
-            raise FgcalError(f"{args.verify}: not an fgcal-verify/1 file")
+        from .verify import check_verification
+
+        check_verification(verification, args.verify)
         robot = verification.get("robot")
         if robot is not None and robot != result.model().name:
             raise FgcalError(f"{args.verify}: a verification of a {robot} result, but {args.result} is a "
@@ -349,6 +355,8 @@ def _cmd_export(args) -> int:
         check_output_file(args.model, [args.result], option="--model")
     if args.urdf:
         check_output_file(args.urdf, [args.result, args.model], option="--urdf")
+        if args.model and Path(args.model).absolute() == Path(args.urdf).absolute():
+            raise FgcalError(f"--model and --urdf: both are {args.urdf}; give two files")
     result = load_result(args.result)
     model = result.model()
     from dataclasses import replace
@@ -469,6 +477,8 @@ def _cmd_design(args) -> int:
 
     if args.poses < 5:
         raise FgcalError("--poses must be at least 5 (30 parameters, 6 equations per pose)")
+    if args.candidates > MAX_POSES:
+        raise FgcalError(f"--candidates at most {MAX_POSES}")
     check_output_file(args.out, [Path(args.robot)])
     model = load_model(args.robot)
     if model.tooling is None:

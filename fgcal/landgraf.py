@@ -12,6 +12,7 @@ held-out split keeps them together.
 from __future__ import annotations
 
 import csv
+import io
 import logging
 import math
 from dataclasses import dataclass, field
@@ -83,55 +84,60 @@ def _value(text: str):
 
 def read_series(path) -> LandgrafSeries:
     """Read a series file; raises :class:`DatasetError` naming the file for a wrong format."""
+    from .yamlio import read_text_file
+
     path = Path(path)
+    text = read_text_file(path, DatasetError).removeprefix("\ufeff")
+    reader = csv.reader(io.StringIO(text, newline=""), delimiter=";")
     try:
-        fh = path.open(newline="", encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    with fh:
-        reader = csv.reader(fh, delimiter=";")
-        header = next(reader, None)
-        if header is None:
-            raise DatasetError(f"{path}: empty file")
-        header = [h.strip() for h in header]
-        missing = [c for c in REQUIRED if c not in header]
-        if missing:
-            raise DatasetError(f"{path}: line 1: not a Landgraf series file: missing column(s) {', '.join(missing)}")
-        col = {h: i for i, h in enumerate(header)}
-        out = {k: [] for k in ("line", "q", "T", "ps", "rs", "goal", "temp")}
-        skipped = []
-        for record in reader:
-            line = reader.line_num
-            if not record or all(not c.strip() for c in record):
-                continue
-            if len(record) < len(header):
-                skipped.append(f"line {line}: {len(record)} fields, expected {len(header)}")
-                continue
-            values, bad = {}, []
-            for name in REQUIRED:
-                try:
-                    v = _value(record[col[name]])
-                except ValueError:
-                    v = None
-                if v is None:
-                    bad.append(name)
-                values[name] = v
-            if bad:
-                skipped.append(f"line {line}: missing or unreadable {', '.join(bad)}")
-                continue
-            R = (rot(0, math.radians(values["measurement_rx"])) @ rot(1, math.radians(values["measurement_ry"]))
-                 @ rot(2, math.radians(values["measurement_rz"])))  # intrinsic X-Y-Z
-            T = np.eye(4)
-            T[:3, :3] = R
-            T[:3, 3] = [values[c] for c in POSITION]
-            out["line"].append(line)
-            out["q"].append([values[c] for c in JOINTS])
-            out["T"].append(T)
-            out["ps"].append([values[c] for c in POS_STD])
-            out["rs"].append([values[c] for c in ROT_STD])
-            out["goal"].append([values[c] for c in GOAL])
-            temp = _value(record[col["measurement_temperature"]]) if "measurement_temperature" in col else None
-            out["temp"].append(np.nan if temp is None else temp)
+        return _parse_series(path, reader)
+    except csv.Error as exc:
+        raise DatasetError(f"{path}: line {reader.line_num}: {exc}") from None
+
+
+def _parse_series(path: Path, reader) -> LandgrafSeries:
+    header = next(reader, None)
+    if header is None:
+        raise DatasetError(f"{path}: empty file")
+    header = [h.strip() for h in header]
+    missing = [c for c in REQUIRED if c not in header]
+    if missing:
+        raise DatasetError(f"{path}: line 1: not a Landgraf series file: missing column(s) {', '.join(missing)}")
+    col = {h: i for i, h in enumerate(header)}
+    out = {k: [] for k in ("line", "q", "T", "ps", "rs", "goal", "temp")}
+    skipped = []
+    for record in reader:
+        line = reader.line_num
+        if not record or all(not c.strip() for c in record):
+            continue
+        if len(record) < len(header):
+            skipped.append(f"line {line}: {len(record)} fields, expected {len(header)}")
+            continue
+        values, bad = {}, []
+        for name in REQUIRED:
+            try:
+                v = _value(record[col[name]])
+            except ValueError:
+                v = None
+            if v is None:
+                bad.append(name)
+            values[name] = v
+        if bad:
+            skipped.append(f"line {line}: missing or unreadable {', '.join(bad)}")
+            continue
+        R = (rot(0, math.radians(values["measurement_rx"])) @ rot(1, math.radians(values["measurement_ry"]))
+             @ rot(2, math.radians(values["measurement_rz"])))  # intrinsic X-Y-Z
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = [values[c] for c in POSITION]
+        out["line"].append(line)
+        out["q"].append([values[c] for c in JOINTS])
+        out["T"].append(T)
+        out["ps"].append([values[c] for c in POS_STD])
+        out["rs"].append([values[c] for c in ROT_STD])
+        out["goal"].append([values[c] for c in GOAL])
+        temp = _value(record[col["measurement_temperature"]]) if "measurement_temperature" in col else None
+        out["temp"].append(np.nan if temp is None else temp)
     if not out["line"]:
         raise DatasetError(f"{path}: no usable rows ({len(skipped)} skipped)")
     return LandgrafSeries(np.array(out["line"]), np.array(out["q"]), np.array(out["T"]), np.array(out["ps"]),

@@ -21,7 +21,7 @@ from .result import CalibrationResult
 from .transforms import pose_difference
 
 __all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses",
-           "check_same_robot"]
+           "check_same_robot", "check_verification"]
 
 
 @dataclass
@@ -134,6 +134,34 @@ def check_same_robot(result: CalibrationResult, model: RobotModel, where="datase
         scale, unit = (np.degrees(1.0), "deg") if angle[i] else (1.0, "mm")
         raise FgcalError(f"{where}: robot {model.name} is not the robot of the result ({mine.name}): "
                          f"{names[i]} is {b[i] * scale:.6g} {unit} here and {a[i] * scale:.6g} {unit} in the result")
+
+
+def check_verification(d, where="verification") -> dict:
+    """Raise ``FgcalError`` unless ``d`` has the shape of an ``fgcal-verify/1`` mapping; returns it."""
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    def summary(s, label):
+        for key in ("position_mm", "orientation_deg"):
+            part = s.get(key) if isinstance(s, dict) else None
+            if not isinstance(part, dict) or not all(number(part.get(k)) for k in ("mean", "rms", "max")):
+                raise FgcalError(f"{where}: {label}{key} must hold numbers mean, rms and max")
+
+    if not isinstance(d, dict) or d.get("format") != "fgcal-verify/1":
+        raise FgcalError(f"{where}: not an fgcal-verify/1 file")
+    summary(d, "")
+    summary(d.get("before"), "before.")
+    if "truth" in d:
+        summary(d["truth"], "truth.")
+        summary(d["truth"].get("before"), "truth.before.")
+    poses = d.get("poses", [])
+    keys = ("position_mm", "orientation_deg", "before_position_mm", "before_orientation_deg")
+    if not isinstance(poses, list):
+        raise FgcalError(f"{where}: poses must be a list")
+    for i, p in enumerate(poses):
+        if not isinstance(p, dict) or not all(number(p.get(k)) for k in ("pose", *keys)):
+            raise FgcalError(f"{where}: poses[{i}] must hold numbers pose, {', '.join(keys)}")
+    return d
 
 
 def compare_poses(T_model, T_ref) -> Comparison:
