@@ -117,6 +117,16 @@ def dataset_inputs(directory, robot: str | None = None) -> list[Path]:
     return files
 
 
+def _existing(path: Path, option: str):
+    """``os.stat`` of ``path``, None when nothing is there; a dangling or looping link is an error."""
+    if not os.path.lexists(path):
+        return None
+    try:
+        return os.stat(path)
+    except OSError as exc:
+        raise FgcalError(f"{option} {path}: {exc.strerror or exc}") from None
+
+
 def _writable_dir(folder: Path, option: str, target: Path) -> None:
     try:
         st = os.stat(folder)
@@ -138,11 +148,8 @@ def check_output_file(path, inputs=(), option: str = "--out") -> Path:
     path = Path(path)
     if str(path) in ("", ".") or path.name in ("", ".", ".."):
         raise FgcalError(f"{option} {path}: not a file name")
-    if os.path.lexists(path):
-        try:
-            st = os.stat(path)
-        except OSError as exc:
-            raise FgcalError(f"{option} {path}: {exc.strerror or exc}") from None
+    st = _existing(path, option)
+    if st is not None:
         if stat.S_ISDIR(st.st_mode):
             raise FgcalError(f"{option} {path}: is a folder; give a file name")
         if not stat.S_ISREG(st.st_mode):
@@ -164,11 +171,8 @@ def check_output_dir(path, inputs=(), option: str = "--out", must_be_new: bool =
     path = Path(path)
     if str(path) in ("", ".") and must_be_new:
         raise FgcalError(f"{option} {path}: not a new folder name")
-    if os.path.lexists(path):
-        try:
-            st = os.stat(path)
-        except OSError as exc:
-            raise FgcalError(f"{option} {path}: {exc.strerror or exc}") from None
+    st = _existing(path, option)
+    if st is not None:
         if not stat.S_ISDIR(st.st_mode):
             raise FgcalError(f"{option} {path}: exists and is not a folder")
         if must_be_new and not force:

@@ -133,24 +133,23 @@ def line(rel, n, new):
     return f
 
 
-def scale_joints(factor):
+def scale_columns(rel, first, factor):
+    """Multiply the columns from ``first`` on of every data row of a CSV file by ``factor``."""
     def f(w):
-        p = w / "ds" / "joints.csv"
+        p = w / rel
         ls = p.read_text().splitlines()
-        out = [ls[0]] + [",".join([r.split(",")[0], *[repr(float(v) * factor) for v in r.split(",")[1:]]])
+        out = [ls[0]] + [",".join([*r.split(",")[:first], *[repr(float(v) * factor) for v in r.split(",")[first:]]])
                          for r in ls[1:]]
         p.write_text("\n".join(out) + "\n")
     return f
+
+
+def scale_joints(factor):
+    return scale_columns("ds/joints.csv", 1, factor)
 
 
 def scale_probes(factor):
-    def f(w):
-        p = w / "ds" / "probes.csv"
-        ls = p.read_text().splitlines()
-        out = [ls[0]] + [",".join([*r.split(",")[:2], *[repr(float(v) * factor) for v in r.split(",")[2:]]])
-                         for r in ls[1:]]
-        p.write_text("\n".join(out) + "\n")
-    return f
+    return scale_columns("ds/probes.csv", 2, factor)
 
 
 def replace_with(rel, kind):
