@@ -20,11 +20,12 @@ def unit_warnings(ds: Dataset, model) -> list[str]:
     out = []
     where = ds.path if ds.path is not None else "dataset"
     q = np.asarray(ds.joints_deg, dtype=float)
-    limits_deg = np.degrees(np.asarray(model.joint_limits, dtype=float))
-    if q.size and len(q) >= 3:
-        span = np.abs(q).max()
-        reach = np.abs(limits_deg).max()
-        if span <= TWO_PI + 1e-9 and np.ptp(q, axis=0).max() > 0 and reach > 4 * TWO_PI:
+    angle = np.asarray(getattr(model, "joint_is_angle", np.ones(q.shape[1] if q.ndim == 2 else 0, bool)), bool)
+    if q.size and len(q) >= 3 and q.shape[1] == len(angle) and angle.any():
+        qa = q[:, angle]
+        span = np.abs(qa).max()
+        reach = np.abs(np.degrees(np.asarray(model.joint_limits, dtype=float)[angle])).max()
+        if span <= TWO_PI + 1e-9 and np.ptp(qa, axis=0).max() > 0 and reach > 4 * TWO_PI:
             out.append(f"{where}/joints.csv: every joint reading lies within +-{TWO_PI:.4g} although the joint "
                        f"limits reach +-{reach:.0f} deg: the readings look like radians (the file holds degrees)")
     measured = []
@@ -34,9 +35,7 @@ def unit_warnings(ds: Dataset, model) -> list[str]:
             measured.append((level, np.linalg.norm(obs.xyz, axis=1)))
     if measured and q.size:
         try:
-            from .kinematics import forward
-
-            T = forward(model.nominal, np.radians(q[: min(len(q), 200)]))
+            T = model.forward(model.nominal, model.joints_to_internal(q[: min(len(q), 200)]))
             nominal = float(np.median(np.linalg.norm(T[:, :3, 3], axis=1)))
         except Exception:  # noqa: BLE001 (a plausibility hint must never stop the run)
             return out

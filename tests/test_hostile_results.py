@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from fgcal.errors import FgcalError
-from fgcal.model import SLOT_NAMES, slots_to_file_units
 from fgcal.result import CalibrationResult, ParameterEstimate, save_result
 from fgcal.robot_file import model_to_dict
 from fgcal.study import RESULT_COLUMNS, trials_for
@@ -45,7 +44,7 @@ def test_study_with_fewer_trials_reports_only_those(tmp_path):
 
 def _result_of(model, robot_name):
     """A result of ``model`` at its nominal geometry (what a calibration of a perfect robot gives)."""
-    slots = dict(zip(SLOT_NAMES, map(float, slots_to_file_units(model.nominal))))
+    slots = dict(zip(model.slot_names, map(float, model.slots_to_file_units(model.nominal))))
     params = [ParameterEstimate(n, "mm", slots[n], slots[n], 0.01) for n in model.identifiable_names()]
     return CalibrationResult(robot=robot_name, n_poses=6, parameters=params, covariance=np.eye(len(params)) * 1e-4,
                              slots=slots, robot_model=model_to_dict(model))
