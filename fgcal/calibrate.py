@@ -25,6 +25,7 @@ from .result import CalibrationResult, LevelSummary, ParameterEstimate
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from .simulate import Deviations
 from .transforms import to_euler_zyx_trans
+from .joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "gtsam_covariance"]
@@ -57,6 +58,9 @@ class CalibrationOptions:
         Re-weight each measurement level by its estimated variance factor until it is 1.
     extra, exclude : tuple of str
         Slots to add to, or remove from, the identifiable parameters.
+    joint_errors : JointErrorSpec or None
+        A block of non-geometric joint errors (compliance, error map) estimated with the geometry
+        (:mod:`fgcal.joint_errors`); ``None``: the geometric model.
     """
 
     levels: tuple | None = None
@@ -70,6 +74,7 @@ class CalibrationOptions:
     exclude: tuple = ()
     max_iterations: int = 100
     tolerance: float = 1e-12
+    joint_errors: JointErrorSpec | None = None
 
 
 def _pose_dof(n_balls: int, full_pose: bool) -> int:
@@ -132,6 +137,8 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     Only poses with at least one measurement at the chosen levels take part.
     """
     levels = _levels(ds, options)
+    block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.joint_errors)
+    names = [n for n in names if not is_block_name(n)]
     params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
     params = type(params)(model, tuple(names))
     held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
@@ -185,9 +192,15 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
-    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
-
     start = _initial_base(model, held, q, world_points)
+    if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
+        block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), q.shape[1],
+                                      model.extra.get("inertials"), block_names)
+        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
+        params = BlockParameters(params, block)
+        kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
+        kw["joint_errors"] = block.design(q, start)
+    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
     theta0 = params.take(start)
     if init_c is not None and len(graph.ball_pose):
         # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
@@ -319,6 +332,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     """
     params = model.parameters(extra=options.extra, exclude=options.exclude)
     names = list(params.names)
+    if options.joint_errors is not None:
+        names += options.joint_errors.names(len(model.joint_limits))
     levels = _levels(ds, options)
     # Degrees of freedom per pose: full pose 6, two balls 5, one ball 3.
     dof = 0
@@ -343,8 +358,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if redundant:
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
-            held_info.append({"name": n, "value": float(slots_to_file_units(graph.held)[SLOT_NAMES.index(n)]),
-                              "reason": reason})
+            value = 0.0 if is_block_name(n) else float(slots_to_file_units(graph.held)[SLOT_NAMES.index(n)])
+            held_info.append({"name": n, "value": value, "reason": reason})
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
         graph, state, pose_ids = build_graph(ds, model, names, options)
@@ -407,7 +422,21 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         levels=levels_summary, iterations=iterations, converged=converged, cost=float(lin.cost),
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
-        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist())
+        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist(),
+        joint_errors=_joint_error_info(final, options, graph.readings))
+
+
+def _joint_error_info(params, options: CalibrationOptions, readings) -> dict:
+    """What a result keeps of its joint-error block: the spec, the names, the joint region."""
+    if not isinstance(params, BlockParameters):
+        return {}
+    names = list(params.block.names)
+    qd = np.degrees(readings)
+    return {"spec": options.joint_errors.to_dict(), "names": names,
+            "map_terms": sum(n.startswith("map.") for n in names),
+            "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],
+            "validity": "the joint error map holds only inside these joint ranges and in the set-up it was "
+                        "fitted on (tool, payload, mounting)" if any(n.startswith("map.") for n in names) else ""}
 
 
 def nonlinear_graph(graph: Graph, state: State):

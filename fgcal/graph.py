@@ -108,10 +108,14 @@ class Graph:
     poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
+    joint_errors : ndarray, shape (N, 6, K), optional
+        ``G`` of a joint-error block (:mod:`fgcal.joint_errors`) whose K parameters follow the
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[-K:]``.
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
-                 ball_offset=None, radius=0.0, centres=None, poses=None, prior=None, robust=None, robust_k=None):
+                 ball_offset=None, radius=0.0, centres=None, poses=None, prior=None, robust=None, robust_k=None,
+                 joint_errors=None):
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
@@ -122,6 +126,10 @@ class Graph:
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.joint_vars = sigmas.joint > 0
+        # --- joint-error block (fgcal.joint_errors): theta = [geometry (n_geo), phi (K)]
+        self.n_geo = len(self.index)
+        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
+        self.K = 0 if self.G is None else self.G.shape[2]
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -197,11 +205,21 @@ class Graph:
         return State(np.asarray(theta, dtype=float).copy(), self.readings.copy(), c.copy())
 
     def joints(self, state: State) -> np.ndarray:
-        return state.q if self.joint_vars else self.readings
+        if self.joint_vars:
+            return state.q
+        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:]
+
+    def _with_block(self, pose, J_t, J_q):
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
+        if not self.K:
+            return J_t
+        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else J_q @ self.G[pose]
+        return np.concatenate([J_t, extra], axis=2)
 
     def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself."""
-        n, m, P, nz = self.n_poses, self.m, len(self.index), self.nz
+        n, m, P, nz = self.n_poses, self.m, self.n_geo + self.K, self.nz
+        theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
         Jt = np.zeros((n, m, P))
         Jz = np.zeros((n, m, nz))
@@ -234,23 +252,32 @@ class Graph:
             put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
                 sigma=self.sigmas.probe)
         if len(self.ball_pose):
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[self.ball_pose], self.ball_offset, state.c,
+            e, J_t, J_q = fx.ball_centre_error(theta, q[self.ball_pose], self.ball_offset, state.c,
                                                self.index, self.held)
+            J_t = self._with_block(self.ball_pose, J_t, J_q)
             J_c = np.broadcast_to(-np.eye(3), (len(self.ball_pose), 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], e, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held)
+            e, J_t, J_q = fx.ball_centre_error(theta, q[pose_i], offset, xyz, self.index, self.held)
+            J_t = self._with_block(pose_i, J_t, J_q)
             put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
         if self.poses is not None:
             pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held)
+            e, J_t, J_q = fx.pose_error(theta, q[pose_i], T, self.index, self.held)
+            J_t = self._with_block(pose_i, J_t, J_q)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
         if self.joint_vars:
-            e = fx.joint_error(state.q, self.readings)
-            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(6), (n, 6, 6)),
+            J_t = None
+            if self.K:  # the joint variable is the reading plus the block's correction
+                phi = state.theta[self.n_geo:]
+                e = fx.joint_error(state.q, self.readings + self.G @ phi)
+                J_t = np.concatenate([np.zeros((n, 6, self.n_geo)), -self.G], axis=2)
+            else:
+                e = fx.joint_error(state.q, self.readings)
+            put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(6), (n, 6, 6)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))

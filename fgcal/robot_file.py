@@ -70,7 +70,8 @@ def _link_transform(row: dict) -> np.ndarray:
 
 def model_from_dict(data, source: str = "<model>") -> RobotModel:
     """Build a :class:`RobotModel` from a parsed model file; ``ModelError`` names ``source``."""
-    top = ("format", "name", "description", "base", "links", "tool", "joint_limits", "tooling", "volume", "paper_box")
+    top = ("format", "name", "description", "base", "links", "tool", "joint_limits", "tooling", "volume", "paper_box",
+           "inertials")
     data = _mapping(data, top, source, required=("format", "base", "links", "tool", "joint_limits"))
     if data["format"] != FORMAT:
         raise ModelError(f"{source}: format {data['format']!r} is not known (expected {FORMAT!r})")
@@ -100,7 +101,9 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         base = to_euler_zyx_trans(A)
         first["theta"] = first["d"] = 0.0
     # A sixth link row sits between Rz(q6) and the tool: fold it into the tool.
+    last_row = None
     if len(rows) == 6:
+        last_row = _link_transform(rows[-1])
         tool = to_euler_zyx_trans(_link_transform(rows.pop()) @ euler_zyx_trans(*tool))
 
     nominal = np.zeros(len(SLOT_NAMES))
@@ -135,8 +138,13 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
             raise ModelError(f"{source}: {key}: min must be below max on every axis")
         return np.array([lo, hi])
 
+    extra = {}
+    if data.get("inertials") is not None:  # gravity torques for the compliance model (fgcal.gravity)
+        from .gravity import inertials_from_dict
+
+        extra["inertials"] = inertials_from_dict(data["inertials"], len(limits), source, last_row)
     return RobotModel(name=name, nominal=nominal, joint_limits=limits, tooling=tooling, volume=box("volume"),
-                      paper_box=box("paper_box"), description=str(data.get("description", "")))
+                      paper_box=box("paper_box"), description=str(data.get("description", "")), extra=extra)
 
 
 def load_model(name_or_path) -> RobotModel:
@@ -174,6 +182,10 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
         b = getattr(model, key)
         if b is not None:
             out[key] = {"min": [float(c) for c in b[0]], "max": [float(c) for c in b[1]]}
+    if model.extra.get("inertials") is not None:
+        from .gravity import inertials_to_dict
+
+        out["inertials"] = inertials_to_dict(model.extra["inertials"])
     return out
 
 

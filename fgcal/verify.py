@@ -7,18 +7,22 @@ No I/O here.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .dataset import Dataset
 from .errors import FgcalError
+from .joint_errors import corrected_joints, outside_region
 from .kinematics import forward
 from .measure import measure_probes
 from .model import SLOT_NAMES, RobotModel, slots_from_file_units
 from .posefit import rigid_fit
 from .result import CalibrationResult
 from .transforms import pose_difference
+
+log = logging.getLogger(__name__)
 
 __all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses"]
 
@@ -119,7 +123,9 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
     q = ds.joints_rad[ds.row_of(ids)]
-    T_cal = forward(result.slot_vector(), q)
+    for message in outside_region(result, q):
+        log.warning("%s: %s", ds.path or "dataset", message)
+    T_cal = forward(result.slot_vector(), corrected_joints(result, q))  # joint-error block, if any
     T_nom = forward(model.nominal, q)
     out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
     if ds.truth is not None:
