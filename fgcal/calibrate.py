@@ -58,6 +58,9 @@ class CalibrationOptions:
         Re-weight each measurement level by its estimated variance factor until it is 1.
     extra, exclude : tuple of str
         Slots to add to, or remove from, the identifiable parameters.
+    noise_scale : dict or None
+        Fixed factors on each level's declared noise (``{"poses": 12.0}``), for example the
+        ones a previous ``estimate_noise`` run found.
     joint_errors : JointErrorSpec or None
         A block of non-geometric joint errors (compliance, error map) estimated with the geometry
         (:mod:`fgcal.joint_errors`); ``None``: the geometric model.
@@ -74,6 +77,7 @@ class CalibrationOptions:
     exclude: tuple = ()
     max_iterations: int = 100
     tolerance: float = 1e-12
+    noise_scale: dict | None = None
     joint_errors: JointErrorSpec | None = None
 
 
@@ -150,7 +154,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
     row = {p: i for i, p in enumerate(pose_ids)}
     q = ds.joints_rad[ds.row_of(pose_ids)]
-    sig = _sigmas(ds, options, scale)
+    sig = _sigmas(ds, options, scale if scale is not None else options.noise_scale)
     kw = {}
     world_points = {}
     init_c = None
@@ -319,7 +323,9 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
 
 
 def _unidentifiable(graph: Graph, state: State) -> dict[str, list[str]]:
-    return analyse_information(graph.parameter_information(state), graph.params.names).redundant
+    S = graph.parameter_information(state)
+    n = graph.n_geo  # a joint-error block has its own prior: only the geometry is checked
+    return analyse_information(S[:n, :n], graph.params.names[:n]).redundant
 
 
 def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
@@ -365,7 +371,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         graph, state, pose_ids = build_graph(ds, model, names, options)
 
     state, iterations, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
-    scale = {}
+    scale = dict(options.noise_scale or {})
     if options.estimate_noise:
         for _ in range(8):
             lin = graph.linearise(state)

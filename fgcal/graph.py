@@ -213,7 +213,7 @@ class Graph:
         """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
         if not self.K:
             return J_t
-        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else J_q @ self.G[pose]
+        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else np.einsum("nmj,njk->nmk", J_q, self.G[pose])
         return np.concatenate([J_t, extra], axis=2)
 
     def linearise(self, state: State) -> Linearisation:
@@ -294,10 +294,14 @@ class Graph:
 
     # ------------------------------------------------------------------ solving
     def normal_equations(self, lin: Linearisation):
-        A = np.einsum("nmp,nmq->pq", lin.J_theta, lin.J_theta) + lin.prior_J.T @ lin.prior_J
-        B = np.einsum("nmp,nmz->npz", lin.J_theta, lin.J_local)
-        D = np.einsum("nmz,nmy->nzy", lin.J_local, lin.J_local)
-        g_t = np.einsum("nmp,nm->p", lin.J_theta, lin.r) + lin.prior_J.T @ lin.prior_r
+        # matmul (BLAS) rather than einsum: the parameter block can make P several hundred
+        P = lin.J_theta.shape[2]
+        Jt2 = lin.J_theta.reshape(-1, P)
+        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+        Jt_T = lin.J_theta.transpose(0, 2, 1)
+        B = Jt_T @ lin.J_local
+        D = lin.J_local.transpose(0, 2, 1) @ lin.J_local
+        g_t = Jt2.T @ lin.r.reshape(-1) + lin.prior_J.T @ lin.prior_r
         g_z = np.einsum("nmz,nm->nz", lin.J_local, lin.r)
         # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
         D[~self.local_used] = 0.0
@@ -312,8 +316,9 @@ class Graph:
             dd = np.maximum(np.diagonal(D, axis1=1, axis2=2), 1e-12)
             D = D + damping * np.einsum("nz,zy->nzy", dd, np.eye(self.nz))
         Dinv = np.linalg.inv(D) if self.nz else D
-        BD = np.einsum("npz,nzy->npy", B, Dinv)
-        S = A - np.einsum("npz,nqz->pq", BD, B)
+        BD = B @ Dinv
+        P = A.shape[0]
+        S = A - BD.transpose(1, 0, 2).reshape(P, -1) @ B.transpose(1, 0, 2).reshape(P, -1).T if self.nz else A
         rhs = None
         if g_t is not None:
             rhs = g_t - np.einsum("npz,nz->p", BD, g_z)
@@ -350,11 +355,11 @@ class Graph:
         _, _, Dinv = self.reduced(A, B, D)
         St = covariance  # (P, P) = S^-1
         E = -np.einsum("nzy,npy->nzp", Dinv, B)  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = np.einsum("nzp,pq->nzq", E, St)
+        Szt = E @ St
         Szz = Dinv + np.einsum("nzp,nyp->nzy", Szt, E)
         Jt, Jz = lin.J_theta, lin.J_local
-        h = (np.einsum("nmp,pq,nmq->nm", Jt, St, Jt) + 2 * np.einsum("nmp,nzp,nmz->nm", Jt, Szt, Jz)
-             + np.einsum("nmz,nzy,nmy->nm", Jz, Szz, Jz))
+        h = (np.sum((Jt @ St) * Jt, axis=2) + 2 * np.sum((Jt @ Szt.transpose(0, 2, 1)) * Jz, axis=2)
+             + np.sum((Jz @ Szz) * Jz, axis=2))
         out = {}
         for level, start in self.row.items():
             width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": 6}[level]
