@@ -29,6 +29,8 @@ __all__ = ["ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_val
 log = logging.getLogger(__name__)
 
 HARMONICS_GRID = (1, 2, 3, 4, 6, 8, 10, 12, 15, 18, 22, 26, 30)
+CORRELATION_LIMIT = 0.9
+COMPLIANCE_RESOLUTION = 1.0  # urad/Nm: a compliance known no better than this is not identified (arms: ~5-20)
 SIGMA_GRID = tuple(float(s) for s in np.geomspace(1e-6, 3e-4, 8))  # rad
 
 
@@ -239,7 +241,7 @@ def _identifiability(result, torques, q_deg) -> tuple[dict, list]:
             jn = int(n[1:].split(".")[0]) - 1
             p = result.parameters[i]
             span, tspan = float(np.ptp(q_deg[:, jn])), float(np.ptp(torques[:, jn]))
-            if abs(c[j]) > 0.9 or p.sigma > 0.3 * max(abs(p.estimate), 1e-12):
+            if abs(c[j]) > CORRELATION_LIMIT or p.sigma > COMPLIANCE_RESOLUTION:
                 warnings.append(f"{n}: joint {jn + 1} spans only {span:.1f} deg (gravity torque spread "
                                 f"{tspan:.0f} N m) in these poses: too narrow to identify its compliance "
                                 f"({p.estimate:.3g} +/- {p.sigma:.2g} urad/Nm, correlation {corr[i, j]:+.2f} "
