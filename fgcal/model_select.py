@@ -282,6 +282,11 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
 
     up_to = ModelKind(up_to)
     rng = np.random.default_rng(0) if rng is None else rng
+    if folds < 2 or folds > ds.n_poses:
+        from .errors import FgcalError
+
+        raise FgcalError(f"{ds.path or 'dataset'}: {folds} cross-validation folds for {ds.n_poses} poses "
+                         "(need 2 <= folds <= poses)")
     base = replace(options, joint_errors=None)
     results = {ModelKind.GEOMETRIC.value: calibrate(ds, model, base)}
     geo = results[ModelKind.GEOMETRIC.value]

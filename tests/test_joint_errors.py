@@ -171,3 +171,47 @@ def test_compliance_needs_inertials():
     ds, _ = _simulate(np.random.default_rng(2), 20)
     with pytest.raises(ModelError, match="inertials"):
         calibrate(ds, bare, CalibrationOptions(joint_errors=JointErrorSpec(compliance=(2,))))
+
+
+def test_cli_calibrate_model_compensate_and_export(tmp_path):
+    import subprocess
+    import sys
+
+    from fgcal.dataset_io import save_dataset
+
+    rng = np.random.default_rng(21)
+    ds, truth = _simulate(rng, 90, PHI, SPEC)
+    save_dataset(ds, tmp_path / "ds")
+    ver, _ = _simulate(np.random.default_rng(22), 1, PHI, SPEC)
+
+    def run(*argv):
+        return subprocess.run([sys.executable, "-m", "fgcal.cli", *map(str, argv)], capture_output=True, text=True)
+
+    out = run("calibrate", tmp_path / "ds", "--out", tmp_path / "r.json", "--model", "compliance+map", "--exact-joints",
+              "--folds", "3", "--max-harmonics", "3")
+    assert out.returncode == 0, out.stderr
+    assert "recommended: compliance+map" in out.stdout and "cross-validated" in out.stdout
+    assert "holds only inside these joint ranges" in out.stdout
+    r = load_result(tmp_path / "r.json")
+    assert r.joint_errors["selection"]["recommended"] == "compliance+map"
+    # compensate: commands whose corrected joints put the calibrated model on the targets
+    q_goal = rng.uniform(LOW, HIGH, (3, 6)) * 0.5
+    T = forward(r.slot_vector(), q_goal)
+    from fgcal.transforms import matrix_to_quaternion as m2q
+
+    lines = ["pose,x,y,z,qw,qx,qy,qz,q1,q2,q3,q4,q5,q6"]
+    for i, (Ti, qi) in enumerate(zip(T, q_goal)):
+        lines.append(",".join([str(i + 1)] + [repr(float(v)) for v in [*Ti[:3, 3], *m2q(Ti[:3, :3]), *np.degrees(qi)]]))
+    (tmp_path / "targets.csv").write_text("\n".join(lines) + "\n")
+    out = run("compensate", tmp_path / "r.json", tmp_path / "targets.csv", "--out", tmp_path / "cmd.csv")
+    assert out.returncode == 0, out.stderr
+    cmd = np.radians(np.loadtxt(tmp_path / "cmd.csv", delimiter=",", skiprows=1)[:, 1:])
+    reached = forward(r.slot_vector(), corrected_joints(r, cmd))
+    np.testing.assert_allclose(reached[:, :3, 3], T[:, :3, 3], atol=1e-6)
+    assert np.abs(cmd - q_goal).max() > 1e-5  # the correction is not nothing
+    out = run("export", tmp_path / "r.json", "--urdf", tmp_path / "cal.urdf")
+    assert out.returncode == 0, out.stderr
+    table = (tmp_path / "cal.urdf.joint_errors.csv").read_text().splitlines()
+    assert table[0] == "name,unit,estimate,sigma" and len(table) == 1 + len(r.joint_errors["names"])
+    bad = run("calibrate", tmp_path / "ds", "--out", tmp_path / "x.json", "--model", "compliance", "--payload", "a,b")
+    assert bad.returncode == 2 and "--payload" in bad.stderr and "Traceback" not in bad.stderr
