@@ -140,6 +140,12 @@ def test_save_load_keeps_the_block(tmp_path):
     assert back.joint_errors["names"] == r.joint_errors["names"] and back.names == r.names
     q = ds.joints_rad[:5]
     np.testing.assert_allclose(corrected_joints(back, q), corrected_joints(r, q), atol=1e-15)
+    from fgcal.report import write_report
+    from fgcal.verify import verify
+
+    write_report(back, tmp_path / "report", verify(back, ds, UR10).to_dict())
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "| j2.compliance | urad/Nm |" in md and "joint error map of 8 terms" in md
 
 
 def test_selection_finds_the_errors_and_claims_nothing_without_them():

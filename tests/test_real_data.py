@@ -131,3 +131,8 @@ def test_models_beyond_geometry_held_out(series):
         assert 5 < p.estimate < 30 and p.sigma < 0.2 * p.estimate  # urad/Nm, well identified
     ranges = results["compliance+map"].joint_errors["joint_ranges_deg"]
     assert len(ranges) == 6 and all(lo < hi for lo, hi in ranges)
+    from fgcal.uncertainty import verdict
+
+    lines = verdict(results["compliance+map"])
+    assert any("Recommended: compliance+map" in line and "held-out" in line for line in lines)
+    assert any("joint error map" in line and "q2 " in line for line in lines)
