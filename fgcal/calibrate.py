@@ -454,6 +454,8 @@ def nonlinear_graph(graph: Graph, state: State):
     """
     import factors as fx
 
+    if graph.K:
+        raise FgcalError("the GTSAM reference graph covers the geometric model only (no joint-error block)")
     g = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     t_key = fx.theta_key()
