@@ -7,7 +7,8 @@ cross-validated error, the chosen map, the compliances, and the fit time relativ
 geometric fit of the same split.
 
 Splits: random 30% of the commanded goals held out (seeds 0 and 1, as the real-data tests), and
-in time order (the first 70% of the rows train, the rest test: is the map stable over a session?;
+in time order (the first 70% of the rows train, the rest test: is the map stable over a session?
+cross-validated with random and with blocked folds, contiguous stretches of the session;
 there the importer's starting base and tool are fitted to all rows, the calibration refits them).
 Run: ``python bench/bench_models.py [--series PATH] [--seeds 0 1] [--no-time-split]``.
 """
@@ -31,7 +32,7 @@ def default_series() -> Path | None:
     return None
 
 
-def run_split(calib, held, model_dict, label):
+def run_split(calib, held, model_dict, label, fold_order="random"):
     from fgcal.calibrate import CalibrationOptions
     from fgcal.model_select import compare_models
     from fgcal.robot_file import model_from_dict
@@ -40,9 +41,10 @@ def run_split(calib, held, model_dict, label):
     model = model_from_dict(model_dict)
     t0 = time.perf_counter()
     results, sel = compare_models(calib, model, CalibrationOptions(estimate_noise=True, robust="huber"),
-                                  verification=held, rng=np.random.default_rng(0))
+                                  verification=held, rng=np.random.default_rng(0), fold_order=fold_order)
     elapsed = time.perf_counter() - t0
-    print(f"\n{label}: {calib.n_poses} training poses, {held.n_poses} held out; comparison {elapsed:.1f} s")
+    print(f"\n{label}, {fold_order} folds: {calib.n_poses} training poses, {held.n_poses} held out; "
+          f"comparison {elapsed:.1f} s")
     print(f"  {'model':15s} {'params':>6s} {'CV mean':>8s} {'held-out mean':>13s} {'RMS':>7s} {'gain':>6s}  details")
     geo = None
     for s in sel.scores:
@@ -84,8 +86,9 @@ def main():
         # a goal repeated across the cut stays on the training side
         test_ids = np.array([p for p in ids if p >= cut and groups[p] not in train_groups])
         train_ids = np.array([p for p in ids if p not in set(test_ids.tolist())])
-        run_split(calib.select(train_ids), calib.select(test_ids), model_dict,
-                  "time order: first 70% train, the rest held out")
+        for order in ("random", "blocked"):
+            run_split(calib.select(train_ids), calib.select(test_ids), model_dict,
+                      "time order: first 70% train, the rest held out", order)
     return 0
 
 

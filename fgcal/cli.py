@@ -193,7 +193,7 @@ def _compare_models(args, ds, model, options):
     results, _ = compare_models(ds, model, options, up_to=args.model, verification=ver, folds=args.folds,
                                 rng=np.random.default_rng(args.seed), payload=_parse_payload(args.payload),
                                 harmonics_grid=tuple(h for h in HARMONICS_GRID if h < args.max_harmonics)
-                                + (args.max_harmonics,))
+                                + (args.max_harmonics,), fold_order=args.fold_order)
     return results[args.model]
 
 
@@ -581,6 +581,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--max-harmonics", type=int, default=30,
                    help="largest number of map harmonics per joint tried by the cross-validation (default 30)")
     k.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default 0)")
+    k.add_argument("--fold-order", choices=("random", "blocked"), default="random",
+                   help="folds drawn at random, or as contiguous stretches of the poses in id (time) order, which "
+                        "also scores drift over the session (default random)")
     k.add_argument("--payload", default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
     k.set_defaults(func=_cmd_calibrate)
 

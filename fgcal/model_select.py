@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import re
 from dataclasses import asdict, dataclass, field, replace
+from enum import Enum
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from .gravity import Payload, gravity_torques
 from .joint_errors import JointErrorSpec, ModelKind, compliance_joints
 from .model import RobotModel
 
-__all__ = ["ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_validate", "compare_models",
+__all__ = ["FoldOrder", "ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_validate", "compare_models",
            "HARMONICS_GRID", "SIGMA_GRID"]
 
 log = logging.getLogger(__name__)
@@ -140,10 +141,22 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
     return CVProblem(r, J, rows, float(unit_scale), names, len(geo_names), _groups(graph.readings), unit)
 
 
-def _folds(groups, k: int, rng) -> np.ndarray:
-    unique = np.unique(groups)
+class FoldOrder(str, Enum):
+    """How poses are dealt into folds: at random, or in contiguous blocks of the poses' order
+    (pose ids in time order: each fold is then a stretch of the session, which tests the models
+    against drift, as a later verification set would)."""
+
+    RANDOM = "random"
+    BLOCKED = "blocked"
+
+
+def _folds(groups, k: int, rng, order: FoldOrder = FoldOrder.RANDOM) -> np.ndarray:
+    unique = np.unique(groups)  # group ids number the groups in order of first appearance
     fold_of_group = np.empty(unique.max() + 1, dtype=int)
-    fold_of_group[rng.permutation(unique)] = np.arange(len(unique)) % k
+    if FoldOrder(order) is FoldOrder.BLOCKED:
+        fold_of_group[unique] = np.arange(len(unique)) * k // len(unique)
+    else:
+        fold_of_group[rng.permutation(unique)] = np.arange(len(unique)) % k
     return fold_of_group[groups]
 
 
@@ -180,7 +193,8 @@ class _FoldSums:
         return err
 
 
-def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GRID, sigma_grid=SIGMA_GRID):
+def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GRID, sigma_grid=SIGMA_GRID,
+                   order: FoldOrder = FoldOrder.RANDOM):
     """Per-pose cross-validated errors of the candidate models.
 
     Returns
@@ -189,7 +203,7 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
         ``{"geometric": (err (N,), spec_kw), "compliance": ..., "compliance+map": ...}``; ``spec_kw``
         holds the chosen ``harmonics`` and ``map_sigma`` for the map.
     """
-    fold = _folds(prob.groups, folds, rng)
+    fold = _folds(prob.groups, folds, rng, order)
     sums = _FoldSums(prob, fold, folds)
     geo = list(range(prob.n_geometric))
     comp = [i for i, n in enumerate(prob.names) if n.endswith(".compliance")]
@@ -252,7 +266,7 @@ def _identifiability(result, torques, q_deg) -> tuple[dict, list]:
 def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
                    up_to: ModelKind = ModelKind.COMPLIANCE_MAP, verification: Dataset | None = None,
                    folds: int = 5, rng=None, payload: Payload = Payload(), harmonics_grid=HARMONICS_GRID,
-                   sigma_grid=SIGMA_GRID):
+                   sigma_grid=SIGMA_GRID, fold_order: FoldOrder = FoldOrder.RANDOM):
     """Calibrate the models up to ``up_to``, score them, and recommend one.
 
     Parameters
@@ -269,6 +283,8 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     folds : int
     rng : numpy.random.Generator
         Draws the folds.
+    fold_order : FoldOrder
+        ``random`` (default) or ``blocked`` (contiguous stretches of the poses in id order).
     payload : Payload
         Load on the tool (kg, mm), for the gravity torques.
 
@@ -304,7 +320,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         spec_max = JointErrorSpec(compliance=joints, payload=payload,
                                   harmonics=max(harmonics_grid) if up_to is ModelKind.COMPLIANCE_MAP else 0)
         prob = cv_problem(ds, model, geo, spec_max, options)
-        cv = cross_validate(prob, folds, rng, harmonics_grid if spec_max.harmonics else (), sigma_grid)
+        cv = cross_validate(prob, folds, rng, harmonics_grid if spec_max.harmonics else (), sigma_grid, fold_order)
         log.info("cross-validation: %s", {k: round(float(v[0].mean()), 4) for k, v in cv.items()})
         specs[ModelKind.COMPLIANCE.value] = JointErrorSpec(compliance=joints, payload=payload)
         if ModelKind.COMPLIANCE_MAP.value in cv:
@@ -314,7 +330,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     else:
         geo_names = list(geo.names)
         prob = cv_problem(ds, model, geo, JointErrorSpec(), options) if geo_names else None
-        cv = cross_validate(prob, folds, rng, (), sigma_grid)
+        cv = cross_validate(prob, folds, rng, (), sigma_grid, fold_order)
         unit = prob.unit
     # The added models are weighted as the cross-validation weighted them: with the geometric
     # model's noise estimate (re-estimating it would change the map's prior strength relative to the data).
