@@ -221,3 +221,18 @@ def test_cli_calibrate_model_compensate_and_export(tmp_path):
     assert table[0] == "name,unit,estimate,sigma" and len(table) == 1 + len(r.joint_errors["names"])
     bad = run("calibrate", tmp_path / "ds", "--out", tmp_path / "x.json", "--model", "compliance", "--payload", "a,b")
     assert bad.returncode == 2 and "--payload" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_folds_keep_repeated_configurations_together():
+    from fgcal.model_select import FoldOrder, _folds, _groups
+
+    rng = np.random.default_rng(5)
+    q = rng.uniform(-3, 3, (40, 6))
+    q = np.vstack([q, q[:10] + 1e-5])  # ten configurations measured again later
+    groups = _groups(q)
+    assert len(np.unique(groups)) == 40
+    for order in FoldOrder:
+        fold = _folds(groups, 4, np.random.default_rng(0), order)
+        np.testing.assert_array_equal(fold[40:], fold[:10])
+    blocked = _folds(groups, 4, None, FoldOrder.BLOCKED)
+    np.testing.assert_array_equal(blocked[:40], np.repeat(np.arange(4), 10))  # contiguous stretches
