@@ -1,5 +1,4 @@
 """Non-geometric joint errors: gravity torques, the parameter block in the graph, recovery, selection."""
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -236,3 +235,16 @@ def test_folds_keep_repeated_configurations_together():
         np.testing.assert_array_equal(fold[40:], fold[:10])
     blocked = _folds(groups, 4, None, FoldOrder.BLOCKED)
     np.testing.assert_array_equal(blocked[:40], np.repeat(np.arange(4), 10))  # contiguous stretches
+
+
+def test_block_sigmas_match_the_monte_carlo_scatter():
+    """Normalised errors of the block's estimates over seeded datasets: mean ~0, standard deviation ~1."""
+    z = []
+    for seed in range(12):
+        ds, _ = _simulate(np.random.default_rng(100 + seed), 150, PHI, SPEC)
+        r = calibrate(ds, UR10, CalibrationOptions(joint_errors=SPEC))
+        est = {p.name: p for p in r.parameters}
+        z += [(est[n].estimate - v * 1e6) / est[n].sigma for n, v in zip(SPEC.names(6), PHI)]
+    z = np.array(z)
+    print(f"block z over {len(z)}: mean {z.mean():.3f}, std {z.std():.3f}")
+    assert abs(z.mean()) < 0.25 and 0.75 < z.std() < 1.3
