@@ -85,8 +85,7 @@ class CVProblem:
     metric_rows : ndarray of int, shape (N, 3)
         Rows holding each pose's measured position; ``metric_scale`` turns them into mm.
     names : list of str
-    prior : ndarray, shape (P,)
-        Prior standard deviations of the columns (inf: none).
+        Column names: the geometry's (``n_geometric``) then the block's.
     groups : ndarray of int, shape (N,)
         Repeated configurations share a group.
     """
@@ -136,8 +135,6 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
         first[pose[::-1]] = start[::-1]  # the first measured position of each pose
         rows = first[:, None] + np.arange(3)
         unit = "mm"
-    prior = np.full(len(names), np.inf)
-    prior[len(geo_names):] = graph.params.block.prior_sigma
     return CVProblem(r, J, rows, float(unit_scale), names, len(geo_names), _groups(graph.readings), unit)
 
 
