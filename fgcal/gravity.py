@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import ModelError
-from .kinematics import CHAIN, forward_frames
+from .kinematics import chain_for
 
-__all__ = ["Inertials", "Payload", "inertials_from_dict", "inertials_to_dict", "gravity_torques"]
+__all__ = ["Inertials", "Payload", "inertials_from_dict", "inertials_to_dict", "model_inertials", "gravity_torques"]
 
 STANDARD_GRAVITY = 9.81
 
@@ -129,8 +129,16 @@ def inertials_to_dict(inertials: Inertials) -> dict:
                       for m, cm in zip(inertials.mass, inertials.com)]}
 
 
-def gravity_torques(slots, q, inertials: Inertials, payload: Payload | None = None) -> np.ndarray:
-    """Gravity torque on every joint at each joint reading.
+def model_inertials(model) -> Inertials | None:
+    """The inertials a :class:`~fgcal.model.RobotModel` carries (``extra["inertials"]``), or None."""
+    raw = model.extra.get("inertials")
+    if raw is None:
+        return None
+    return raw if isinstance(raw, Inertials) else inertials_from_dict(raw, model.n_joints, model.name)
+
+
+def gravity_torques(slots, q, inertials: Inertials, payload: Payload | None = None, chain=None) -> np.ndarray:
+    """Gravity torque on every joint at each joint reading (for a prismatic joint: the force along it, N).
 
     Parameters
     ----------
@@ -142,15 +150,18 @@ def gravity_torques(slots, q, inertials: Inertials, payload: Payload | None = No
         Link masses and centres of mass (n links).
     payload : Payload, optional
         Load on the tool (kg, mm in the tool frame).
+    chain : fgcal.kinematics.Chain, optional
+        The model's chain (``model.chain``); a 6R chain by default.
 
     Returns
     -------
     ndarray, shape (N, n)
         Torque (N m) that gravity exerts on each joint.
     """
-    R_before, p_before, T = forward_frames(slots, q)
-    joint_ops = [k for k, op in enumerate(CHAIN) if op.joint is not None]
-    joint_ops.sort(key=lambda k: CHAIN[k].joint)
+    chain = chain_for(slots, chain)
+    R_before, p_before, T = chain.forward_frames(slots, q)
+    ops = chain.ops
+    joint_ops = sorted((k for k, op in enumerate(ops) if op.joint is not None), key=lambda k: ops[k].joint)
     nj = len(joint_ops)
     if len(inertials.mass) != nj:
         raise ValueError(f"inertials have {len(inertials.mass)} links, the chain {nj} joints")
@@ -171,6 +182,9 @@ def gravity_torques(slots, q, inertials: Inertials, payload: Payload | None = No
     tau = np.zeros((T.shape[0], nj))
     for j in range(nj):
         beyond = body_joint >= j
+        if ops[joint_ops[j]].kind == "T":  # prismatic: the weight's component along the axis
+            tau[:, j] = np.einsum("ni,ni->n", weights[beyond].sum(axis=0), z[j])
+            continue
         arm = c[beyond] - o[j][None]  # mm
         moment = np.cross(arm, weights[beyond]).sum(axis=0)  # N mm
         tau[:, j] = np.einsum("ni,ni->n", moment, z[j]) * 1e-3

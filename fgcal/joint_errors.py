@@ -22,7 +22,7 @@ from enum import Enum
 
 import numpy as np
 
-from .gravity import Inertials, Payload, gravity_torques
+from .gravity import Inertials, Payload, gravity_torques, model_inertials
 
 __all__ = ["ModelKind", "JointErrorSpec", "JointErrorBlock", "BlockParameters", "is_block_name",
            "compliance_joints", "corrected_joints", "commands_for", "outside_region"]
@@ -126,6 +126,8 @@ class JointErrorBlock:
     payload : Payload
     map_sigma, compliance_sigma : float
         Prior standard deviations (rad, rad/Nm).
+    chain : fgcal.kinematics.Chain or None
+        The model's chain, for the gravity torques (a 6R chain when None).
     """
 
     names: tuple
@@ -133,9 +135,11 @@ class JointErrorBlock:
     payload: Payload = field(default_factory=Payload)
     map_sigma: float = 50e-6
     compliance_sigma: float = COMPLIANCE_PRIOR
+    chain: object = None
 
     @classmethod
-    def build(cls, spec: JointErrorSpec, n_joints: int, inertials: Inertials | None, names=None) -> "JointErrorBlock":
+    def build(cls, spec: JointErrorSpec, n_joints: int, inertials: Inertials | None, names=None,
+              chain=None) -> "JointErrorBlock":
         """The block of ``spec``; ``names`` restricts it (for example after dropping unidentifiable ones)."""
         all_names = spec.names(n_joints)
         chosen = tuple(n for n in all_names if names is None or n in set(names))
@@ -144,7 +148,7 @@ class JointErrorBlock:
 
             raise ModelError("the compliance model needs the robot's link masses and centres of mass "
                              "(an 'inertials:' block in the model file)")
-        return cls(chosen, inertials, spec.payload, spec.map_sigma, spec.compliance_sigma)
+        return cls(chosen, inertials, spec.payload, spec.map_sigma, spec.compliance_sigma, chain)
 
     def __len__(self) -> int:
         return len(self.names)
@@ -174,7 +178,7 @@ class JointErrorBlock:
         for k, (kind, j, h) in enumerate(self._terms()):
             if kind == "compliance":
                 if tau is None:
-                    tau = gravity_torques(slots, q, self.inertials, self.payload)
+                    tau = gravity_torques(slots, q, self.inertials, self.payload, self.chain)
                 G[:, j, k] = tau[:, j]
             else:
                 G[:, j, k] = np.sin(h * q[:, j]) if kind == "sin" else np.cos(h * q[:, j])
@@ -238,38 +242,41 @@ class BlockParameters:
         return np.asarray(cov) * np.outer(s, s)
 
 
-def _block_of_result(result):
-    """``(block, phi (K,) internal)`` of a result, or ``(None, None)`` for a geometric one."""
+def _block_of_result(result, model=None):
+    """``(block, phi (K,) internal, slots)`` of a result, or ``(None, None, None)`` for a geometric one."""
     info = getattr(result, "joint_errors", None) or {}
     if not info.get("names"):
-        return None, None
+        return None, None, None
     spec = JointErrorSpec.from_dict(info.get("spec", {}))
-    model = result.model()
-    block = JointErrorBlock.build(spec, model.joint_limits.shape[0], model.extra.get("inertials"), info["names"])
+    model = result.model() if model is None else model
+    block = JointErrorBlock.build(spec, model.n_joints, model_inertials(model), info["names"], model.chain)
     est = {p.name: p.estimate for p in result.parameters}
     phi = np.array([est[n] for n in block.names]) / MICRO
-    return block, phi
+    return block, phi, result.slot_vector(model)
 
 
-def corrected_joints(result, q) -> np.ndarray:
-    """The joints (rad) the calibrated robot is at for readings ``q`` (N, n) rad."""
-    block, phi = _block_of_result(result)
+def corrected_joints(result, q, model=None) -> np.ndarray:
+    """The joint readings (internal units) corrected by a result's block, for readings ``q`` (N, n).
+
+    ``model``: the result's own by default.
+    """
+    block, phi, slots = _block_of_result(result, model)
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if block is None:
         return q
-    return q + block.design(q, result.slot_vector()) @ phi
+    return q + block.design(q, slots) @ phi
 
 
-def commands_for(result, q_actual, iterations: int = 10) -> np.ndarray:
-    """Joint commands (rad) whose corrected joints are ``q_actual`` (N, n): the inverse of
+def commands_for(result, q_actual, iterations: int = 10, model=None) -> np.ndarray:
+    """Joint commands whose corrected joints are ``q_actual`` (N, n): the inverse of
     :func:`corrected_joints`, by fixed-point iteration (the corrections are small and smooth)."""
-    block, phi = _block_of_result(result)
+    block, phi, slots = _block_of_result(result, model)
     q_actual = np.atleast_2d(np.asarray(q_actual, dtype=float))
     if block is None:
         return q_actual
     cmd = q_actual.copy()
     for _ in range(iterations):
-        cmd = q_actual - block.design(cmd, result.slot_vector()) @ phi
+        cmd = q_actual - block.design(cmd, slots) @ phi
     return cmd
 
 
@@ -279,7 +286,7 @@ def outside_region(result, q) -> list[str]:
     ranges = info.get("joint_ranges_deg")
     if not info.get("map_terms") or not ranges:
         return []
-    qd = np.degrees(np.atleast_2d(q))
+    qd = result.model().joints_to_file_units(np.atleast_2d(q))
     out = []
     for j, (lo, hi) in enumerate(ranges):
         bad = np.nonzero((qd[:, j] < lo - 1e-9) | (qd[:, j] > hi + 1e-9))[0]

@@ -20,7 +20,7 @@ import numpy as np
 
 from .calibrate import CalibrationOptions, build_graph, calibrate
 from .dataset import Dataset
-from .gravity import Payload, gravity_torques
+from .gravity import Payload, gravity_torques, model_inertials
 from .joint_errors import JointErrorSpec, ModelKind, compliance_joints
 from .model import RobotModel
 
@@ -109,11 +109,11 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
                options: CalibrationOptions = CalibrationOptions()) -> CVProblem:
     """Linearise the training data at ``geometric_result`` over the geometry and ``spec_max``'s block."""
     geo_names = list(geometric_result.names)
-    names = geo_names + spec_max.names(len(model.joint_limits))
+    names = geo_names + spec_max.names(model.n_joints)
     opts = replace(options, joint_noise=False, robust=None, prior="none", joint_errors=spec_max)
     scale = {k: float(v) for k, v in (geometric_result.options.get("noise_scale") or {}).items()}
     graph, state, _ = build_graph(ds, model, names, opts, scale=scale)
-    graph.held = geometric_result.slot_vector()
+    graph.held = geometric_result.slot_vector(model)
     state.theta = graph.params.take(graph.held)
     lin = graph.linearise(state)
     r, J = lin.r, lin.J_theta
@@ -304,17 +304,20 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     results = {ModelKind.GEOMETRIC.value: calibrate(ds, model, base)}
     geo = results[ModelKind.GEOMETRIC.value]
     specs = {ModelKind.GEOMETRIC.value: None}
-    q = ds.joints_rad[ds.row_of(np.array(geo.pose_ids))]
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(np.array(geo.pose_ids))])
     torques = np.zeros_like(q)
     if up_to.order >= ModelKind.COMPLIANCE.order:
-        if model.extra.get("inertials") is None:
+        inertials = model_inertials(model)
+        if inertials is None:
             from .errors import ModelError
 
             raise ModelError(f"robot model {model.name}: the compliance models need its links' masses and centres "
                              "of mass (an 'inertials:' block in the model file)")
-        torques = gravity_torques(geo.slot_vector(), q, model.extra["inertials"], payload)
-        joints = compliance_joints(torques)
-        spec_max = JointErrorSpec(compliance=joints, payload=payload,
+        torques = gravity_torques(geo.slot_vector(model), q, inertials, payload, model.chain)
+        revolute = np.asarray(model.joint_is_angle, dtype=bool)
+        joints = tuple(j for j in compliance_joints(torques) if revolute[j - 1])  # prismatic: no torsion
+        map_joints = () if revolute.all() else tuple(int(j) + 1 for j in np.nonzero(revolute)[0])
+        spec_max = JointErrorSpec(compliance=joints, payload=payload, map_joints=map_joints,
                                   harmonics=max(harmonics_grid) if up_to is ModelKind.COMPLIANCE_MAP else 0)
         prob = cv_problem(ds, model, geo, spec_max, options)
         cv = cross_validate(prob, folds, rng, harmonics_grid if spec_max.harmonics else (), sigma_grid, fold_order)
@@ -322,6 +325,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         specs[ModelKind.COMPLIANCE.value] = JointErrorSpec(compliance=joints, payload=payload)
         if ModelKind.COMPLIANCE_MAP.value in cv:
             specs[ModelKind.COMPLIANCE_MAP.value] = JointErrorSpec(compliance=joints, payload=payload,
+                                                                   map_joints=map_joints,
                                                                    **cv[ModelKind.COMPLIANCE_MAP.value][1])
         unit = prob.unit
     else:

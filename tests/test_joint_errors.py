@@ -6,10 +6,10 @@ import pytest
 from fgcal.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.dataset import Dataset, Noise, PoseObservations
 from fgcal.errors import ModelError
-from fgcal.gravity import Payload, gravity_torques, inertials_from_dict
+from fgcal.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
 from fgcal.joint_errors import (JointErrorBlock, JointErrorSpec, ModelKind, commands_for, corrected_joints,
                                 outside_region)
-from fgcal.kinematics import CHAIN, forward_frames, forward
+from fgcal.kinematics import forward
 from fgcal.model_select import compare_models
 from fgcal.result import load_result, save_result
 from fgcal.robot_file import load_model, model_from_dict, model_to_dict
@@ -24,8 +24,9 @@ HIGH = np.radians([170, -10, 160, 170, 170, 170])
 
 def _potential(slots, q, inertials, payload):
     """Gravity's potential energy (J) of the links and the payload."""
-    R_before, p_before, T = forward_frames(slots, q)
-    joint_ops = sorted((k for k, op in enumerate(CHAIN) if op.joint is not None), key=lambda k: CHAIN[k].joint)
+    chain = UR10.chain
+    R_before, p_before, T = chain.forward_frames(slots, q)
+    joint_ops = sorted((k for k, op in enumerate(chain.ops) if op.joint is not None), key=lambda k: chain.ops[k].joint)
     body_ops = joint_ops[1:] + [joint_ops[-1] + 1]
     g = R_before[joint_ops[0]] @ inertials.gravity
     V = np.zeros(len(q))
@@ -41,7 +42,7 @@ def test_gravity_torque_is_minus_the_gradient_of_the_potential():
     q = rng.uniform(-3, 3, (5, 6))
     slots = draw_truth(UR10, rng)
     slots[:3] = [0.3, -0.2, 0.1]  # a tilted base: gravity is along the base's own z
-    inertials, payload = UR10.extra["inertials"], Payload(2.5, (10.0, -20.0, 80.0))
+    inertials, payload = model_inertials(UR10), Payload(2.5, (10.0, -20.0, 80.0))
     tau = gravity_torques(slots, q, inertials, payload)
     h = 1e-6
     for j in range(6):
@@ -55,9 +56,9 @@ def test_gravity_torque_is_minus_the_gradient_of_the_potential():
 
 def test_inertials_round_trip_and_bad_input():
     again = model_from_dict(model_to_dict(UR10))
-    np.testing.assert_allclose(again.extra["inertials"].com, UR10.extra["inertials"].com)
+    np.testing.assert_allclose(model_inertials(again).com, model_inertials(UR10).com)
     # the sixth row of the DH table is folded into the tool: link 6's centre moves with it
-    np.testing.assert_allclose(UR10.extra["inertials"].com[5], [0, 0, 92.2 - 26.0])
+    np.testing.assert_allclose(model_inertials(UR10).com[5], [0, 0, 92.2 - 26.0])
     with pytest.raises(ModelError, match=r"robot.yaml: inertials.links\[1\].mass"):
         inertials_from_dict({"links": [{"mass": 1}, {"mass": "x"}]}, 2, "robot.yaml")
     with pytest.raises(ModelError, match="expected a list of 6 rows"):
@@ -70,7 +71,7 @@ def _simulate(rng, n, phi_true=None, spec=None, sigma_pos=0.02, sigma_rot=0.002,
     q_cmd = rng.uniform(LOW, HIGH, (n, 6))
     q_act = q_cmd
     if spec is not None:
-        block = JointErrorBlock.build(spec, 6, UR10.extra["inertials"])
+        block = JointErrorBlock.build(spec, 6, model_inertials(UR10))
         q_act = q_cmd + block.design(q_cmd, truth) @ phi_true
     T = forward(truth, q_act)
     T[:, :3, 3] += rng.normal(0, sigma_pos, (n, 3))
@@ -137,7 +138,7 @@ def test_save_load_keeps_the_block(tmp_path):
     save_result(r, tmp_path / "r.json")
     back = load_result(tmp_path / "r.json")
     assert back.joint_errors["names"] == r.joint_errors["names"] and back.names == r.names
-    q = ds.joints_rad[:5]
+    q = UR10.joints_to_internal(ds.joints_deg[:5])
     np.testing.assert_allclose(corrected_joints(back, q), corrected_joints(r, q), atol=1e-15)
     from fgcal.report import write_report
     from fgcal.verify import verify
