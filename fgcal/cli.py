@@ -233,15 +233,63 @@ def _cmd_calibrate(args) -> int:
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
         extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
-    result = calibrate(ds, model, options)
+    if args.model == "geometric" and args.verification is None:
+        result = calibrate(ds, model, options)
+    else:
+        result = _compare_models(args, ds, model, options)
     save_result(result, args.out)
     from .sanity import unused_poses
 
     for note in unused_poses(ds, result.pose_ids, options.levels or ds.levels()):
         print(f"note: {note}")
     _print_result(result)
+    _print_selection(result)
     print(f"wrote {args.out}")
     return 0
+
+
+def _parse_payload(text):
+    from .gravity import Payload
+
+    if not text:
+        return Payload()
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (1, 4) or v[0] < 0:
+        raise FgcalError(f"--payload: expected KG or KG,X,Y,Z (kg, mm in the tool frame), got {text!r}")
+    return Payload(v[0], tuple(v[1:]) if len(v) == 4 else (0.0, 0.0, 0.0))
+
+
+def _compare_models(args, ds, model, options):
+    """``calibrate --model``: cross-validated comparison of the models up to the one asked for."""
+    from .dataset_io import load_dataset
+    from .model_select import HARMONICS_GRID, compare_models
+
+    ver = load_dataset(args.verification) if args.verification is not None else None
+    results, _ = compare_models(ds, model, options, up_to=args.model, verification=ver, folds=args.folds,
+                                rng=np.random.default_rng(args.seed), payload=_parse_payload(args.payload),
+                                harmonics_grid=tuple(h for h in HARMONICS_GRID if h < args.max_harmonics)
+                                + (args.max_harmonics,), fold_order=args.fold_order)
+    return results[args.model]
+
+
+def _print_selection(result) -> None:
+    sel = result.joint_errors.get("selection")
+    if result.joint_errors.get("validity"):
+        ranges = ", ".join(f"q{j + 1} {lo:.1f}..{hi:.1f}" for j, (lo, hi) in
+                           enumerate(result.joint_errors["joint_ranges_deg"]))
+        print(f"  NOTE: {result.joint_errors['validity']}: {ranges} deg")
+    if not sel:
+        return
+    print(f"  {'model':15s} {'parameters':>10s} {'cross-validated':>16s} {'held-out':>10s}  ({sel['folds']} folds)")
+    for s in sel["scores"]:
+        held = f"{s['heldout_error']:.4g}" if s.get("heldout_error") is not None else "-"
+        print(f"  {s['model']:15s} {s['n_parameters']:10d} {s['cv_error']:12.4g} {s['unit']:3s} {held:>10s}")
+        for w in s.get("warnings", []):
+            print(f"    warning: {w}")
+    print(f"  recommended: {sel['reason']}")
 
 
 def _cmd_verify(args) -> int:
@@ -333,6 +381,12 @@ def _cmd_compensate(args) -> int:
     result = load_result(args.result)
     ids, T, seeds = read_targets(args.targets)
     q, pos_err, rot_err = compensate(result.model(), result.slot_vector(), T, seeds)
+    if result.joint_errors.get("names"):  # joint-error block: command what lands on q
+        from .joint_errors import commands_for, outside_region
+
+        for message in outside_region(result, q):
+            print(f"warning: {args.targets}: {message}", file=sys.stderr)
+        q = commands_for(result, q)
     rows = [[int(p), *map(float, np.degrees(qi))] for p, qi in zip(ids, q)]
     if args.out:
         write_csv(args.out, JOINT_COLUMNS, rows)
@@ -388,6 +442,17 @@ def _cmd_export(args) -> int:
                          value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
         write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
         print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
+    if result.joint_errors.get("names"):  # what neither format can hold goes beside them as a table
+        from .dataset_io import write_csv
+
+        table = Path(str(args.urdf or args.model or args.deltas) + ".joint_errors.csv")
+        write_csv(table, ["name", "unit", "estimate", "sigma"],
+                  [[p.name, p.unit, p.estimate, p.sigma] for p in result.parameters
+                   if p.name in set(result.joint_errors["names"])])
+        print(f"wrote {table}: the {len(result.joint_errors['names'])} joint-error parameters, which a "
+              f"{'URDF' if args.urdf else 'model file'} cannot hold (joint = reading + correction, see fgcal.joint_errors)")
+        if result.joint_errors.get("validity"):
+            print(f"note: {result.joint_errors['validity']}")
     return 0
 
 
@@ -625,6 +690,19 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--exact-joints", action="store_true", help="treat the joint readings as exact")
     k.add_argument("--extra", default=None, help="extra slots to estimate, e.g. j1.theta (redundancy is reported)")
     k.add_argument("--exclude", default=None, help="parameters to hold at nominal")
+    k.add_argument("--model", choices=("geometric", "compliance", "compliance+map"), default="geometric",
+                   help="beyond geometry: gravity compliance of the loaded joints, plus a per-joint error map "
+                        "(harmonics, chosen by cross-validation on these poses); the simpler models are scored too")
+    k.add_argument("--verification", type=Path, default=None,
+                   help="held-out dataset: each model's error there is reported (never used for fitting)")
+    k.add_argument("--folds", type=int, default=5, help="cross-validation folds (default 5)")
+    k.add_argument("--max-harmonics", type=int, default=30,
+                   help="largest number of map harmonics per joint tried by the cross-validation (default 30)")
+    k.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default 0)")
+    k.add_argument("--fold-order", choices=("random", "blocked"), default="random",
+                   help="folds drawn at random, or as contiguous stretches of the poses in id (time) order, which "
+                        "also scores drift over the session (default random)")
+    k.add_argument("--payload", default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
     k.set_defaults(func=_cmd_calibrate)
 
     v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")

@@ -7,18 +7,22 @@ No I/O here.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .dataset import Dataset
 from .errors import FgcalError
+from .joint_errors import corrected_joints, outside_region
 from .kinematics import tool_points
 from .measure import measure_probes
 from .model import RobotModel
 from .posefit import rigid_fit
 from .result import CalibrationResult
 from .transforms import pose_difference
+
+log = logging.getLogger(__name__)
 
 __all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
            "compare_poses", "compare_points", "check_same_robot", "check_verification"]
@@ -260,7 +264,9 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
-    T_cal = model.forward(slots, q)
+    for message in outside_region(result, q):
+        log.warning("%s: %s", ds.path or "dataset", message)
+    T_cal = model.forward(slots, corrected_joints(result, q, model))  # joint-error block, if any
     T_nom = model.forward(model.nominal, q)
     if reference == "measured poses":
         out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
