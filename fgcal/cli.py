@@ -226,8 +226,16 @@ def _cmd_report(args) -> int:
         volume = result.model().volume
     except FgcalError:
         log.info("robot %s not found: the pose plot has no measuring volume", result.robot)
-    path = write_report(result, args.out, verification, volume)
+    tolerance = getattr(args, "tolerance", None)
+    if tolerance is not None and not tolerance > 0:
+        raise FgcalError(f"--tolerance must be a positive length in mm, got {tolerance:g}")
+    path = write_report(result, args.out, verification, volume, tolerance=tolerance)
     print(f"wrote {path} (and report.md, figures as PNG) in {args.out}")
+    if tolerance is not None and verification is not None:
+        from .accuracy import tolerance_verdict
+        tv = tolerance_verdict(verification, tolerance)
+        print(tv.sentence())
+        return 0 if tv.passed else 1
     return 0
 
 
@@ -520,6 +528,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("result", type=Path)
     r.add_argument("--verify", type=Path, default=None, help="verify.json from fgcal verify")
     r.add_argument("--out", type=Path, required=True, help="output directory")
+    r.add_argument("--tolerance", type=float, default=None, metavar="MM",
+                   help="position tolerance (mm): pass or fail at the verification poses "
+                        "(exit status 1 on fail, the report is written either way)")
     r.set_defaults(func=_cmd_report)
 
     i = sub.add_parser("import", help="turn another tool's measurement file into an fgcal dataset")

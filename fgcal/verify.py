@@ -43,6 +43,7 @@ class Comparison:
 
     position_mm: np.ndarray
     orientation_deg: np.ndarray
+    error_xyz_mm: np.ndarray | None = None  # (K, 3) reference - model, world frame
 
     def summary(self) -> dict:
         return {"position_mm": vars(error_stats(self.position_mm)),
@@ -60,6 +61,8 @@ class Verification:
     truth_before: Comparison | None = None
     reference: str = "measured poses"
     skipped: list[str] = field(default_factory=list)
+    xyz_mm: np.ndarray | None = None  # (K, 3) reference tool positions, world frame
+    joints_deg: np.ndarray | None = None  # (K, n_joints) joint readings
 
     def to_dict(self) -> dict:
         d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
@@ -73,6 +76,16 @@ class Verification:
              "before_position_mm": float(bp), "before_orientation_deg": float(bo)}
             for p, a, o, bp, bo in zip(self.pose_ids, self.after.position_mm, self.after.orientation_deg,
                                        self.before.position_mm, self.before.orientation_deg)]
+        for k, pose in enumerate(d["poses"]):  # additions of fgcal-verify/1 (readers may ignore them)
+            if self.xyz_mm is not None:
+                pose["xyz_mm"] = [float(v) for v in self.xyz_mm[k]]
+            if self.after.error_xyz_mm is not None:
+                pose["error_xyz_mm"] = [float(v) for v in self.after.error_xyz_mm[k]]
+                pose["before_error_xyz_mm"] = [float(v) for v in self.before.error_xyz_mm[k]]
+            if self.joints_deg is not None:
+                pose["joints_deg"] = [float(v) for v in self.joints_deg[k]]
+            if self.truth_after is not None:
+                pose["truth_position_mm"] = float(self.truth_after.position_mm[k])
         d["skipped"] = self.skipped
         return d
 
@@ -110,7 +123,7 @@ def measured_poses(ds: Dataset):
 
 def compare_poses(T_model, T_ref) -> Comparison:
     d, delta = pose_difference(T_ref, T_model)
-    return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)))
+    return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)), d)
 
 
 def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
@@ -121,7 +134,8 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
     q = ds.joints_rad[ds.row_of(ids)]
     T_cal = forward(result.slot_vector(), q)
     T_nom = forward(model.nominal, q)
-    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
+    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped,
+                       xyz_mm=T_meas[:, :3, 3], joints_deg=np.degrees(q))
     if ds.truth is not None:
         truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
         T_true = forward(truth, q)
