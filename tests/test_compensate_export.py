@@ -65,11 +65,14 @@ def test_urdf_reproduces_the_calibrated_kinematics(puma, calibrated):
 
 def _inside(puma, n, seed):
     """Well-conditioned joint sets: near a singularity (elbow straight, wrist centre on the shoulder
-    axis, q5 = 0) a target of the nominal robot may be out of the calibrated robot's reach."""
+    axis, q5 = 0) or a joint limit, a target of the nominal robot may be out of the calibrated robot's reach."""
     from fgcal.kinematics import jacobians
     q = random_joints(puma, 20 * n, seed=seed)
     J = jacobians(puma.nominal, q).pose_joints * np.array([1, 1, 1, 100, 100, 100.0])[None, :, None]
     ok = np.linalg.svd(J, compute_uv=False)[:, -1] > 50.0
+    # and 5 deg inside the joint limits: the commanded configuration may not reach beyond them
+    margin = np.radians(5.0)
+    ok &= np.all((q > puma.joint_limits[:, 0] + margin) & (q < puma.joint_limits[:, 1] - margin), axis=1)
     return q[ok][:n]
 
 
