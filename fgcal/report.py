@@ -97,6 +97,7 @@ def render_markdown(content: ReportContent) -> str:
         return str(c).replace("|", "/")
 
     def table(header, rows):
+        header = header or [""] * len(rows[0])
         return (["| " + " | ".join(map(cell, header)) + " |", "|" + "---|" * len(header)]
                 + ["| " + " | ".join(map(cell, r)) + " |" for r in rows] + [""])
 
@@ -128,7 +129,7 @@ STYLE = ("body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto
          ".pass{background:#e3f6e3;border:2px solid #2e8b2e}.fail{background:#fde8e8;border:2px solid #c62828}"
          ".none{background:#f1f1f1;border:2px solid #999}figure{margin:1.5em 0}img{max-width:100%;"
          "border:1px solid #eee}figcaption{font-size:.92em;color:#444;max-width:800px}"
-         "details{margin:.5em 0}summary{cursor:pointer;color:#1a5fb4}")
+         "details{margin:.5em 0}summary{cursor:pointer;color:#1a5fb4}.scroll{overflow-x:auto}")
 
 
 def _is_num(text: str) -> bool:
@@ -141,18 +142,25 @@ def _is_num(text: str) -> bool:
 
 
 def _html_table(e, header, rows, row_flags=()):
+    """A table in a box that scrolls sideways on a narrow screen; a row header when ``header`` is empty."""
     flags = list(row_flags) + [False] * (len(rows) - len(row_flags))
-    out = ["<table><tr>" + "".join(f"<th>{e(str(h))}</th>" for h in header) + "</tr>"]
+    out = ["<div class='scroll'><table>"]
+    if header:
+        out.append("<tr>" + "".join(f"<th>{e(str(h))}</th>" for h in header) + "</tr>")
     for r, f in zip(rows, flags):
+        if not header:  # key-value table
+            out.append(f"<tr><th>{e(str(r[0]))}</th>" + "".join(f"<td>{e(str(c))}</td>" for c in r[1:]) + "</tr>")
+            continue
         out.append(f"<tr{' class=flag' if f else ''}>" + "".join(
             f"<td{' class=num' if _is_num(str(c)) else ''}>{e(str(c))}</td>" for c in r) + "</tr>")
-    return out + ["</table>"]
+    return out + ["</table></div>"]
 
 
 def render_html(content: ReportContent, pngs: dict[str, bytes]) -> str:
     """The report as one self-contained HTML page (figures embedded as PNG data)."""
     e = html.escape
-    parts = [f"<!doctype html><html lang='en'><head><meta charset='utf-8'><title>{e(content.title)}</title>"
+    parts = ["<!doctype html><html lang='en'><head><meta charset='utf-8'>"
+             f"<meta name='viewport' content='width=device-width, initial-scale=1'><title>{e(content.title)}</title>"
              f"<style>{STYLE}</style></head><body><h1>{e(content.title)}</h1>"]
     for sec in content.sections:
         parts.append(f"<h2>{e(sec.title)}</h2>")

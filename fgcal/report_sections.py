@@ -221,7 +221,7 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
         Block("p", "Estimates and intervals are rounded to the digits their standard deviation supports "
                    "(two significant digits of sigma); result.json keeps the full values."),
         Block("table", header=header, rows=rows, row_flags=flagged)]))
-    sections.append(Section("Calibration", [Block("table", header=["", ""], rows=[list(r) for r in _summary(result)])]))
+    sections.append(Section("Calibration", [Block("table", header=[], rows=[list(r) for r in _summary(result)])]))
     if captions:
         sections.append(Section("Figures", [Block("figure", name=n, text=c) for n, c in captions.items()]))
     return ReportContent(title, sections)
