@@ -189,8 +189,10 @@ def _cmd_verify(args) -> int:
 
     def line(label, summary):
         p, o = summary["position_mm"], summary["orientation_deg"]
-        return (f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm; "
-                f"orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg")
+        text = f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm"
+        if o is not None:  # None for position-only data
+            text += f"; orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg"
+        return text
 
     print(f"verification on {d['n_poses']} poses ({d['reference']}):")
     print(line("nominal vs measured", d["before"]))

@@ -76,7 +76,7 @@ def plot_residuals(result: CalibrationResult, level: str, ax=None):
         ax.legend(fontsize=8)
     ax.set_xlabel(f"residual ({unit})")
     ax.set_ylabel(f"density (1/{unit})" if unit else "density")
-    ax.set_title(title)
+    ax.set_title(title[:1].upper() + title[1:])
     return ax
 
 

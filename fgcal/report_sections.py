@@ -60,6 +60,12 @@ def num(v, digits: int = 2) -> str:
     return text
 
 
+def _listed(ids, limit: int = 20) -> str:
+    """Pose ids as "1, 2, 3 and 7 more"."""
+    text = ", ".join(map(str, ids[:limit]))
+    return text + (f" and {len(ids) - limit} more" if len(ids) > limit else "")
+
+
 def _stats_row(label: str, s: AccuracyStats, predicted: str = "-") -> list[str]:
     bias = "-" if s.bias_xyz is None else f"{num(s.bias)} ({', '.join(num(b) for b in s.bias_xyz)})"
     return [label, str(s.n), num(s.mean), num(s.std), num(s.rms), num(s.p95), num(s.max), bias, predicted]
@@ -91,9 +97,9 @@ def _next_steps(result, verification, tolerance, flags, predicted_rms) -> list[s
         if after > 2.0 * explained:
             out.append(f"The calibrated error ({num(after)} mm RMS) is {num(after / explained)} times what the "
                        f"parameters' uncertainty ({num(predicted_rms)} mm) and the measurement noise "
-                       f"({num(noise) if noise else 'unknown'} mm) explain: the geometric model misses something "
-                       "(compliance, gears, temperature, outliers). More poses will not remove it; a model "
-                       "beyond geometry or cleaner measurements may.")
+                       f"({num(noise) if noise else 'unknown'} mm) explain: the noise is larger than assumed, or the "
+                       "geometric model misses something (compliance, gears, temperature, outliers). More poses "
+                       "will not remove it; a model beyond geometry or cleaner measurements may.")
         elif noise is not None and predicted_rms > noise:
             out.append(f"The parameters' uncertainty ({num(predicted_rms)} mm RMS at the verification poses) "
                        f"dominates the measurement noise ({num(noise)} mm): more, or better spread, calibration "
@@ -103,12 +109,10 @@ def _next_steps(result, verification, tolerance, flags, predicted_rms) -> list[s
                        "measurement noise explain: it is near what these measurements can verify.")
     outliers = [f.pose for f in flags if any(x.startswith("outlier") for x in f.flags)]
     if outliers:
-        out.append("Outliers at poses " + ", ".join(map(str, outliers[:20])) + (" ..." if len(outliers) > 20 else "")
-                   + ": check or re-measure them before trusting the statistics.")
+        out.append(f"Outliers at poses {_listed(outliers)}: check or re-measure them before trusting the statistics.")
     worse = [f.pose for f in flags if "worse than the nominal model" in f.flags]
     if worse:
-        out.append(f"{len(worse)} pose(s) got worse than with the nominal model: "
-                   + ", ".join(map(str, worse[:20])) + (" ..." if len(worse) > 20 else "") + ".")
+        out.append(f"{len(worse)} pose(s) got worse than with the nominal model: {_listed(worse)}.")
     return out
 
 

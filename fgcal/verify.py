@@ -46,8 +46,9 @@ class Comparison:
     error_xyz_mm: np.ndarray | None = None  # (K, 3) reference - model, world frame
 
     def summary(self) -> dict:
+        has_orientation = bool(np.isfinite(self.orientation_deg).any())  # not for position-only data
         return {"position_mm": vars(error_stats(self.position_mm)),
-                "orientation_deg": vars(error_stats(self.orientation_deg))}
+                "orientation_deg": vars(error_stats(self.orientation_deg)) if has_orientation else None}
 
 
 @dataclass
@@ -72,8 +73,8 @@ class Verification:
             d["truth"] = self.truth_after.summary()
             d["truth"]["before"] = self.truth_before.summary()
         d["poses"] = [
-            {"pose": int(p), "position_mm": float(a), "orientation_deg": float(o),
-             "before_position_mm": float(bp), "before_orientation_deg": float(bo)}
+            {"pose": int(p), "position_mm": float(a), "orientation_deg": float(o) if np.isfinite(o) else None,
+             "before_position_mm": float(bp), "before_orientation_deg": float(bo) if np.isfinite(bo) else None}
             for p, a, o, bp, bo in zip(self.pose_ids, self.after.position_mm, self.after.orientation_deg,
                                        self.before.position_mm, self.before.orientation_deg)]
         for k, pose in enumerate(d["poses"]):  # additions of fgcal-verify/1 (readers may ignore them)
@@ -126,8 +127,39 @@ def compare_poses(T_model, T_ref) -> Comparison:
     return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)), d)
 
 
+def _compare_points(x_model, q, offsets, points, pose_of, ids) -> Comparison:
+    """Per pose: RMS length of the point errors (measured - model), their mean vector; no orientation."""
+    T = forward(x_model, q)
+    d = points - (np.einsum("kij,kj->ki", T[:, :3, :3], offsets) + T[:, :3, 3])
+    rows = [pose_of == p for p in ids]
+    return Comparison(np.array([np.sqrt(np.mean(np.sum(d[r] ** 2, axis=1))) for r in rows]),
+                      np.full(len(ids), np.nan), np.array([d[r].mean(axis=0) for r in rows]))
+
+
+def _verify_points(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
+    """Position-only data (fewer than 3 balls, e.g. a tracker reflector): compare the points."""
+    c = ds.centres
+    ids = np.array([p for p in ds.pose_ids if np.any(c.pose == p)], dtype=int)
+    q = ds.joints_rad[ds.row_of(c.pose)]
+    off = ds.tooling.offsets(c.ball)
+    after = _compare_points(result.slot_vector(), q, off, c.xyz, c.pose, ids)
+    before = _compare_points(model.nominal, q, off, c.xyz, c.pose, ids)
+    xyz = np.array([c.xyz[c.pose == p].mean(axis=0) for p in ids]).reshape(-1, 3)
+    out = Verification(ids, after, before, reference="measured points", xyz_mm=xyz,
+                       joints_deg=np.degrees(ds.joints_rad[ds.row_of(ids)]))
+    if ds.truth is not None:
+        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
+        T_true = forward(truth, q)
+        p_true = np.einsum("kij,kj->ki", T_true[:, :3, :3], off) + T_true[:, :3, 3]
+        out.truth_after = _compare_points(result.slot_vector(), q, off, p_true, c.pose, ids)
+        out.truth_before = _compare_points(model.nominal, q, off, p_true, c.pose, ids)
+    return out
+
+
 def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
     """Compare the calibrated and nominal models with ``ds``'s measurements (and truth)."""
+    if ds.poses is None and ds.centres is not None and len(ds.tooling.names) < 3:
+        return _verify_points(result, ds, model)
     ids, T_meas, skipped = measured_poses(ds)
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")

@@ -127,3 +127,31 @@ def test_held_parameter_cost(calibrated):
     left = least_squares(resid, x0[idx], x_scale="jac").fun.reshape(-1, 3)
     assert cost.typical == 0.5 and cost.rms_mm > 1e-3
     assert cost.rms_mm == pytest.approx(np.sqrt(np.mean(np.sum(left**2, axis=1))), rel=0.05)
+
+
+def test_verify_position_only_data(ur10):
+    """A tracker reflector (one ball): verify compares the points; orientation is null."""
+    from dataclasses import replace
+
+    from fgcal.model import Tooling
+
+    model = replace(ur10, tooling=Tooling(0.0, {"R": np.array([30.0, 0.0, 50.0])}))
+    rng = np.random.default_rng(154)
+    settings = SimulationSettings(n_poses=40, levels=("centres",), n_balls=1)
+    ident, _ = simulate(model, rng, settings)
+    truth = slots_from_file_units(np.array([ident.truth[n] for n in SLOT_NAMES]))
+    check, _ = simulate(model, rng, SimulationSettings(n_poses=20, levels=("centres",), n_balls=1), truth=truth)
+    result = calibrate(ident, model)
+    v = verify(result, check, model).to_dict()
+    assert v["n_poses"] == 20 and v["orientation_deg"] is None and v["poses"][0]["orientation_deg"] is None
+    # the numbers, recomputed here: calibrated point vs measured centre, and vs the true point
+    q = check.joints_rad[check.row_of(check.centres.pose)]
+    off = np.array([30.0, 0.0, 50.0])
+    T = forward(result.slot_vector(), q)
+    p_cal = T[:, :3, :3] @ off + T[:, :3, 3]
+    np.testing.assert_allclose([p["position_mm"] for p in v["poses"]],
+                               np.linalg.norm(check.centres.xyz - p_cal, axis=1), rtol=1e-9)
+    T = forward(truth, q)
+    np.testing.assert_allclose([p["truth_position_mm"] for p in v["poses"]],
+                               np.linalg.norm(T[:, :3, :3] @ off + T[:, :3, 3] - p_cal, axis=1), rtol=1e-9)
+    assert v["truth"]["position_mm"]["rms"] < 0.1 * v["truth"]["before"]["position_mm"]["rms"]
