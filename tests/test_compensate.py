@@ -59,6 +59,9 @@ def test_refuses_a_solution_off_the_commanded_branch(ur10, ur10_result):
     assert not c.reachable.any()
     assert all("leaves the commanded configuration" in r for r in c.reasons)
     assert np.isnan(c.q).all()
+    # no commanded joints and no closed form for this arm: named, not guessed on some branch
+    c = compensate_targets(ur10, x, T)
+    assert all(r.startswith("no seed joints") for r in c.reasons) and np.isnan(c.q).all()
 
 
 def test_cli_partial_success_writes_the_reachable_targets(ur10, ur10_result, tmp_path):
