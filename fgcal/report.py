@@ -12,7 +12,7 @@ import logging
 from pathlib import Path
 
 from . import plots
-from .report_sections import Block, ReportContent, build_content
+from .report_sections import ReportContent, build_content
 from .result import CalibrationResult
 from .yamlio import atomic_write_bytes, atomic_write_text
 

@@ -133,7 +133,7 @@ def _parameter_rows(result: CalibrationResult):
     return header, rows, flagged
 
 
-def _pose_table(flags, tolerance):
+def _pose_table(flags):
     header = ["pose", "calibrated error (mm)", "nominal error (mm)", "flags"]
     return header, [[str(f.pose), num(f.error_mm, 3), num(f.nominal_mm, 3), "; ".join(f.flags)] for f in flags]
 
@@ -188,7 +188,7 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
         shown = [f for f in flags if f.flags]
         if shown:
             worst = sorted(shown, key=lambda f: -f.error_mm)[:MAX_FLAGGED_ROWS]
-            header, rows = _pose_table(worst, tolerance)
+            header, rows = _pose_table(worst)
             acc.blocks.append(Block("p", f"{len(shown)} pose(s) need a look"
                                          + (f" (the {MAX_FLAGGED_ROWS} largest errors shown):" if len(shown) >
                                             MAX_FLAGGED_ROWS else ":")))
@@ -197,7 +197,7 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
             acc.blocks.append(Block("p", "No verification pose is an outlier, beyond the tolerance or worse than "
                                          "with the nominal model."))
         if flags:
-            header, rows = _pose_table(sorted(flags, key=lambda f: -f.error_mm), tolerance)
+            header, rows = _pose_table(sorted(flags, key=lambda f: -f.error_mm))
             acc.blocks.append(Block("details", f"All {len(flags)} verification poses, largest error first",
                                     header=header, rows=rows))
         sections.append(acc)
