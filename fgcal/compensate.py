@@ -45,7 +45,12 @@ def tcp_matrix(xyz_mm, rxyz_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
 
 
 def base_transform(slots) -> np.ndarray:
-    """The robot base in the instrument frame (4, 4) of a slot vector (mm, rad)."""
+    """The robot base in the instrument frame (4, 4) of a slot vector (mm, rad).
+
+    This is the frame the chain starts from: where a robot file's first link has a d or theta,
+    they are folded into the base on loading, so the frame sits at that height (UR10: 127.3 mm
+    above the mounting face).
+    """
     x = np.asarray(slots, dtype=float)
     return euler_zyx_trans(*x[slot("base.phi"):slot("base.pz") + 1])
 
