@@ -128,32 +128,31 @@ def tolerance_verdict(verification: dict, tolerance_mm: float) -> ToleranceVerdi
                             float(np.percentile(err, 95)), beyond)
 
 
-def _position_jacobian(result: CalibrationResult, joints_rad):
-    """d(tool position)/d(slots) (K, 3, S) at ``joints_rad``, and the model's slot names."""
+def _position_jacobian(result: CalibrationResult, joints):
+    """d(tool position)/d(slots) (K, 3, S) at ``joints`` (internal units), and the model's slot names."""
     from .kinematics import jacobians
-    from .model import SLOT_NAMES
 
     model = result.model()
-    names = list(getattr(model, "slot_names", SLOT_NAMES))
-    J = jacobians(result.slot_vector(), np.asarray(joints_rad, dtype=float)).pose_slots[:, :3, :]
-    return J, names
+    J = jacobians(result.slot_vector(model), np.asarray(joints, dtype=float), chain=model.chain).pose_slots[:, :3, :]
+    return J, list(model.slot_names)
 
 
 def verification_joints(verification: dict | None) -> np.ndarray | None:
-    """The joint readings (K, n) rad of a verification's poses, when ``verify.json`` has them."""
+    """The joint readings (K, n) of a verification's poses in file units (deg; mm for prismatic joints),
+    when ``verify.json`` has them; ``model.joints_to_internal`` turns them into joints."""
     poses = (verification or {}).get("poses") or []
     if not poses or any("joints_deg" not in p for p in poses):
         return None
-    return np.radians(np.array([p["joints_deg"] for p in poses], dtype=float))
+    return np.array([p["joints_deg"] for p in poses], dtype=float)
 
 
-def predicted_position_sigma(result: CalibrationResult, joints_rad) -> np.ndarray:
+def predicted_position_sigma(result: CalibrationResult, joints) -> np.ndarray:
     """Expected position error (mm, RMS length of the 3D error) from the parameters' covariance.
 
-    ``sqrt(trace(J C J^T))`` at each of the poses ``joints_rad`` (K, n), with ``J`` the tool
+    ``sqrt(trace(J C J^T))`` at each of the poses ``joints`` (K, n; rad, mm), with ``J`` the tool
     position's Jacobian with respect to the identified parameters in file units.
     """
-    J, names = _position_jacobian(result, joints_rad)
+    J, names = _position_jacobian(result, joints)
     cols = [names.index(n) for n in result.names]
     scale = np.array([np.pi / 180 if p.unit == "deg" else 1.0 for p in result.parameters])
     Jp = J[:, :, cols] * scale  # mm per file unit
@@ -180,8 +179,8 @@ class HeldCost:
                 "parameters cannot absorb.")
 
 
-def held_parameter_cost(result: CalibrationResult, joints_rad) -> list[HeldCost]:
-    """The error each held parameter leaves at ``joints_rad`` (K, n) after the others are re-fitted.
+def held_parameter_cost(result: CalibrationResult, joints) -> list[HeldCost]:
+    """The error each held parameter leaves at ``joints`` (K, n; rad, mm) after the others are re-fitted.
 
     A held parameter's true value may differ from nominal by a typical manufacturing deviation
     (:class:`fgcal.simulate.Deviations`). Its effect on the tool positions, minus the part a
@@ -191,7 +190,7 @@ def held_parameter_cost(result: CalibrationResult, joints_rad) -> list[HeldCost]
 
     if not result.held:
         return []
-    J, names = _position_jacobian(result, joints_rad)
+    J, names = _position_jacobian(result, joints)
     k = J.shape[0]
     Ji = J[:, :, [names.index(n) for n in result.names]].reshape(3 * k, -1)
     out = []
@@ -202,7 +201,7 @@ def held_parameter_cost(result: CalibrationResult, joints_rad) -> list[HeldCost]
         if Ji.shape[1]:
             jh = jh - Ji @ np.linalg.lstsq(Ji, jh, rcond=None)[0]
         left = np.linalg.norm(jh.reshape(k, 3), axis=1) * typical
-        is_angle = n.split(".")[1] in ("phi", "theta", "psi", "alpha", "beta")
+        is_angle = n.rsplit(".", 1)[1] in ("phi", "theta", "psi", "alpha", "beta")
         out.append(HeldCost(n, float(np.degrees(typical)) if is_angle else typical, "deg" if is_angle else "mm",
                             float(np.sqrt(np.mean(left**2))), float(left.max())))
     return out

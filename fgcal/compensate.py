@@ -18,8 +18,7 @@ import numpy as np
 
 from .errors import FgcalError
 from .ik import BRANCHES, Branch, IKError, solve_numeric, solve_puma_batch
-from .kinematics import forward
-from .model import RobotModel, slot
+from .model import SLOT_NAMES, RobotModel
 from .transforms import euler_zyx_trans, pose_difference, rot
 
 __all__ = ["Frame", "Compensation", "compensate_targets", "compensate", "tcp_matrix", "base_transform",
@@ -44,7 +43,7 @@ def tcp_matrix(xyz_mm, rxyz_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
     return T
 
 
-def base_transform(slots) -> np.ndarray:
+def base_transform(model: RobotModel, slots) -> np.ndarray:
     """The robot base in the instrument frame (4, 4) of a slot vector (mm, rad).
 
     This is the frame the chain starts from: where a robot file's first link has a d or theta,
@@ -52,7 +51,7 @@ def base_transform(slots) -> np.ndarray:
     above the mounting face).
     """
     x = np.asarray(slots, dtype=float)
-    return euler_zyx_trans(*x[slot("base.phi"):slot("base.pz") + 1])
+    return euler_zyx_trans(*x[model.slot("base.phi"):model.slot("base.pz") + 1])
 
 
 @dataclass
@@ -92,7 +91,7 @@ def _choose_branch(model: RobotModel, x_seed, targets) -> tuple[Branch | None, n
     best = (None, None, -1)
     for branch in BRANCHES:
         q, ok = solve_puma_batch(model, targets, branch, slots=x_seed)
-        ok = ok & np.array([model.in_limits(qi)[0] if np.all(np.isfinite(qi)) else False for qi in q])
+        ok = ok & np.all(np.isfinite(q), axis=1) & model.in_limits(np.nan_to_num(q))
         if ok.sum() > best[2]:
             best = (branch, np.where(ok[:, None], q, np.nan), int(ok.sum()))
     return best[0], best[1]
@@ -127,18 +126,21 @@ def compensate_targets(model: RobotModel, slots, targets, seeds=None, frame: Fra
     x = np.asarray(slots, dtype=float)
     T = np.asarray(targets, dtype=float).reshape(-1, 4, 4)
     if Frame(frame) is Frame.BASE:
-        T = base_transform(x) @ T
+        T = base_transform(model, x) @ T
     if tcp is not None:
         T = T @ np.linalg.inv(np.asarray(tcp, dtype=float))  # where the tool frame must be
     n, nj = len(T), len(model.joint_limits)
     seed = np.full((n, nj), np.nan) if seeds is None else np.array(seeds, dtype=float).reshape(n, nj)
     notes = []
     missing = ~np.all(np.isfinite(seed), axis=1)
-    if missing.any():
+    if missing.any() and tuple(model.slot_names) != tuple(SLOT_NAMES):
+        notes.append("no closed-form seeds for this arm (the PUMA closed form needs a 6R chain)")
+    elif missing.any():
         # the nominal link geometry with the calibrated base and tool: the user's nominal command
         x_seed = model.nominal.copy()
         for part in ("base", "tool"):
-            x_seed[slot(f"{part}.phi"):slot(f"{part}.pz") + 1] = x[slot(f"{part}.phi"):slot(f"{part}.pz") + 1]
+            a, b = model.slot(f"{part}.phi"), model.slot(f"{part}.pz") + 1
+            x_seed[a:b] = x[a:b]
         try:
             if branch is None:
                 branch, q_nom = _choose_branch(model, x_seed, T[missing])
@@ -172,7 +174,7 @@ def compensate_targets(model: RobotModel, slots, targets, seeds=None, frame: Fra
     pos = np.full(n, np.nan)
     ang = np.full(n, np.nan)
     if ok.any():
-        d, delta = pose_difference(forward(x, q[ok]), T[ok])
+        d, delta = pose_difference(model.forward(x, q[ok]), T[ok])
         pos[ok], ang[ok] = np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1))
     return Compensation(q, reasons, pos, ang, change, seed, branch, notes)
 

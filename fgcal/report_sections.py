@@ -5,6 +5,7 @@ Answers "is this calibration good enough, and what next" from a result, a verifi
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -14,6 +15,8 @@ from .accuracy import (AccuracyStats, accuracy_stats, flag_poses, held_parameter
 from .errors import FgcalError
 from .result import CalibrationResult
 from .uncertainty import parameter_table, verdict
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Block", "Section", "ReportContent", "build_content", "num"]
 
@@ -146,6 +149,12 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
     title = title or f"fgcal calibration report: {result.robot}, {result.n_poses} poses"
     top = Section("Is this calibration good enough?")
     flags, predicted, joints = [], None, verification_joints(verification)
+    if joints is not None:
+        try:
+            joints = result.model().joints_to_internal(joints)
+        except (FgcalError, ValueError) as exc:  # joints of another robot
+            log.warning("verification joints not usable: %s", exc)
+            joints = None
     if verification is not None:
         if tolerance is not None:
             tv = tolerance_verdict(verification, tolerance)

@@ -13,14 +13,15 @@ import numpy as np
 
 from .dataset import Dataset
 from .errors import FgcalError
-from .kinematics import forward
+from .kinematics import tool_points
 from .measure import measure_probes
-from .model import SLOT_NAMES, RobotModel, slots_from_file_units
+from .model import RobotModel
 from .posefit import rigid_fit
 from .result import CalibrationResult
 from .transforms import pose_difference
 
-__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses"]
+__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
+           "compare_poses", "compare_points"]
 
 
 @dataclass
@@ -39,21 +40,28 @@ def error_stats(values) -> ErrorStats:
 
 @dataclass
 class Comparison:
-    """Errors of one model against one reference, per pose (mm, deg) and summarised."""
+    """Errors of one model against one reference, per pose (mm, deg) and summarised.
+
+    ``orientation_deg`` is None for position-only data (a reflector, one or two balls).
+    """
 
     position_mm: np.ndarray
-    orientation_deg: np.ndarray
-    error_xyz_mm: np.ndarray | None = None  # (K, 3) reference - model, world frame
+    orientation_deg: np.ndarray | None
+    error_xyz_mm: np.ndarray | None = None  # (K, 3) reference - model (mean over a pose's points), world frame
 
     def summary(self) -> dict:
-        has_orientation = bool(np.isfinite(self.orientation_deg).any())  # not for position-only data
         return {"position_mm": vars(error_stats(self.position_mm)),
-                "orientation_deg": vars(error_stats(self.orientation_deg)) if has_orientation else None}
+                "orientation_deg": None if self.orientation_deg is None else vars(error_stats(self.orientation_deg))}
 
 
 @dataclass
 class Verification:
-    """Calibrated and nominal errors against the measurements, and against the truth if known."""
+    """Calibrated and nominal errors against the measurements, and against the truth if known.
+
+    ``reference`` says what was compared: ``"measured poses"`` (full pose errors) or
+    ``"measured points"`` (ball centres or reflector positions: the error of each pose is the RMS
+    distance of its points, and there is no orientation error).
+    """
 
     pose_ids: np.ndarray
     after: Comparison
@@ -62,8 +70,8 @@ class Verification:
     truth_before: Comparison | None = None
     reference: str = "measured poses"
     skipped: list[str] = field(default_factory=list)
-    xyz_mm: np.ndarray | None = None  # (K, 3) reference tool positions, world frame
-    joints_deg: np.ndarray | None = None  # (K, n_joints) joint readings
+    xyz_mm: np.ndarray | None = None  # (K, 3) measured tool positions (mean of a pose's points), world frame
+    joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
 
     def to_dict(self) -> dict:
         d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
@@ -72,15 +80,21 @@ class Verification:
         if self.truth_after is not None:
             d["truth"] = self.truth_after.summary()
             d["truth"]["before"] = self.truth_before.summary()
+        n = len(self.pose_ids)
+        none = [None] * n
+
+        def values(v):
+            return none if v is None else [float(x) for x in v]
+
         d["poses"] = [
-            {"pose": int(p), "position_mm": float(a), "orientation_deg": float(o) if np.isfinite(o) else None,
-             "before_position_mm": float(bp), "before_orientation_deg": float(bo) if np.isfinite(bo) else None}
-            for p, a, o, bp, bo in zip(self.pose_ids, self.after.position_mm, self.after.orientation_deg,
-                                       self.before.position_mm, self.before.orientation_deg)]
+            {"pose": int(p), "position_mm": a, "orientation_deg": o, "before_position_mm": bp,
+             "before_orientation_deg": bo}
+            for p, a, o, bp, bo in zip(self.pose_ids, values(self.after.position_mm), values(self.after.orientation_deg),
+                                       values(self.before.position_mm), values(self.before.orientation_deg))]
         for k, pose in enumerate(d["poses"]):  # additions of fgcal-verify/1 (readers may ignore them)
             if self.xyz_mm is not None:
                 pose["xyz_mm"] = [float(v) for v in self.xyz_mm[k]]
-            if self.after.error_xyz_mm is not None:
+            if self.after.error_xyz_mm is not None and self.before.error_xyz_mm is not None:
                 pose["error_xyz_mm"] = [float(v) for v in self.after.error_xyz_mm[k]]
                 pose["before_error_xyz_mm"] = [float(v) for v in self.before.error_xyz_mm[k]]
             if self.joints_deg is not None:
@@ -127,50 +141,90 @@ def compare_poses(T_model, T_ref) -> Comparison:
     return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)), d)
 
 
-def _compare_points(x_model, q, offsets, points, pose_of, ids) -> Comparison:
-    """Per pose: RMS length of the point errors (measured - model), their mean vector; no orientation."""
-    T = forward(x_model, q)
-    d = points - (np.einsum("kij,kj->ki", T[:, :3, :3], offsets) + T[:, :3, 3])
-    rows = [pose_of == p for p in ids]
-    return Comparison(np.array([np.sqrt(np.mean(np.sum(d[r] ** 2, axis=1))) for r in rows]),
-                      np.full(len(ids), np.nan), np.array([d[r].mean(axis=0) for r in rows]))
+def compare_points(T_model, offsets_by_pose, points_by_pose) -> Comparison:
+    """Point errors: per pose, the RMS distance (mm) of its measured points from the model's."""
+    d = [w - tool_points(T[None], o)[0] for T, o, w in zip(T_model, offsets_by_pose, points_by_pose)]
+    err = np.array([np.sqrt(np.mean(np.sum(e**2, axis=1))) for e in d])
+    return Comparison(err, None, np.array([e.mean(axis=0) for e in d]).reshape(-1, 3))
 
 
-def _verify_points(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
-    """Position-only data (fewer than 3 balls, e.g. a tracker reflector): compare the points."""
-    c = ds.centres
-    ids = np.array([p for p in ds.pose_ids if np.any(c.pose == p)], dtype=int)
-    q = ds.joints_rad[ds.row_of(c.pose)]
-    off = ds.tooling.offsets(c.ball)
-    after = _compare_points(result.slot_vector(), q, off, c.xyz, c.pose, ids)
-    before = _compare_points(model.nominal, q, off, c.xyz, c.pose, ids)
-    xyz = np.array([c.xyz[c.pose == p].mean(axis=0) for p in ids]).reshape(-1, 3)
-    out = Verification(ids, after, before, reference="measured points", xyz_mm=xyz,
-                       joints_deg=np.degrees(ds.joints_rad[ds.row_of(ids)]))
-    if ds.truth is not None:
-        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
-        T_true = forward(truth, q)
-        p_true = np.einsum("kij,kj->ki", T_true[:, :3, :3], off) + T_true[:, :3, 3]
-        out.truth_after = _compare_points(result.slot_vector(), q, off, p_true, c.pose, ids)
-        out.truth_before = _compare_points(model.nominal, q, off, p_true, c.pose, ids)
-    return out
+def measured_points(ds: Dataset):
+    """Measured points per pose: ``(pose_ids, offsets [(B, 3)], world [(B, 3)], skipped)``.
+
+    Ball centres from ``centres.csv``, or fitted to ``probes.csv`` (with ``fgcal measure``'s
+    quality checks) when there are no centres.
+    """
+    skipped = []
+    if ds.centres is not None:
+        centres = ds.centres
+    elif ds.probes is not None:
+        m = measure_probes(ds)
+        skipped += [f"pose {q.pose} ball {q.ball}: {q.status}" for q in m.quality if q.status != "ok"]
+        centres = m.centres
+    else:
+        raise FgcalError(f"{ds.path or 'dataset'}: no measured points to verify against")
+    ids, offs, pts = [], [], []
+    for p in ds.pose_ids:
+        sel = centres.pose == p
+        if not sel.any():
+            continue
+        ids.append(p)
+        offs.append(ds.tooling.offsets(centres.ball[sel]))
+        pts.append(centres.xyz[sel])
+    return np.array(ids, dtype=int), offs, pts, skipped
+
+
+def _full_pose_data(ds: Dataset) -> bool:
+    """Every measured pose has a full pose (poses.csv, or three or more balls)."""
+    if ds.poses is not None:
+        return True
+    obs = ds.centres if ds.centres is not None else ds.probes
+    if obs is None:
+        return False
+    balls = {}
+    for p, b in zip(obs.pose.tolist(), obs.ball.tolist()):
+        balls.setdefault(p, set()).add(b)
+    return bool(balls) and min(len(v) for v in balls.values()) >= 3
 
 
 def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
-    """Compare the calibrated and nominal models with ``ds``'s measurements (and truth)."""
-    if ds.poses is None and ds.centres is not None and len(ds.tooling.names) < 3:
-        return _verify_points(result, ds, model)
-    ids, T_meas, skipped = measured_poses(ds)
+    """Compare the calibrated and nominal models with ``ds``'s measurements (and truth).
+
+    Full poses are compared where every pose has one (poses.csv, or three or more balls);
+    otherwise the measured points (ball centres, reflector positions) are.
+    """
+    slots = result.slot_vector(model)
+    truth = None
+    if ds.truth is not None:
+        missing = [n for n in model.slot_names if n not in ds.truth]
+        if missing:
+            raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
+        truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if _full_pose_data(ds):
+        ids, T_meas, skipped = measured_poses(ds)
+        reference = "measured poses"
+    else:
+        ids, offs, pts, skipped = measured_points(ds)
+        reference = "measured points"
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
-    q = ds.joints_rad[ds.row_of(ids)]
-    T_cal = forward(result.slot_vector(), q)
-    T_nom = forward(model.nominal, q)
-    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped,
-                       xyz_mm=T_meas[:, :3, 3], joints_deg=np.degrees(q))
-    if ds.truth is not None:
-        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
-        T_true = forward(truth, q)
-        out.truth_after = compare_poses(T_cal, T_true)
-        out.truth_before = compare_poses(T_nom, T_true)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    T_cal = model.forward(slots, q)
+    T_nom = model.forward(model.nominal, q)
+    if reference == "measured poses":
+        out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped,
+                           xyz_mm=T_meas[:, :3, 3])
+    else:
+        out = Verification(ids, compare_points(T_cal, offs, pts), compare_points(T_nom, offs, pts),
+                           reference=reference, skipped=skipped,
+                           xyz_mm=np.array([w.mean(axis=0) for w in pts]).reshape(-1, 3))
+    out.joints_deg = np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float)
+    if truth is not None:
+        T_true = model.forward(truth, q)
+        if reference == "measured poses":
+            out.truth_after, out.truth_before = compare_poses(T_cal, T_true), compare_poses(T_nom, T_true)
+        else:  # position-only data say nothing of what they cannot see: compare the measured points
+            true_pts = [tool_points(T[None], o)[0] for T, o in zip(T_true, offs)]
+            out.truth_after = compare_points(T_cal, offs, true_pts)
+            out.truth_before = compare_points(T_nom, offs, true_pts)
     return out

@@ -49,7 +49,7 @@ def test_verify_output_keeps_its_fields_and_adds_positions(calibrated, puma):
     assert {"pose", "position_mm", "orientation_deg", "before_position_mm", "before_orientation_deg"} <= set(p)
     assert np.linalg.norm(p["error_xyz_mm"]) == pytest.approx(p["position_mm"])
     assert np.linalg.norm(p["before_error_xyz_mm"]) == pytest.approx(p["before_position_mm"])
-    q = verification_joints(v)
+    q = puma.joints_to_internal(verification_joints(v))
     assert q.shape == (30, 6)
     np.testing.assert_allclose(forward(puma.nominal, q)[:, :3, 3] + [x["before_error_xyz_mm"] for x in v["poses"]],
                                [x["xyz_mm"] for x in v["poses"]], atol=1e-9)
@@ -82,7 +82,7 @@ def test_tolerance_verdict(calibrated):
 
 def test_predicted_sigma_matches_monte_carlo(calibrated, puma):
     result, v = calibrated
-    q = verification_joints(v)
+    q = puma.joints_to_internal(verification_joints(v))
     predicted = predicted_position_sigma(result, q)
     rng = np.random.default_rng(153)
     draws = rng.multivariate_normal(result.estimate, result.covariance, size=2000)
@@ -99,9 +99,9 @@ def test_predicted_sigma_matches_monte_carlo(calibrated, puma):
     np.testing.assert_allclose(predicted, mc, rtol=0.1)
 
 
-def test_held_parameter_cost(calibrated):
+def test_held_parameter_cost(calibrated, puma):
     result, v = calibrated
-    q = verification_joints(v)
+    q = puma.joints_to_internal(verification_joints(v))
     # j1.d cannot be separated from base.pz: holding it costs nothing
     (cost,) = held_parameter_cost(result, q)
     assert cost.name == "j1.d" and cost.max_mm < 1e-9 and "costs nothing" in cost.sentence()

@@ -37,7 +37,7 @@ def test_branch_kept_on_every_target_base_frame_and_tcp(ur10, ur10_result):
     q_cmd = _commanded(ur10, 40, seed=162)
     tcp = tcp_matrix([10.0, -20.0, 150.0], [5.0, 90.0, -30.0])
     # the user's targets: where the nominal robot would put the TCP, in the robot's base frame
-    T_base = np.linalg.inv(base_transform(ur10.nominal)) @ forward(ur10.nominal, q_cmd) @ tcp
+    T_base = np.linalg.inv(base_transform(ur10, ur10.nominal)) @ forward(ur10.nominal, q_cmd) @ tcp
     c = compensate_targets(ur10, x, T_base, seeds=q_cmd, frame=Frame.BASE, tcp=tcp)
     assert c.reachable.all(), [r for r in c.reasons if r]
     # the criterion for a 6R arm: elbow (q3) and wrist (q5) keep their signs; every joint stays close
@@ -45,7 +45,7 @@ def test_branch_kept_on_every_target_base_frame_and_tcp(ur10, ur10_result):
     assert np.degrees(np.abs(c.q - q_cmd)).max() < 3.0 and c.joint_change_deg.max() < 3.0
     # the calibrated robot puts the TCP on the target, in the instrument frame via the calibrated base
     reached = forward(x, c.q) @ tcp
-    np.testing.assert_allclose(reached, base_transform(x) @ T_base, atol=1e-6)
+    np.testing.assert_allclose(reached, base_transform(ur10, x) @ T_base, atol=1e-6)
     assert np.nanmax(c.position_error_mm) < 1e-6
 
 
