@@ -187,7 +187,8 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
             s = accuracy_stats([p[key] for p in poses], [p[vec] for p in poses] if have_vec else None)
             rows.append(_stats_row(label, s, num(predicted) if key == "position_mm" and predicted else "-"))
         if poses and all("truth_position_mm" in p for p in poses):
-            rows.append(_stats_row("calibrated vs simulated truth", accuracy_stats([p["truth_position_mm"] for p in poses])))
+            truth = accuracy_stats([p["truth_position_mm"] for p in poses])
+            rows.append(_stats_row("calibrated vs simulated truth", truth))
         acc.blocks.append(Block("table", header=STATS_HEADER, rows=rows))
         acc.blocks.append(Block("p", "Each pose was visited once, so the error at a pose is its accuracy AP in the "
                                      "sense of ISO 9283 (distance from the commanded to the attained position); "
@@ -222,9 +223,15 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
                 where = "Over 200 random joint sets within the joint limits (no verification joints given)"
             costs = held_parameter_cost(result, q)
             held.blocks.append(Block("ul", items=[c.sentence()[0].upper() + c.sentence()[1:] for c in costs]))
-            held.blocks.append(Block("p", f"{where}, after the identified parameters are re-fitted to absorb what "
-                                          "they can; a typical deviation is DESIGN.md's (0.5 mm, 0.05 deg; base "
-                                          "5 mm, 0.5 deg)."))
+            angles = [c.name for c in costs if c.name.startswith("tool.") and c.unit == "deg"]
+            if angles:
+                held.blocks.append(Block("p", f"The held tool angles ({', '.join(angles)}) do not move the tool "
+                                              "frame's origin, but they turn a TCP placed away from it: "
+                                              f"{num(np.radians(0.05) * 100.0)} mm per 100 mm of lever for a "
+                                              "typical 0.05 deg."))
+            held.blocks.append(Block("p", f"{where}, for the tool frame's origin, after the identified parameters "
+                                          "are re-fitted to absorb what they can; a typical deviation is "
+                                          "DESIGN.md's (0.5 mm, 0.05 deg; base 5 mm, 0.5 deg)."))
         except (FgcalError, ValueError, IndexError) as exc:  # a model the Jacobian cannot take
             held.blocks.append(Block("p", f"Cannot say for this model ({exc})."))
         sections.append(held)
