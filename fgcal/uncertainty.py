@@ -106,7 +106,8 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
     if pairs:
         shown = ", ".join(f"{a} and {b} ({r:+.3f})" for a, b, r in pairs[:5])
         out.append(f"The data barely separate {len(pairs)} pair(s) of parameters: {shown}"
-                   f"{' ...' if len(pairs) > 5 else ''}. Their sum or difference is known better than each.")
+                   f"{f' and {len(pairs) - 5} more' if len(pairs) > 5 else ''}. Their sum or difference is known better "
+                   "than each.")
     for level, s in result.levels.items():
         if level in ("kinematic", "prior", "joints") or not np.isfinite(s.variance_factor):
             continue
