@@ -233,7 +233,7 @@ def _cmd_calibrate(args) -> int:
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
         extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
-    if args.model == "geometric" and args.verification is None:
+    if getattr(args, "model", "geometric") == "geometric" and getattr(args, "verification", None) is None:
         result = calibrate(ds, model, options)
     else:
         result = _compare_models(args, ds, model, options)
