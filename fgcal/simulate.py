@@ -104,7 +104,9 @@ def ball_access(T, tooling: Tooling, volume=None, margin_mm: float = 0.0, margin
     """
     offsets = tooling.offsets()
     centres = tool_points(T, offsets)
-    outward = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+    norms = np.linalg.norm(offsets, axis=1, keepdims=True)
+    # A ball on the tool axis (a reflector at the flange) has no stem side: upness 0, never NaN.
+    outward = np.divide(offsets, norms, out=np.zeros_like(offsets), where=norms > 0)
     outward_w = np.einsum("nij,bj->nbi", T[:, :3, :3], outward)
     upness = outward_w @ UP
     ok = upness >= np.cos(np.radians(MAX_APPROACH_ANGLE_DEG - margin_deg))
