@@ -21,7 +21,7 @@ from .model import SLOT_NAMES, RobotModel, Tooling
 from .robot_file import load_model
 from .yamlio import atomic_write_text, dump_yaml, read_yaml
 
-__all__ = ["load_dataset", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
+__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -214,6 +214,27 @@ def load_dataset_meta(directory) -> Dataset:
                    joints_deg=np.zeros((0, 6)), path=directory)
 
 
+def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
+    """A ``joints.csv``-like file: ``(pose ids (N,), joint readings (N, 6) deg)``.
+
+    Raises :class:`DatasetError` naming the file and line for a malformed row or repeated id.
+    """
+    path = Path(path)
+    rows = _read_table(path, JOINT_COLUMNS)
+    if not rows:
+        raise DatasetError(f"{path}: no poses")
+    ids, q, seen = [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        q.append([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]])
+    return np.array(ids, dtype=int), np.array(q, dtype=float)
+
+
 def load_dataset(directory) -> Dataset:
     """Read and validate a dataset directory.
 
@@ -226,22 +247,10 @@ def load_dataset(directory) -> Dataset:
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
     robot, tooling, noise, provenance = _meta(directory / "dataset.yaml")
-    joints_path = directory / "joints.csv"
-    rows = _read_table(joints_path, JOINT_COLUMNS)
-    if not rows:
-        raise DatasetError(f"{joints_path}: no poses")
-    ids, q, seen = [], [], {}
-    for line, r in rows:
-        where = f"{joints_path}: line {line}"
-        pid = _integer(r["pose"], where, "pose")
-        if pid in seen:
-            raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
-        seen[pid] = line
-        ids.append(pid)
-        q.append([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]])
-    known = set(ids)
-    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.array(ids),
-                 joints_deg=np.array(q), path=directory)
+    ids, q = read_joints(directory / "joints.csv")
+    known = set(ids.tolist())
+    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=ids,
+                 joints_deg=q, path=directory)
     if (directory / "probes.csv").exists():
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")

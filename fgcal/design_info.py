@@ -26,6 +26,7 @@ from factors.errors import ball_centre_error, pose_error, probe_error
 
 from .calibrate import CalibrationOptions, _sigmas
 from .dataset import Dataset, Noise
+from .errors import FgcalError
 from .graph import Sigmas
 from .kinematics import forward
 from .model import ParameterSet, RobotModel, Tooling
@@ -193,6 +194,9 @@ def information(model: RobotModel, q, layout: Layout, noise: Noise, params: Para
     params = params or model.parameters()
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
     q = np.atleast_2d(np.asarray(q, dtype=float))
+    if "probes" in layout.levels and (model.tooling is None or model.tooling.radius <= 0):
+        raise FgcalError(f"robot model {model.name}: probe points need balls of positive radius; its tool has "
+                         "reflectors (radius 0): design for ball centres (position only) or poses instead")
     sig = sigmas or sigmas_of(noise, model.tooling)
     out = np.zeros((len(q), len(params.index), len(params.index)))
     usable = layout.usable()
