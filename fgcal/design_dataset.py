@@ -9,6 +9,7 @@ No file I/O here (see :func:`save_plan`).
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +22,8 @@ from .errors import FgcalError
 from .model import RobotModel
 
 __all__ = ["DatasetDesign", "dataset_layout", "design_from_dataset", "save_plan", "load_plan"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -132,6 +135,11 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         layout = dataset_layout(ds, model)
     else:
         ids, q_deg = (np.asarray(c) for c in candidates)
+        inside = model.in_limits(np.radians(q_deg))
+        if not inside.all():
+            log.warning("%d candidate pose(s) outside the joint limits of %s left out (first: pose %d)",
+                        (~inside).sum(), model.name, ids[~inside][0])
+            ids, q_deg = ids[inside], q_deg[inside]
         layout = dataset_layout(ds, model, np.radians(q_deg))
     q = np.radians(q_deg)
     where = "the candidates" if candidates is not None else f"{ds.path or 'the dataset'}"

@@ -14,6 +14,7 @@ from fgcal.design_dataset import dataset_layout, design_from_dataset, load_plan,
 from fgcal.design_info import information
 from fgcal.design_validate import compare_on_held_out
 from fgcal.errors import FgcalError
+from fgcal.model import slots_from_file_units
 from fgcal.robot_file import model_from_dict, model_to_dict, save_model
 from fgcal.simulate import SimulationSettings, simulate
 
@@ -46,8 +47,7 @@ def test_plan_from_a_dataset_beats_random_sets_at_held_out_poses(puma, level):
     of the same simulated robot."""
     settings = SimulationSettings(n_poses=150, noise=NOISE, levels=(level,))
     ds, _ = simulate(puma, np.random.default_rng(131), settings)
-    truth = np.array(list(ds.truth.values()))
-    from fgcal.model import slots_from_file_units
+    truth = np.array(list(ds.truth.values()))  # all slots, in order (mm, deg)
     held, _ = simulate(puma, np.random.default_rng(132), SimulationSettings(n_poses=60, noise=NOISE, levels=(level,)),
                        truth=slots_from_file_units(truth))
     c = compare_on_held_out(ds, held, puma, 12, random_sets=9, rng=np.random.default_rng(133))
@@ -65,7 +65,13 @@ def test_plan_round_trip_and_cli_with_candidate_file(puma, tmp_path):
     # the user's own candidates: other poses, other ids
     q = candidate_pool(puma, 80, np.random.default_rng(135))
     ids = np.arange(501, 581)
-    plan = design_from_dataset(ds, puma, 10, (ids, np.degrees(q)), random_sets=20)
+    outside = np.degrees(q[:1]) + [400.0, 0, 0, 0, 0, 0]  # beyond joint 1's limit: left out
+    messages = []
+    plan = design_from_dataset(ds, puma, 10, (np.r_[ids, 999], np.vstack([np.degrees(q), outside])),
+                               random_sets=20, progress=messages.append)
+    assert plan.n_candidates == 80 and 999 not in plan.pose_ids
+    # progress: every step is told, and their number is bounded
+    assert "greedy start: 10 of 10 poses" in messages and len(messages) <= 1 + 10 + 200
     save_plan(plan, tmp_path / "plan.csv")
     back_ids, back_q = load_plan(tmp_path / "plan.csv")
     np.testing.assert_array_equal(back_ids, plan.pose_ids)
