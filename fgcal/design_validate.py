@@ -16,6 +16,7 @@ import numpy as np
 from .calibrate import CalibrationOptions, calibrate
 from .dataset import Dataset
 from .design_dataset import DatasetDesign, dataset_layout, design_from_dataset
+from .errors import FgcalError
 from .model import RobotModel
 from .verify import verify
 
@@ -34,7 +35,8 @@ class HeldOutComparison:
     plan_mean, plan_rms : float
         Mean and RMS position error at the held-out poses after calibrating on the plan.
     random_mean, random_rms : ndarray, shape (k,)
-        The same for ``k`` random plans.
+        The same for ``k`` random plans; ``inf`` for a random plan that did not calibrate (an
+        ill-posed set).
     """
 
     plan: DatasetDesign
@@ -47,11 +49,9 @@ class HeldOutComparison:
         """Fraction of random plans whose mean held-out error is larger than the plan's."""
         return float(np.mean(self.random_mean > self.plan_mean))
 
-    def summary(self) -> str:
-        q = np.percentile(self.random_mean, [25, 50, 75])
-        return (f"held-out mean position error: plan {self.plan_mean:.4f} mm; {len(self.random_mean)} random "
-                f"{len(self.plan.pose_ids)}-pose sets: median {q[1]:.4f}, quartiles {q[0]:.4f}-{q[2]:.4f} mm; "
-                f"the plan beats {100 * self.beaten():.0f}% of them")
+    def failed(self) -> int:
+        """Random plans that did not calibrate."""
+        return int(np.sum(~np.isfinite(self.random_mean)))
 
 
 def _held_out_error(ds: Dataset, ids, held: Dataset, model: RobotModel, options: CalibrationOptions):
@@ -70,7 +70,11 @@ def compare_on_held_out(ds: Dataset, held: Dataset, model: RobotModel, n_poses: 
     usable = ds.pose_ids[dataset_layout(ds, model).usable()]
     errors = []
     for k in range(random_sets):
-        errors.append(_held_out_error(ds, rng.choice(usable, size=n_poses, replace=False), held, model, options))
+        try:
+            errors.append(_held_out_error(ds, rng.choice(usable, size=n_poses, replace=False), held, model, options))
+        except (FgcalError, RuntimeError) as exc:  # an ill-posed random set: worse than any that calibrates
+            log.warning("random set %d of %d did not calibrate: %s", k + 1, random_sets, str(exc).strip().split("\n")[0])
+            errors.append((np.inf, np.inf))
         log.info("random set %d of %d: held-out mean %.4f mm", k + 1, random_sets, errors[-1][0])
     errors = np.array(errors).reshape(-1, 2)
     return HeldOutComparison(plan, plan_mean, plan_rms, errors[:, 0], errors[:, 1])
