@@ -411,7 +411,7 @@ def _progress(every: float = 2.0):
 
 def _cmd_design_dataset(args) -> int:
     from .dataset_io import dataset_model, load_dataset
-    from .design_dataset import design_from_dataset, load_plan, save_plan
+    from .design_dataset import DATASET_INDEX, design_from_dataset, load_plan, save_plan
 
     ds = load_dataset(args.dataset)
     candidates = None
@@ -420,7 +420,7 @@ def _cmd_design_dataset(args) -> int:
             raise FgcalError("with --dataset, --candidates is a joints.csv-like file (pose,q1..q6 deg), "
                              f"not a count: {args.candidates}")
         candidates = load_plan(Path(args.candidates))
-    plan = design_from_dataset(ds, dataset_model(ds), args.poses, candidates, index=args.index,
+    plan = design_from_dataset(ds, dataset_model(ds), args.poses, candidates, index=args.index or DATASET_INDEX,
                                rng=np.random.default_rng(args.seed), progress=_progress())
     save_plan(plan, args.out)
     print("\n".join(plan.summary()))
@@ -454,11 +454,12 @@ def _cmd_design(args) -> int:
     q_verify = pool if model.volume is None else random_plan(
         model, model.nominal, 1000, rng, model.tooling, model.volume, min(3, len(model.tooling.balls)))
     prepared = Candidates.build(model, pool, noise, q_verify, layout=layout_from_access(model, pool, levels))
-    d = design_plan(model, args.poses, pool, noise, index=args.index, prepared=prepared, progress=_progress())
+    d = design_plan(model, args.poses, pool, noise, index=args.index or "pred", prepared=prepared,
+                    progress=_progress())
     write_csv(args.out, JOINT_COLUMNS, [[i + 1, *map(float, np.degrees(q))] for i, q in enumerate(d.q)])
     random_pred = [random_design_values(prepared, args.poses, np.random.default_rng([args.seed, k]))[1]["pred"]
                    for k in range(200)]
-    print(f"designed {args.poses} poses from {len(pool)} candidates by {args.index} ({d.iterations} DETMAX steps); "
+    print(f"designed {args.poses} poses from {len(pool)} candidates by {d.index} ({d.iterations} DETMAX steps); "
           f"wrote {args.out}")
     print("  " + ", ".join(f"{k} {d.values[k]:.4g}" for k in INDICES if k != "pred"))
     print(f"  predicted position error RMS at new poses: {d.values['pred']:.4g} mm "
@@ -630,8 +631,10 @@ def build_parser() -> argparse.ArgumentParser:
     de.add_argument("--candidates", default=None,
                     help="with --dataset: a joints.csv-like file of candidate poses (pose,q1..q6 deg); "
                          "without: the number of random reachable candidates (default 2000)")
-    de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default="pred",
-                    help="criterion: observability index O1-O5, or pred (predicted accuracy; default)")
+    de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default=None,
+                    help="criterion: observability index O1-O5, or pred (predicted accuracy); default pred for "
+                         "--robot, O1 (D-optimal) for --dataset: real data carry errors no model predicts, and "
+                         "O1 plans were the more robust on the Landgraf UR10")
     de.add_argument("--seed", type=int, default=0)
     de.add_argument("--cmm-sigma", type=float, default=0.01)
     de.add_argument("--joint-resolution", type=float, default=0.01)

@@ -101,6 +101,33 @@ def _scores(infos, scale, index: str, W=None) -> np.ndarray:
     return np.where(np.isfinite(out), out, -np.inf)
 
 
+def _low_rank(info, rtol: float = 1e-12):
+    """Factors ``L`` (K, P, r) with ``info[k] = L[k] L[k]^T``, or None when the poses' information
+    is not of low rank (then a rank-r update is no cheaper than an inverse)."""
+    w, V = np.linalg.eigh(info)
+    r = int((w > rtol * np.maximum(w[:, -1:], 1e-300)).sum(axis=1).max(initial=0))
+    if r == 0 or 2 * r > info.shape[1]:
+        return None
+    return V[:, :, -r:] * np.sqrt(np.clip(w[:, None, -r:], 0.0, None))
+
+
+def _pred_update(total, L, W, sign: float) -> np.ndarray:
+    """``pred`` score (minus the predicted RMS) of ``total + sign L_k L_k^T`` for every k, by the
+    Woodbury identity: ``tr(W (T + s L L^T)^-1) = tr(W C) - s tr((I + s L^T C L)^-1 L^T C W C L)``
+    with ``C = T^-1``; r-by-r solves instead of P-by-P inverses."""
+    C = np.linalg.inv(total)
+    CL = C @ L
+    G = np.swapaxes(L, 1, 2) @ CL
+    H = np.swapaxes(CL, 1, 2) @ W @ CL
+    eye = np.eye(L.shape[2])[None]
+    try:
+        change = np.einsum("kii->k", np.linalg.solve(eye + sign * G, H))
+    except np.linalg.LinAlgError:
+        return _scores(total[None] + sign * L @ np.swapaxes(L, 1, 2), None, "pred", W)
+    out = -np.sqrt(np.clip(np.trace(W @ C) - sign * change, 0.0, None))
+    return np.where(np.isfinite(out), out, -np.inf)
+
+
 @dataclass
 class Design:
     """A chosen plan: joint sets (rad), their indices in the pool, and its index values."""
@@ -208,13 +235,21 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
         raise FgcalError(f"{n_poses} poses of these candidates cannot identify the {n_par} parameters (each pose "
                          f"gives at most {ranks.max(initial=0)} independent equations): at least {need} poses needed")
     say = progress or (lambda text: None)
+    factors = _low_rank(info) if index == "pred" else None
+
+    def batch(total, sign, members):
+        """Scores of ``total + sign * info[m]`` for each candidate m of ``members``."""
+        if factors is not None:
+            return _pred_update(total, factors[members], W, sign)
+        return _scores(total[None] + sign * info[members], scale, index, W)
+
     # A vanishing ridge (relative to the parameters' expected spread) makes the first, rank
     # deficient steps of the greedy start well defined; it does not change the final choice.
     base = np.diag(ridge / scale**2)
     chosen: list[int] = []
     total = base.copy()
     for step in range(n_poses):
-        scores = _scores(total[None] + info, scale, index, W)
+        scores = batch(total, 1.0, slice(None))
         scores[chosen] = -np.inf
         j = int(np.argmax(scores))
         chosen.append(j)
@@ -229,11 +264,11 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
     for it in range(1, max_iterations + 1):
         # DETMAX excursion of size one: add the best candidate, then drop the weakest point.
         total = base + info[chosen].sum(axis=0)
-        add = _scores(total[None] + info, scale, index, W)
+        add = batch(total, 1.0, slice(None))
         add[chosen] = -np.inf
         j = int(np.argmax(add))
         grown = chosen + [j]
-        drop = _scores((total + info[j])[None] - info[grown], scale, index, W)
+        drop = batch(total + info[j], -1.0, grown)
         k = int(np.argmax(drop))
         new = [c for i, c in enumerate(grown) if i != k]
         new_score = score_of(new)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .calibrate import CalibrationOptions, calibrate
 from .dataset import Dataset
-from .design_dataset import DatasetDesign, dataset_layout, design_from_dataset
+from .design_dataset import DATASET_INDEX, DatasetDesign, dataset_layout, design_from_dataset
 from .errors import FgcalError
 from .model import RobotModel
 from .verify import verify
@@ -60,7 +60,7 @@ def _held_out_error(ds: Dataset, ids, held: Dataset, model: RobotModel, options:
 
 
 def compare_on_held_out(ds: Dataset, held: Dataset, model: RobotModel, n_poses: int, random_sets: int = 20,
-                        rng: np.random.Generator | None = None, index: str = "pred",
+                        rng: np.random.Generator | None = None, index: str = DATASET_INDEX,
                         options: CalibrationOptions = CalibrationOptions()) -> HeldOutComparison:
     """Design ``n_poses`` of ``ds``'s poses, calibrate on them and on ``random_sets`` random
     plans of the same usable poses, and verify each at ``held``'s poses."""
