@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -28,25 +29,43 @@ def _cmd_simulate(args) -> int:
         raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")
     if not 0 <= args.outliers < 1:
         raise FgcalError("--outliers is a fraction of probe points, from 0 to below 1")
-    model = load_model(args.robot)
+    chain = None
+    if args.chain:
+        parts = args.chain.split(",")
+        if len(parts) != 2 or not all(parts):
+            raise FgcalError(f"--chain: expected BASE,TIP (URDF link names), got {args.chain!r}")
+        chain = {"base": parts[0], "tip": parts[1]}
+    model = load_model(args.robot, chain=chain)
+    levels = args.levels
+    if args.reflector is not None:
+        from dataclasses import replace
+
+        from .model import Tooling
+
+        model = replace(model, tooling=Tooling(0.0, {"R": _floats(args.reflector, 3, "--reflector")}))
+        levels = levels or "centres"
+    robot_ref = args.robot
+    if Path(args.robot).suffix or "/" in args.robot:  # a file: name it relative to the dataset directory
+        robot_ref = os.path.relpath(Path(args.robot).resolve(), Path(args.out).resolve())
     settings = SimulationSettings(
         n_poses=args.poses, plan=args.plan,
         noise=Noise(args.cmm_sigma, args.joint_resolution, args.repeatability),
         deviations=Deviations(args.length_sigma, args.angle_sigma, args.base_length_sigma, args.base_angle_sigma),
-        n_balls=args.balls, probes_per_ball=args.probes_per_ball, outlier_fraction=args.outliers,
-        outlier_size=args.outlier_size, levels=tuple(args.levels.split(",")))
+        n_balls=args.balls if args.balls is not None else min(3, len(model.tooling.balls) if model.tooling else 3),
+        probes_per_ball=args.probes_per_ball, outlier_fraction=args.outliers,
+        outlier_size=args.outlier_size, levels=tuple((levels or "probes").split(",")))
     truth = None
     if args.truth is not None:
         from .dataset_io import load_truth
-        from .model import SLOT_NAMES, slots_from_file_units
 
         values, _ = load_truth(args.truth)
-        missing = [n for n in SLOT_NAMES if n not in values]
+        missing = [n for n in model.slot_names if n not in values]
         if missing:
             raise FgcalError(f"{args.truth}: lacks {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}")
-        truth = slots_from_file_units(np.array([values[n] for n in SLOT_NAMES]))
-    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=args.robot, seed=args.seed,
+        truth = model.slots_from_file_units(np.array([values[n] for n in model.slot_names]))
+    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=robot_ref, seed=args.seed,
                          truth=truth)
+    ds.chain = chain
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     save_dataset(ds, args.out, overwrite=args.force)
@@ -55,22 +74,34 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+def _floats(text: str, n: int, option: str) -> np.ndarray:
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        values = np.zeros(0)
+    if values.shape != (n,) or not np.all(np.isfinite(values)):
+        raise FgcalError(f"{option}: expected {n} comma-separated numbers, got {text!r}")
+    return values
+
+
 def _cmd_check(args) -> int:
+    from .calibrate import identifiability_of
     from .dataset_io import dataset_model, load_dataset
-    from .identifiability import analyse, identification_jacobian
 
     ds = load_dataset(args.dataset)
     model = dataset_model(ds)
     print(f"{args.dataset}: robot {model.name}, {ds.n_poses} poses; levels: {', '.join(ds.levels()) or 'none'}")
     for lv in ds.levels():
         print(f"  {lv}: {len(getattr(ds, lv))} rows")
-    outside = ~model.in_limits(ds.joints_rad)
+    outside = ~model.in_limits(model.joints_to_internal(ds.joints_deg))
     if outside.any():
         print(f"  warning: {outside.sum()} pose(s) outside the joint limits: {ds.pose_ids[outside].tolist()}")
-    params = model.parameters()
-    J = identification_jacobian(params, ds.joints_rad, measurement=ds.tooling.offsets())
-    result = analyse(J, params.names)
-    print("identifiability (ball centres at these poses): " + result.summary())
+    if not ds.levels():
+        print("identifiability: no measurements")
+        return 0
+    result = identifiability_of(ds, model)
+    print(f"identifiability ({', '.join(ds.levels())} at these poses, with the estimator's noise model): "
+          + result.summary())
     return 0
 
 
@@ -158,7 +189,7 @@ def _cmd_calibrate(args) -> int:
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
         extra=tuple(args.extra.split(",")) if args.extra else (),
-        exclude=tuple(args.exclude.split(",")) if args.exclude else ())
+        exclude=tuple(args.exclude.split(",")) if args.exclude else (), engine=args.engine)
     result = calibrate(ds, model, options)
     save_result(result, args.out)
     _print_result(result)
@@ -189,8 +220,10 @@ def _cmd_verify(args) -> int:
 
     def line(label, summary):
         p, o = summary["position_mm"], summary["orientation_deg"]
-        return (f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm; "
-                f"orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg")
+        text = f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm"
+        if o is not None:
+            text += f"; orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg"
+        return text
 
     print(f"verification on {d['n_poses']} poses ({d['reference']}):")
     print(line("nominal vs measured", d["before"]))
@@ -282,7 +315,7 @@ def _cmd_compensate(args) -> int:
 def _cmd_export(args) -> int:
     from .result import load_result
     from .robot_file import save_model
-    from .urdf import to_urdf
+    from .urdf import export_urdf
     from .yamlio import atomic_write_text
 
     if args.model is None and args.urdf is None:
@@ -293,12 +326,14 @@ def _cmd_export(args) -> int:
 
     calibrated = replace(model, name=f"{model.name}-calibrated",
                          description=f"{model.name} calibrated by fgcal from {result.n_poses} poses")
+    slots = result.slot_vector(model)
     if args.model:
-        save_model(calibrated, args.model, slots=result.slot_vector())
+        save_model(calibrated, args.model, slots=slots)
         print(f"wrote {args.model} (fgcal-robot/1)")
     if args.urdf:
-        atomic_write_text(args.urdf, to_urdf(calibrated, result.slot_vector()))
-        print(f"wrote {args.urdf} (URDF)")
+        atomic_write_text(args.urdf, export_urdf(calibrated, slots))
+        kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
+        print(f"wrote {args.urdf} ({kind})")
     return 0
 
 
@@ -430,7 +465,7 @@ def _cmd_design_dataset(args) -> int:
 
 def _cmd_design(args) -> int:
     from .dataset import Noise
-    from .dataset_io import JOINT_COLUMNS, write_csv
+    from .dataset_io import joint_columns, write_csv
     from .design import INDICES, Candidates, candidate_pool, design_plan, random_design_values
     from .design_info import layout_from_access
     from .robot_file import load_model
@@ -456,7 +491,8 @@ def _cmd_design(args) -> int:
     prepared = Candidates.build(model, pool, noise, q_verify, layout=layout_from_access(model, pool, levels))
     d = design_plan(model, args.poses, pool, noise, index=args.index or "pred", prepared=prepared,
                     progress=_progress())
-    write_csv(args.out, JOINT_COLUMNS, [[i + 1, *map(float, np.degrees(q))] for i, q in enumerate(d.q)])
+    write_csv(args.out, joint_columns(model.n_joints),
+              [[i + 1, *map(float, model.joints_to_file_units(q))] for i, q in enumerate(d.q)])
     random_pred = [random_design_values(prepared, args.poses, np.random.default_rng([args.seed, k]))[1]["pred"]
                    for k in range(200)]
     print(f"designed {args.poses} poses from {len(pool)} candidates by {d.index} ({d.iterations} DETMAX steps); "
@@ -497,7 +533,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="the paper's POSE program: simulate a measured robot (writes a dataset)")
     s.add_argument("out", type=Path, help="dataset directory to write")
-    s.add_argument("--robot", default="puma560", help="built-in model name or model file (default puma560)")
+    s.add_argument("--robot", default="puma560",
+                   help="built-in model name, model file or URDF file (default puma560)")
+    s.add_argument("--chain", default=None, metavar="BASE,TIP",
+                   help="URDF link names of the chain's base and tip (when the URDF has several leaves)")
+    s.add_argument("--reflector", default=None, metavar="X,Y,Z",
+                   help="measure one tracker reflector at X,Y,Z (mm, tool frame) instead of the model's tooling "
+                        "balls (levels default to centres)")
     s.add_argument("--poses", type=int, default=None, help="number of poses (random plan; default 21)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--plan", choices=("random", "paper"), default="random",
@@ -509,10 +551,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="joints land off the readings by N(0, this) deg (default 0)")
     s.add_argument("--outliers", type=float, default=0.0, help="fraction of probe points with a gross error")
     s.add_argument("--outlier-size", type=float, default=0.5, help="size of a gross error, mm (default 0.5)")
-    s.add_argument("--balls", type=int, default=3, help="balls measured per pose (default 3)")
+    s.add_argument("--balls", type=int, default=None, help="balls measured per pose (default 3, or all the tool has if fewer)")
     s.add_argument("--probes-per-ball", type=int, default=4, help="probe points per ball (default 4)")
-    s.add_argument("--levels", default="probes",
-                   help="comma-separated files to write: probes, centres, poses (default probes)")
+    s.add_argument("--levels", default=None,
+                   help="comma-separated files to write: probes, centres, poses (default probes; centres with "
+                        "--reflector)")
     s.add_argument("--length-sigma", type=float, default=0.5, help="link length deviations, mm (default 0.5)")
     s.add_argument("--angle-sigma", type=float, default=0.05, help="link angle deviations, deg (default 0.05)")
     s.add_argument("--base-length-sigma", type=float, default=5.0, help="base placement deviation, mm (default 5)")
@@ -546,6 +589,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--poses", default=None, help="poses to use: odd, even, first:N, last:N or ranges like 1-21")
     k.add_argument("--levels", default=None, help="comma-separated levels to use (default: all present)")
     k.add_argument("--robust", choices=("huber", "cauchy"), default=None, help="robust loss on the measurements")
+    k.add_argument("--engine", choices=("batch", "gtsam"), default="batch",
+                   help="batch: fgcal's batched Levenberg-Marquardt (default); gtsam: GTSAM's own optimiser on the "
+                        "same factor graph (slower, same result)")
     k.add_argument("--prior", choices=("none", "weak"), default="none",
                    help="weak: 10x the typical deviation on every parameter (default none)")
     k.add_argument("--estimate-noise", action="store_true",

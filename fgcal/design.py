@@ -25,7 +25,6 @@ from .dataset import Noise
 from .errors import FgcalError
 from .design_info import Layout, information, layout_from_access
 from .identifiability import analyse_information
-from .kinematics import jacobians
 from .model import ParameterSet, RobotModel
 from .simulate import PLAN_MARGIN_DEG, PLAN_MARGIN_MM, Deviations
 
@@ -52,7 +51,7 @@ def verification_weight(model: RobotModel, q_verify, params: ParameterSet | None
     """``W`` (P, P) with ``trace(W Sigma)`` the mean squared tool-position error at ``q_verify``."""
     params = params or model.parameters()
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
-    J = jacobians(x, np.atleast_2d(q_verify)).pose_slots[:, :3][:, :, params.index]
+    J = model.chain.jacobians(x, np.atleast_2d(q_verify)).pose_slots[:, :3][:, :, params.index]
     return np.einsum("nrp,nrq->pq", J, J) / len(J)
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .dataset import Dataset
-from .dataset_io import read_joints, write_csv
+from .dataset_io import joint_columns, read_joints, write_csv
 from .design import Candidates, design_plan, random_design_values
 from .design_info import Layout, layout_from_access
 from .errors import FgcalError
@@ -140,13 +140,13 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         layout = dataset_layout(ds, model)
     else:
         ids, q_deg = (np.asarray(c) for c in candidates)
-        inside = model.in_limits(np.radians(q_deg))
+        inside = model.in_limits(model.joints_to_internal(q_deg))
         if not inside.all():
             log.warning("%d candidate pose(s) outside the joint limits of %s left out (first: pose %d)",
                         (~inside).sum(), model.name, ids[~inside][0])
             ids, q_deg = ids[inside], q_deg[inside]
-        layout = dataset_layout(ds, model, np.radians(q_deg))
-    q = np.radians(q_deg)
+        layout = dataset_layout(ds, model, model.joints_to_internal(q_deg))
+    q = model.joints_to_internal(q_deg)
     where = "the candidates" if candidates is not None else f"{ds.path or 'the dataset'}"
     if len(ids) < n_poses:
         raise FgcalError(f"{where}: {len(ids)} candidate poses for a plan of {n_poses}: fewer candidates than poses")
@@ -162,8 +162,8 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
 
 def save_plan(plan: DatasetDesign, path) -> None:
     """Write the plan as a ``joints.csv``-like file: ``pose,q1..`` (deg), the candidates' ids."""
-    header = ["pose"] + [f"q{k + 1}" for k in range(plan.joints_deg.shape[1])]
-    write_csv(path, header, [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg)])
+    write_csv(path, joint_columns(plan.joints_deg.shape[1]),
+              [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg)])
 
 
 def load_plan(path) -> tuple[np.ndarray, np.ndarray]:

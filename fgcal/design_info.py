@@ -28,7 +28,6 @@ from .calibrate import CalibrationOptions, _sigmas
 from .dataset import Dataset, Noise
 from .errors import FgcalError
 from .graph import Sigmas
-from .kinematics import forward
 from .model import ParameterSet, RobotModel, Tooling
 from .simulate import UP, ball_access
 
@@ -61,11 +60,11 @@ class Layout:
         return self.balls.any(axis=1)
 
 
-def sigmas_of(noise: Noise, tooling: Tooling | None = None) -> Sigmas:
+def sigmas_of(noise: Noise, model: RobotModel) -> Sigmas:
     """The graph's noise for each factor kind, exactly as the estimator sets it from ``noise``."""
-    stub = Dataset(robot="", tooling=tooling or Tooling(0.0, {}), noise=noise, provenance={},
-                   pose_ids=np.zeros(0, dtype=int), joints_deg=np.zeros((0, 6)))
-    return _sigmas(stub, CalibrationOptions())
+    stub = Dataset(robot="", tooling=model.tooling or Tooling(0.0, {}), noise=noise, provenance={},
+                   pose_ids=np.zeros(0, dtype=int), joints_deg=np.zeros((0, model.n_joints)))
+    return _sigmas(stub, model, CalibrationOptions())
 
 
 def cap_directions(axis, n_points: int, polar_deg: float = 60.0) -> np.ndarray:
@@ -96,7 +95,7 @@ def layout_from_access(model: RobotModel, q, levels, n_balls: int = 3, slots=Non
     if tooling is None or not tooling.balls:
         return Layout(tuple(levels), np.zeros((len(q), 0), dtype=bool), probes_per_ball)
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
-    ok, upness, _ = ball_access(forward(x, q), tooling, model.volume, margin_mm, margin_deg)
+    ok, upness, _ = ball_access(model.forward(x, q), tooling, model.volume, margin_mm, margin_deg)
     if model.volume is None:
         ok = np.ones_like(ok)
     n_balls = min(n_balls, ok.shape[1])
@@ -122,7 +121,8 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
     theta = x[idx]
     P = len(idx)
     offsets = model.tooling.offsets() if model.tooling is not None else np.zeros((0, 3))
-    with_joints = sig.joint > 0
+    sigma_q = np.broadcast_to(np.asarray(sig.joint, dtype=float), (nj,))
+    with_joints = bool(np.all(sigma_q > 0))
     probes = "probes" in layout.levels and k > 0
     n_local = (nj if with_joints else 0) + (3 * k if probes else 0)
     blocks_t, blocks_l = [], []
@@ -141,13 +141,13 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
     if k and ("probes" in layout.levels or "centres" in layout.levels):
         off = offsets[balls].reshape(-1, 3)
         q_rep = np.repeat(q, k, axis=0)
-        centre, Jt, Jq = ball_centre_error(theta, q_rep, off, np.zeros_like(off), idx, x)
+        centre, Jt, Jq = ball_centre_error(theta, q_rep, off, np.zeros_like(off), idx, x, model.chain)
         Jt, Jq = Jt.reshape(n, 3 * k, P), Jq.reshape(n, 3 * k, nj)
         if "centres" in layout.levels:
             add(Jt / sig.centre, Jq / sig.centre)
         if probes:
             add(Jt / sig.kinematic, Jq / sig.kinematic, -np.eye(3 * k)[None].repeat(n, 0) / sig.kinematic)
-            T = forward(x, q)
+            T = model.forward(x, q)
             ppb = layout.probes_per_ball
             pts, cs = [], []
             for i in range(n):
@@ -163,12 +163,12 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
                 rows_c[:, j, :, 3 * j:3 * j + 3] = Jc[:, j]
             add(np.zeros((n, k * ppb, P)), None, rows_c.reshape(n, k * ppb, 3 * k))
     if "poses" in layout.levels:
-        _, Jt, Jq = pose_error(theta, q, forward(x, q), idx, x)
+        _, Jt, Jq = pose_error(theta, q, model.forward(x, q), idx, x, model.chain)
         w = 1.0 / np.array([sig.pose_rotation] * 3 + [sig.pose_position] * 3)
         add(Jt * w[None, :, None], Jq * w[None, :, None])
     if with_joints:
         # the readings as priors on the joint variables (factors.errors.joint_error: Jacobian I)
-        add(np.zeros((n, nj, P)), np.broadcast_to(np.eye(nj) / sig.joint, (n, nj, nj)))
+        add(np.zeros((n, nj, P)), np.broadcast_to(np.diag(1.0 / sigma_q), (n, nj, nj)))
     if not blocks_t:
         return np.zeros((n, P, P))
     return _eliminate(np.concatenate(blocks_t, axis=1), np.concatenate(blocks_l, axis=1))
@@ -181,7 +181,7 @@ def information(model: RobotModel, q, layout: Layout, noise: Noise, params: Para
     Parameters
     ----------
     q : array_like, shape (N, n)
-        Joint sets (rad).
+        Joint readings (rad, mm for prismatic joints).
     layout : Layout
         What is measured at each pose; unusable poses get zero information.
     noise : Noise
@@ -197,7 +197,7 @@ def information(model: RobotModel, q, layout: Layout, noise: Noise, params: Para
     if "probes" in layout.levels and (model.tooling is None or model.tooling.radius <= 0):
         raise FgcalError(f"robot model {model.name}: probe points need balls of positive radius; its tool has "
                          "reflectors (radius 0): design for ball centres (position only) or poses instead")
-    sig = sigmas or sigmas_of(noise, model.tooling)
+    sig = sigmas or sigmas_of(noise, model)
     out = np.zeros((len(q), len(params.index), len(params.index)))
     usable = layout.usable()
     counts = layout.balls.sum(axis=1) if layout.balls.size else np.zeros(len(q), dtype=int)

@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import least_squares
 
-from .kinematics import forward
-from .model import EULER_FIELDS, RobotModel, slot
+from .model import EULER_FIELDS, RobotModel
 from .posefit import nearest_rotation
 from .transforms import so3_log, to_euler_zyx_trans
 
@@ -30,31 +29,32 @@ def _exp(w):
 
 
 def fit_base_and_tool(model: RobotModel, q, T_measured, slots=None, orientation_scale: float = 100.0):
-    """Slot vector (37,) with base and tool fitted to measured tool poses.
+    """Slot vector (S,) with base and tool fitted to measured tool poses.
 
     Parameters
     ----------
-    q : array_like, shape (N, 6)
-        Joint readings (rad), N >= 3 with varied orientations.
+    q : array_like, shape (N, n)
+        Joint readings (rad, mm), N >= 3 with varied orientations.
     T_measured : array_like, shape (N, 4, 4)
         Measured tool poses in the instrument's frame (mm).
-    slots : array_like, shape (37,), optional
+    slots : array_like, shape (S,), optional
         Link geometry to use (the model's nominal by default); its base and tool are replaced.
     orientation_scale : float
         Lever arm (mm) weighing rotation errors against position errors in the final polish.
 
     Returns
     -------
-    slots : ndarray, shape (37,)
+    slots : ndarray, shape (S,)
     rms : float
         RMS distance (mm) between measured and fitted tool origins.
     """
     x = np.array(model.nominal if slots is None else slots, dtype=float)
-    base = [slot(f"base.{f}") for f in EULER_FIELDS]
-    tool = [slot(f"tool.{f}") for f in EULER_FIELDS]
+    base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
+    tool = [model.slot(f"tool.{f}") for f in EULER_FIELDS]
     x[base] = 0.0
     x[tool] = 0.0
-    F = forward(x, q)
+    post = model.tool_offset_matrix
+    F = model.forward(x, q) @ np.linalg.inv(post)  # the flange: chain without the tool
     M = np.asarray(T_measured, dtype=float)
     n = len(F)
     # Base rotation from relative rotations: axis(M_i M_0^T) = R_b axis(F_i F_0^T).
@@ -93,7 +93,7 @@ def fit_base_and_tool(model: RobotModel, q, T_measured, slots=None, orientation_
     A_t = np.eye(4)
     A_t[:3, :3], A_t[:3, 3] = Rt, pt
     x[base] = to_euler_zyx_trans(A_b)
-    x[tool] = to_euler_zyx_trans(A_t)
-    fitted = forward(x, q)
+    x[tool] = to_euler_zyx_trans(A_t @ np.linalg.inv(post))
+    fitted = model.forward(x, q)
     rms = float(np.sqrt(np.mean(np.sum((fitted[:, :3, 3] - M[:, :3, 3]) ** 2, axis=1))))
     return x, rms
