@@ -27,7 +27,7 @@ def main():
     ap.add_argument("--poses", type=int, default=30)
     ap.add_argument("--random-sets", type=int, default=40)
     ap.add_argument("--splits", type=int, nargs="+", default=[0, 1, 2], help="seeds of the held-out splits")
-    ap.add_argument("--index", default="O1", help="design criterion (default O1, as fgcal design --dataset)")
+    ap.add_argument("--index", default="pred", help="design criterion (default pred, as fgcal design --dataset)")
     ap.add_argument("--position-only", action="store_true",
                     help="design and calibrate from the probe's position only (one reflector)")
     args = ap.parse_args()

@@ -14,9 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .cli_checks import (check_output_dir, check_output_file, dataset_inputs, finite_float, nonnegative_float,
+                         nonnegative_int, os_error_message, parameter_names, positive_float, positive_int)
 from .errors import FgcalError
 
 log = logging.getLogger("fgcal")
+
+MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
 
 
 def _cmd_simulate(args) -> int:
@@ -29,6 +33,10 @@ def _cmd_simulate(args) -> int:
         raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")
     if not 0 <= args.outliers < 1:
         raise FgcalError("--outliers is a fraction of probe points, from 0 to below 1")
+    if (args.poses or 0) > MAX_POSES or args.probes_per_ball > 1000:
+        raise FgcalError(f"--poses at most {MAX_POSES} and --probes-per-ball at most 1000 (a dataset that large "
+                         "would not fit in memory)")
+    check_output_dir(args.out, [args.truth, Path(args.robot)], option="OUT", must_be_new=True, force=args.force)
     chain = None
     if args.chain:
         parts = args.chain.split(",")
@@ -90,6 +98,7 @@ def _cmd_check(args) -> int:
 
     ds = load_dataset(args.dataset)
     model = dataset_model(ds)
+    _warn_units(ds, model)
     print(f"{args.dataset}: robot {model.name}, {ds.n_poses} poses; levels: {', '.join(ds.levels()) or 'none'}")
     for lv in ds.levels():
         print(f"  {lv}: {len(getattr(ds, lv))} rows")
@@ -106,13 +115,20 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_measure(args) -> int:
-    from .dataset_io import load_dataset, save_dataset
+    from .dataset_io import dataset_model, load_dataset, save_dataset
     from .measure import POSE_ROW, derived_dataset, measure_probes, quality_csv
 
-    ds = load_dataset(args.dataset)
     out = args.out or args.dataset.with_name(args.dataset.name + "-measured")
+    check_output_dir(out, [args.dataset], must_be_new=True, force=args.force)
+    if args.tolerance is not None and args.method != "paper":
+        raise FgcalError("--tolerance is for --method paper")
+    ds = load_dataset(args.dataset)
+    _warn_units(ds, dataset_model(ds))
     result = measure_probes(ds, method=args.method, free_radius=args.free_radius, threshold=args.threshold,
                             tolerance=args.tolerance)
+    if not len(result.poses):
+        first = next((f"pose {q.pose}: {q.status}" for q in result.quality if q.status != "ok"), "no probe points")
+        raise FgcalError(f"{args.dataset}: no pose could be measured ({first}); nothing written")
     derived = derived_dataset(ds, result)
     save_dataset(derived, out, overwrite=args.force, extra_files={"quality.csv": quality_csv(result.quality)})
     balls = [q for q in result.quality if q.ball != POSE_ROW]
@@ -125,7 +141,18 @@ def _cmd_measure(args) -> int:
         print(f"  pose {q.pose} {'' if q.ball == POSE_ROW else 'ball ' + q.ball + ' '}{q.status}")
     if len(bad_balls) + len(bad_poses) > args.show:
         print(f"  ... {len(bad_balls) + len(bad_poses) - args.show} more in {out / 'quality.csv'}")
+    from .sanity import unused_poses
+
+    for note in unused_poses(ds, [q.pose for q in poses], ["probes"]):
+        print(f"note: {note}")
     return 0
+
+
+def _warn_units(ds, model) -> None:
+    from .sanity import unit_warnings
+
+    for w in unit_warnings(ds, model):
+        print(f"warning: {w}", file=sys.stderr)
 
 
 def parse_pose_selection(text: str | None, available) -> np.ndarray:
@@ -135,27 +162,39 @@ def parse_pose_selection(text: str | None, available) -> np.ndarray:
         return available
     text = text.strip()
     if text in ("odd", "even"):
-        return available[available % 2 == (1 if text == "odd" else 0)]
+        chosen = available[available % 2 == (1 if text == "odd" else 0)]
+        if not len(chosen):
+            raise FgcalError(f"--poses {text}: the dataset has no {text} pose ids")
+        return chosen
     for prefix in ("first:", "last:"):
         if text.startswith(prefix):
             try:
                 n = int(text[len(prefix):])
             except ValueError:
                 raise FgcalError(f"--poses {text!r}: expected {prefix}N") from None
+            if n < 1:
+                raise FgcalError(f"--poses {text!r}: N must be at least 1")
+            if n > len(available):
+                raise FgcalError(f"--poses {text!r}: the dataset has only {len(available)} poses")
             return available[:n] if prefix == "first:" else available[-n:]
     chosen = []
     for part in text.split(","):
+        part = part.strip()
         try:
-            if "-" in part.strip()[1:]:
-                a, b = part.strip().split("-", 1) if not part.strip().startswith("-") else (part, part)
-                chosen.extend(range(int(a), int(b) + 1))
-            else:
-                chosen.append(int(part))
+            a, b = part.split("-", 1) if "-" in part[1:] and not part.startswith("-") else (part, part)
+            a, b = int(a), int(b)
         except ValueError:
             raise FgcalError(f"--poses {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
+        if b < a:
+            raise FgcalError(f"--poses: range {a}-{b} is empty (write it as {b}-{a})")
+        if b - a >= len(available):
+            raise FgcalError(f"--poses: range {a}-{b} spans more ids than the {len(available)} poses of the dataset")
+        chosen.extend(range(a, b + 1))
     missing = sorted(set(chosen) - set(available.tolist()))
     if missing:
         raise FgcalError(f"--poses: pose(s) {', '.join(map(str, missing[:10]))} not in the dataset")
+    if not chosen:
+        raise FgcalError(f"--poses {text!r}: selects no pose")
     return np.array(sorted(set(chosen)), dtype=int)
 
 
@@ -180,18 +219,26 @@ def _cmd_calibrate(args) -> int:
     from .dataset_io import dataset_model, load_dataset
     from .result import save_result
 
+    check_output_file(args.out, dataset_inputs(args.dataset))
     ds = load_dataset(args.dataset)
+    check_output_file(args.out, dataset_inputs(args.dataset, ds.robot))
     model = dataset_model(ds)
+    _warn_units(ds, model)
     ids = parse_pose_selection(args.poses, ds.pose_ids)
     if len(ids) != ds.n_poses:
         ds = ds.select(ids)
+    extra = parameter_names(model, args.extra, "--extra")
+    exclude = parameter_names(model, args.exclude, "--exclude")
     options = CalibrationOptions(
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
-        extra=tuple(args.extra.split(",")) if args.extra else (),
-        exclude=tuple(args.exclude.split(",")) if args.exclude else (), engine=args.engine)
+        extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
     result = calibrate(ds, model, options)
     save_result(result, args.out)
+    from .sanity import unused_poses
+
+    for note in unused_poses(ds, result.pose_ids, options.levels or ds.levels()):
+        print(f"note: {note}")
     _print_result(result)
     print(f"wrote {args.out}")
     return 0
@@ -202,11 +249,15 @@ def _cmd_verify(args) -> int:
 
     from .dataset_io import dataset_model, load_dataset
     from .result import load_result
-    from .verify import verify
+    from .verify import check_same_robot, verify
     from .yamlio import atomic_write_text
 
+    if args.out:
+        check_output_file(args.out, [args.result, *dataset_inputs(args.dataset)])
     result = load_result(args.result)
     ds = load_dataset(args.dataset)
+    check_same_robot(result, dataset_model(ds), where=f"{args.result} against {args.dataset}")
+    _warn_units(ds, dataset_model(ds))
     ids = parse_pose_selection(args.poses, ds.pose_ids)
     if len(ids) != ds.n_poses:
         ds = ds.select(ids)
@@ -243,17 +294,25 @@ def _cmd_report(args) -> int:
     from .report import write_report
     from .result import load_result
 
+    from .yamlio import read_text_file
+
+    check_output_dir(args.out, [args.result, args.verify])
     result = load_result(args.result)
     verification = None
     if args.verify is not None:
+        text = read_text_file(args.verify, max_bytes=256 * 1024 * 1024)
         try:
-            verification = json.loads(args.verify.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise FgcalError(f"{args.verify}: file not found") from None
-        except (OSError, ValueError) as exc:
-            raise FgcalError(f"{args.verify}: not a verification file ({exc})") from None
-        if not isinstance(verification, dict) or verification.get("format") != "fgcal-verify/1":
-            raise FgcalError(f"{args.verify}: not an fgcal-verify/1 file")
+            verification = json.loads(text)
+        except ValueError as exc:
+            raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
+                             f"line {getattr(exc, 'lineno', '?')})") from None
+        from .verify import check_verification
+
+        check_verification(verification, args.verify)
+        robot = verification.get("robot")
+        if robot is not None and robot != result.model().name:
+            raise FgcalError(f"{args.verify}: a verification of a {robot} result, but {args.result} is a "
+                             f"result for {result.model().name}")
     volume = None
     try:
         volume = result.model().volume
@@ -264,39 +323,13 @@ def _cmd_report(args) -> int:
     return 0
 
 
-def _cmd_import(args) -> int:
-    from .dataset_io import save_dataset
-    from .landgraf import read_series, series_to_datasets
-    from .yamlio import dump_yaml
-
-    if args.format != "landgraf":
-        raise FgcalError(f"unknown import format {args.format!r} (landgraf)")
-    if not 0 <= args.holdout < 1:
-        raise FgcalError("--holdout is a fraction from 0 to below 1")
-    series = read_series(args.csv)
-    for s in series.skipped:
-        print(f"skipped {args.csv}: {s}")
-    calib, held, model_dict, rms = series_to_datasets(series, str(args.csv), args.position_only, args.holdout,
-                                                      np.random.default_rng(args.seed))
-    robot = {"robot.yaml": dump_yaml(model_dict)}
-    holdout_dir = args.out.with_name(args.out.name + "-holdout")
-    if held is not None and holdout_dir.exists() and not args.force:
-        raise FgcalError(f"{holdout_dir}: already exists (use --force to replace it)")
-    save_dataset(calib, args.out, overwrite=args.force, extra_files=robot)
-    print(f"wrote {args.out}: {calib.n_poses} poses ({'positions' if args.position_only else 'full poses'}); "
-          f"{len(series.skipped)} row(s) skipped; base and tool fitted to the data (RMS {rms:.3g} mm) "
-          f"in {args.out / 'robot.yaml'}")
-    if held is not None:
-        save_dataset(held, holdout_dir, overwrite=args.force, extra_files=robot)
-        print(f"wrote {holdout_dir}: {held.n_poses} held-out poses (repeated goals kept on one side)")
-    return 0
-
-
 def _cmd_compensate(args) -> int:
     from .compensate import compensate
     from .dataset_io import JOINT_COLUMNS, read_targets, write_csv
     from .result import load_result
 
+    if args.out:
+        check_output_file(args.out, [args.result, args.targets])
     result = load_result(args.result)
     ids, T, seeds = read_targets(args.targets)
     q, pos_err, rot_err = compensate(result.model(), result.slot_vector(), T, seeds)
@@ -318,8 +351,16 @@ def _cmd_export(args) -> int:
     from .urdf import export_urdf
     from .yamlio import atomic_write_text
 
-    if args.model is None and args.urdf is None:
-        raise FgcalError("export: give --model FILE and/or --urdf FILE")
+    if args.model is None and args.urdf is None and args.deltas is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
+    if args.model:
+        check_output_file(args.model, [args.result], option="--model")
+    if args.urdf:
+        check_output_file(args.urdf, [args.result, args.model], option="--urdf")
+        if args.model and Path(args.model).absolute() == Path(args.urdf).absolute():
+            raise FgcalError(f"--model and --urdf: both are {args.urdf}; give two files")
+    if args.deltas:
+        check_output_file(args.deltas, [args.result, args.model, args.urdf], option="--deltas")
     result = load_result(args.result)
     model = result.model()
     from dataclasses import replace
@@ -334,6 +375,19 @@ def _cmd_export(args) -> int:
         atomic_write_text(args.urdf, export_urdf(calibrated, slots))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
         print(f"wrote {args.urdf} ({kind})")
+    if args.deltas:
+        from .dataset_io import write_csv
+
+        rows = [[p.name, p.unit, p.nominal, p.estimate, p.estimate - p.nominal, p.sigma, "identified"]
+                for p in result.parameters]
+        nominal = model.slots_to_file_units(model.nominal)
+        for h in result.held:
+            unit = "deg" if model.slot_is_angle[model.slot(h["name"])] else "mm"
+            value = float(h["value"])
+            rows.append([h["name"], unit, float(nominal[model.slot(h["name"])]), value,
+                         value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
+        write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
+        print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
     return 0
 
 
@@ -344,6 +398,10 @@ def _cmd_online(args) -> int:
 
     if args.stdin and args.follow:
         raise FgcalError("--stdin and --follow: choose one source of new poses")
+    if args.out:
+        check_output_file(args.out, [args.checkpoint, *dataset_inputs(args.dataset)])
+    if args.plot:
+        check_output_file(args.plot, [args.out, args.checkpoint, *dataset_inputs(args.dataset)], option="--plot")
     if args.stdin:
         from .dataset_io import load_dataset_meta
 
@@ -418,7 +476,7 @@ def _cmd_study(args) -> int:
     from .study_run import run_study, study_figures, summary, write_figures
 
     trials = trials_for(args.name, trials=args.trials, poses=args.poses, seed=args.seed)
-    out = args.out or Path(f"study-{args.name}")
+    out = check_output_dir(args.out or Path(f"study-{args.name}"))
     t0 = __import__("time").perf_counter()
     rows = run_study(trials, out, workers=args.workers, scheduler=args.scheduler)
     elapsed = __import__("time").perf_counter() - t0
@@ -455,6 +513,8 @@ def _cmd_design_dataset(args) -> int:
             raise FgcalError("with --dataset, --candidates is a joints.csv-like file (pose,q1..q6 deg), "
                              f"not a count: {args.candidates}")
         candidates = load_plan(Path(args.candidates))
+    check_output_file(args.out, [*dataset_inputs(args.dataset, ds.robot)]
+                      + ([Path(args.candidates)] if candidates is not None else []))
     plan = design_from_dataset(ds, dataset_model(ds), args.poses, candidates, index=args.index or DATASET_INDEX,
                                rng=np.random.default_rng(args.seed), progress=_progress())
     save_plan(plan, args.out)
@@ -479,6 +539,9 @@ def _cmd_design(args) -> int:
         raise FgcalError(f"--candidates {args.candidates}: a file of candidate poses needs --dataset (for the "
                          "robot, tool, measurement type and noise); without it, give a number of random poses")
     n_candidates = 2000 if args.candidates is None else int(args.candidates)
+    if not 1 <= n_candidates <= MAX_POSES:
+        raise FgcalError(f"--candidates: from 1 to {MAX_POSES} random poses")
+    check_output_file(args.out, [Path(args.robot)])
     model = load_model(args.robot)
     if model.tooling is None:
         raise FgcalError(f"robot model {model.name} has no tooling (balls) to plan for")
@@ -511,7 +574,7 @@ def _cmd_demo(args) -> int:
     from .resources import default_dataset_dir
 
     ds_dir = default_dataset_dir()
-    out = args.out
+    out = check_output_dir(args.out, [ds_dir])
     out.mkdir(parents=True, exist_ok=True)
     print(f"fgcal demo: {ds_dir} (a simulated PUMA 560, the paper's 48-pose plan); results in {out}/")
     print("\n== check: what the poses can identify")
@@ -525,8 +588,15 @@ def _cmd_demo(args) -> int:
     return _cmd_report(argparse.Namespace(result=out / "result.json", verify=out / "verify.json", out=out / "report"))
 
 
+class _Parser(argparse.ArgumentParser):
+    """Option errors in one line (no usage block), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
+    p = _Parser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
     p.add_argument("--version", action="version", version=f"fgcal {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress to standard error")
     sub = p.add_subparsers(dest="command", required=True)
@@ -540,26 +610,31 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--reflector", default=None, metavar="X,Y,Z",
                    help="measure one tracker reflector at X,Y,Z (mm, tool frame) instead of the model's tooling "
                         "balls (levels default to centres)")
-    s.add_argument("--poses", type=int, default=None, help="number of poses (random plan; default 21)")
-    s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    s.add_argument("--poses", type=positive_int, default=None, help="number of poses (random plan; default 21)")
+    s.add_argument("--seed", type=nonnegative_int, default=0, help="random seed (default 0)")
     s.add_argument("--plan", choices=("random", "paper"), default="random",
                    help="random reachable joint sets, or the paper's 48-pose experiment")
-    s.add_argument("--cmm-sigma", type=float, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
-    s.add_argument("--joint-resolution", type=float, default=0.01,
+    s.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
+    s.add_argument("--joint-resolution", type=nonnegative_float, default=0.01,
                    help="joint readings rounded to this, deg (default 0.01; 0 = exact)")
-    s.add_argument("--repeatability", type=float, default=0.0,
+    s.add_argument("--repeatability", type=nonnegative_float, default=0.0,
                    help="joints land off the readings by N(0, this) deg (default 0)")
-    s.add_argument("--outliers", type=float, default=0.0, help="fraction of probe points with a gross error")
-    s.add_argument("--outlier-size", type=float, default=0.5, help="size of a gross error, mm (default 0.5)")
-    s.add_argument("--balls", type=int, default=None, help="balls measured per pose (default 3, or all the tool has if fewer)")
-    s.add_argument("--probes-per-ball", type=int, default=4, help="probe points per ball (default 4)")
+    s.add_argument("--outliers", type=finite_float, default=0.0, help="fraction of probe points with a gross error")
+    s.add_argument("--outlier-size", type=nonnegative_float, default=0.5, help="size of a gross error, mm (default 0.5)")
+    s.add_argument("--balls", type=positive_int, default=None,
+                   help="balls measured per pose (default 3, or all the tool has if fewer)")
+    s.add_argument("--probes-per-ball", type=positive_int, default=4, help="probe points per ball (default 4)")
     s.add_argument("--levels", default=None,
                    help="comma-separated files to write: probes, centres, poses (default probes; centres with "
                         "--reflector)")
-    s.add_argument("--length-sigma", type=float, default=0.5, help="link length deviations, mm (default 0.5)")
-    s.add_argument("--angle-sigma", type=float, default=0.05, help="link angle deviations, deg (default 0.05)")
-    s.add_argument("--base-length-sigma", type=float, default=5.0, help="base placement deviation, mm (default 5)")
-    s.add_argument("--base-angle-sigma", type=float, default=0.5, help="base angle deviation, deg (default 0.5)")
+    s.add_argument("--length-sigma", type=nonnegative_float, default=0.5,
+                   help="link length deviations, mm (default 0.5)")
+    s.add_argument("--angle-sigma", type=nonnegative_float, default=0.05,
+                   help="link angle deviations, deg (default 0.05)")
+    s.add_argument("--base-length-sigma", type=nonnegative_float, default=5.0,
+                   help="base placement deviation, mm (default 5)")
+    s.add_argument("--base-angle-sigma", type=nonnegative_float, default=0.5,
+                   help="base angle deviation, deg (default 0.5)")
     s.add_argument("--truth", type=Path, default=None,
                    help="truth.yaml of another simulated dataset: the same actual robot (a verification set)")
     s.add_argument("--force", action="store_true", help="replace OUT if it exists")
@@ -576,10 +651,10 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--method", choices=("svd", "paper"), default="svd",
                    help="least-squares rigid fit of the good balls, or the paper's T = P' P^-1 (default svd)")
     m.add_argument("--free-radius", action="store_true", help="fit each ball's radius too")
-    m.add_argument("--threshold", type=float, default=None,
+    m.add_argument("--threshold", type=positive_float, default=None,
                    help="RMS sphere-fit residual (mm) that flags a ball; default from the CMM noise")
-    m.add_argument("--tolerance", type=float, default=None, help="eqs. 19-21 tolerance for --method paper")
-    m.add_argument("--show", type=int, default=10, help="flagged rows to print (default 10)")
+    m.add_argument("--tolerance", type=positive_float, default=None, help="eqs. 19-21 tolerance for --method paper")
+    m.add_argument("--show", type=nonnegative_int, default=10, help="flagged rows to print (default 10)")
     m.add_argument("--force", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_cmd_measure)
 
@@ -614,17 +689,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", type=Path, required=True, help="output directory")
     r.set_defaults(func=_cmd_report)
 
-    i = sub.add_parser("import", help="turn another tool's measurement file into an fgcal dataset")
-    i.add_argument("format", choices=("landgraf",), help="landgraf: the UR10 laser-tracker series (Landgraf 2021)")
-    i.add_argument("csv", type=Path)
-    i.add_argument("out", type=Path)
-    i.add_argument("--position-only", action="store_true",
-                   help="keep only the probe's position (centres.csv of one reflector)")
-    i.add_argument("--holdout", type=float, default=0.0,
-                   help="fraction of the goals to write to OUT-holdout for verification (default 0)")
-    i.add_argument("--seed", type=int, default=0, help="seed of the held-out draw")
-    i.add_argument("--force", action="store_true", help="replace OUT if it exists")
-    i.set_defaults(func=_cmd_import)
+    from .cli_import import add_import_parser
+
+    add_import_parser(sub)
 
     c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
     c2.add_argument("result", type=Path)
@@ -636,6 +703,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("result", type=Path)
     e.add_argument("--model", type=Path, default=None, help="fgcal-robot/1 YAML file to write")
     e.add_argument("--urdf", type=Path, default=None, help="URDF file to write")
+    e.add_argument("--deltas", type=Path, default=None,
+                   help="CSV of the identified parameters: name,unit,nominal,estimate,delta,sigma (and held ones)")
     e.set_defaults(func=_cmd_export)
 
     o = sub.add_parser("online", help="incremental calibration as poses arrive (iSAM2, iterated EKF, UKF)")
@@ -649,9 +718,9 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--stdin", action="store_true",
                    help="read poses from standard input (DATASET gives robot, tool and noise); "
                         "records: joints,POSE,q1..q6 / probe,POSE,BALL,x,y,z / centre,... / pose,... / end,POSE")
-    o.add_argument("--interval", type=float, default=1.0, help="seconds between polls with --follow")
+    o.add_argument("--interval", type=positive_float, default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
-    o.add_argument("--drift", type=float, nargs=2, metavar=("MM", "DEG"), default=None,
+    o.add_argument("--drift", type=finite_float, nargs=2, metavar=("MM", "DEG"), default=None,
                    help="random-walk drift of the parameters per pose for ekf/ukf (default none)")
     o.set_defaults(func=_cmd_online)
 
@@ -659,10 +728,10 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("name", choices=("fig8-9", "fig13", "experiment", "sweep-cmm", "sweep-joint",
                                      "sweep-repeatability", "design"))
     st.add_argument("--out", type=Path, default=None, help="output directory (default study-NAME); resumes")
-    st.add_argument("--trials", type=int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
-    st.add_argument("--poses", type=int, default=None, help="observations per calibration (fig13, sweeps)")
-    st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    st.add_argument("--trials", type=positive_int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
+    st.add_argument("--poses", type=positive_int, default=None, help="observations per calibration (fig13, sweeps)")
+    st.add_argument("--seed", type=nonnegative_int, default=0)
+    st.add_argument("--workers", type=positive_int, default=None, help="local processes (default: all cores)")
     st.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
     st.set_defaults(func=_cmd_study)
 
@@ -673,18 +742,16 @@ def build_parser() -> argparse.ArgumentParser:
     de.add_argument("--robot", default="puma560", help="without --dataset: the robot to plan for")
     de.add_argument("--level", choices=("probes", "centres", "poses"), default="probes",
                     help="without --dataset: what is measured at a pose (default probes on 3 balls)")
-    de.add_argument("--poses", type=int, default=12)
+    de.add_argument("--poses", type=positive_int, default=12)
     de.add_argument("--candidates", default=None,
                     help="with --dataset: a joints.csv-like file of candidate poses (pose,q1..q6 deg); "
                          "without: the number of random reachable candidates (default 2000)")
     de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default=None,
-                    help="criterion: observability index O1-O5, or pred (predicted accuracy); default pred for "
-                         "--robot, O1 (D-optimal) for --dataset: real data carry errors no model predicts, and "
-                         "O1 plans were the more robust on the Landgraf UR10")
-    de.add_argument("--seed", type=int, default=0)
-    de.add_argument("--cmm-sigma", type=float, default=0.01)
-    de.add_argument("--joint-resolution", type=float, default=0.01)
-    de.add_argument("--repeatability", type=float, default=0.0)
+                    help="criterion: observability index O1-O5, or pred (predicted accuracy; default)")
+    de.add_argument("--seed", type=nonnegative_int, default=0)
+    de.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01)
+    de.add_argument("--joint-resolution", type=nonnegative_float, default=0.01)
+    de.add_argument("--repeatability", type=nonnegative_float, default=0.0)
     de.add_argument("--out", type=Path, required=True, help="plan CSV: pose,q1..q6 (deg); the candidates' pose ids")
     de.set_defaults(func=_cmd_design)
 
@@ -710,6 +777,13 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # output piped into head and the like
         sys.stderr.close()
         return 0
+    except OSError as exc:
+        print(f"fgcal: error: {os_error_message(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("fgcal: error: out of memory: the input is too large for this command on this machine",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import numpy as np
 from .dataset import Dataset
 from .dataset_io import joint_columns, read_joints, write_csv
 from .design import Candidates, design_plan, random_design_values
-from .design_info import Layout, layout_from_access
+from .design_info import DESIGNED_LEVELS, Layout, layout_from_access
 from .errors import FgcalError
 from .model import RobotModel
 
@@ -25,10 +25,9 @@ __all__ = ["DATASET_INDEX", "DatasetDesign", "dataset_layout", "design_from_data
 
 log = logging.getLogger(__name__)
 
-# Designing real measurements: D-optimal (O1) plans held up best against random ones at held-out
-# poses of the Landgraf UR10 (bench/bench_design_landgraf.py), where ~0.4 mm of the error is not
-# geometric; plans for ``pred`` trust the stated noise more and did better or worse by split.
-DATASET_INDEX = "O1"
+# The criterion of a design from a dataset: as without one. On the Landgraf UR10 neither ``pred``
+# nor O1 plans robustly beat random ones at held-out poses (bench/bench_design_landgraf.py).
+DATASET_INDEX = "pred"
 
 
 @dataclass
@@ -86,9 +85,13 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
     """What is measured at each pose: the dataset's own measurements at its poses (``q`` None),
     or at joint sets ``q`` (N, joints) rad the balls the instrument reaches (as many as the
     dataset usually measures per pose) at the dataset's levels."""
-    levels = tuple(ds.levels())
+    levels = tuple(lv for lv in ds.levels() if lv in DESIGNED_LEVELS)
+    other = [lv for lv in ds.levels() if lv not in DESIGNED_LEVELS]
     if not levels:
-        raise FgcalError(f"{ds.path or 'dataset'}: has no measurements (probes, centres or poses) to design for")
+        raise FgcalError(f"{ds.path or 'dataset'}: design needs probes, centres or poses; this dataset has "
+                         f"{', '.join(other) or 'no measurements'}")
+    if other:
+        log.warning("design leaves out the dataset's %s (not yet part of the design's information)", ", ".join(other))
     names = model.tooling.names if model.tooling is not None else []
     point_levels = [getattr(ds, lv) for lv in ("probes", "centres") if lv in levels]
     ppb = 4

@@ -31,9 +31,9 @@ from .graph import Sigmas
 from .model import ParameterSet, RobotModel, Tooling
 from .simulate import UP, ball_access
 
-__all__ = ["LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information"]
+__all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information"]
 
-LEVELS = ("probes", "centres", "poses")
+DESIGNED_LEVELS = ("probes", "centres", "poses")  # of fgcal.dataset.LEVELS: ballbar distances not yet
 
 
 @dataclass
@@ -43,7 +43,7 @@ class Layout:
     Attributes
     ----------
     levels : tuple of str
-        Measurement levels, a subset of :data:`LEVELS`.
+        Measurement levels, a subset of :data:`DESIGNED_LEVELS`.
     balls : ndarray of bool, shape (N, B)
         Balls (tooling order) measured at each pose, for the ``probes`` and ``centres`` levels.
     probes_per_ball : int

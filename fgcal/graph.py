@@ -24,7 +24,7 @@ from .model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
-LEVELS = ("probes", "kinematic", "centres", "poses", "joints", "prior")
+LEVELS = ("probes", "kinematic", "centres", "poses", "distances", "joints", "prior")
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,7 @@ class Sigmas:
     pose_rotation: float
     joint: float
     kinematic: float = 1e-4
+    distance: float = 0.01
 
 
 @dataclass
@@ -106,12 +107,15 @@ class Graph:
     radius : float
     centres : tuple (pose_index (Mc,), offset (Mc, 3), xyz (Mc, 3)) or None
     poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
+    distances : tuple (pose_index (Md,), offset (Md, 3), length (Md,)) or None
+        Ballbar lengths from the world origin (the pivot) to a tool ball.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
-                 ball_offset=None, radius=0.0, centres=None, poses=None, prior=None, robust=None, robust_k=None):
+                 ball_offset=None, radius=0.0, centres=None, poses=None, distances=None, prior=None, robust=None,
+                 robust_k=None):
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
@@ -132,6 +136,7 @@ class Graph:
         self.probes = probes
         self.centres = centres
         self.poses = poses
+        self.distances = distances
 
         # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
         qdim = nj if self.joint_vars else 0
@@ -169,6 +174,8 @@ class Graph:
             self.row["centres"] = take(centres[0], 3)
         if poses is not None:
             self.row["poses"] = take(poses[0], 6)
+        if distances is not None:
+            self.row["distances"] = take(distances[0], 1)
         if self.joint_vars:
             self.row["joints"] = take(np.arange(n), nj)
         self.m = int(rows.max()) if n else 0
@@ -186,9 +193,10 @@ class Graph:
         for j, rws in per_ball.items():
             self.ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
         self.pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("joints", nj)):
+        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", nj)):
             if level in self.row:
-                pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "joints": lambda: np.arange(n)}
+                pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "distances": lambda: distances[0],
+                           "joints": lambda: np.arange(n)}
                 for p, start in zip(pose_of[level](), self.row[level]):
                     self.pose_rows[p] += list(range(int(start), int(start) + width))
         self.pose_rows = [np.array(r, dtype=int) for r in self.pose_rows]
@@ -216,7 +224,8 @@ class Graph:
             width = e.shape[1]
             ew = e / sigma
             s = np.linalg.norm(ew, axis=1)
-            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses") else None, self.robust_k)
+            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses", "distances") else None,
+                             self.robust_k)
             raw[level] = (e, s, w)
             cost += float(rho.sum())
             sw = np.sqrt(w)[:, None] / sigma
@@ -250,6 +259,10 @@ class Graph:
             e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held, self.chain)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
+        if self.distances is not None:
+            pose_i, offset, length = self.distances
+            e, J_t, J_q = fx.distance_error(state.theta, q[pose_i], offset, length, self.index, self.held, self.chain)
+            put("distances", pose_i, self.row["distances"], e, J_t, J_q, sigma=self.sigmas.distance)
         if self.joint_vars:
             e = fx.joint_error(state.q, self.readings)
             nj = self.n_joints
@@ -333,9 +346,11 @@ class Graph:
              + np.einsum("nmz,nzy,nmy->nm", Jz, Szz, Jz))
         out = {}
         for level, start in self.row.items():
-            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": self.n_joints}[level]
+            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
+                     "joints": self.n_joints}[level]
             pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
                     "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                    "distances": lambda: self.distances[0],
                     "joints": lambda: np.arange(self.n_poses)}[level]()
             rows_ = start[:, None] + np.arange(width)
             out[level] = (rows_.size, float(h[pose[:, None], rows_].sum()))

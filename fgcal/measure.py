@@ -94,10 +94,16 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
     quality: list[QualityRow] = []
     c_pose, c_ball, c_xyz, c_cov, c_line = [], [], [], [], []
     good: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
-    order = np.lexsort((probes.ball, probes.pose))
-    keys = list(dict.fromkeys(zip(probes.pose[order].tolist(), probes.ball[order].tolist())))
-    for pose, ball in keys:
-        sel = (probes.pose == pose) & (probes.ball == ball)
+    order = np.lexsort((probes.ball, probes.pose))  # stable: a ball's points keep their file order
+    sp, sb = probes.pose[order], probes.ball[order]
+    starts = np.flatnonzero(np.r_[True, (sp[1:] != sp[:-1]) | (sb[1:] != sb[:-1])]) if len(order) else np.zeros(0, int)
+    bounds = np.r_[starts, len(order)]
+    keys = [(int(sp[i]), str(sb[i])) for i in starts]
+    n_probed_of: dict[int, int] = {}
+    for pose, _ in keys:
+        n_probed_of[pose] = n_probed_of.get(pose, 0) + 1
+    for k, (pose, ball) in enumerate(keys):
+        sel = order[bounds[k]:bounds[k + 1]]
         pts = probes.xyz[sel]
         need = 4 if free_radius else 3
         if len(pts) < need:
@@ -122,7 +128,7 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
     p_pose, p_xyz, p_quat, p_cov = [], [], [], []
     for pose in sorted(set(probes.pose.tolist())):
         balls = good.get(pose, [])
-        n_probed = len({b for p, b in keys if p == pose})
+        n_probed = n_probed_of.get(pose, 0)
         if len(balls) < min_balls:
             quality.append(QualityRow(pose, POSE_ROW, float("nan"),
                                       f"rejected: {len(balls)} good ball(s) of {n_probed}; a pose needs {min_balls}"))
