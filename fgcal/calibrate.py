@@ -25,6 +25,8 @@ from .result import CalibrationResult, LevelSummary, ParameterEstimate
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from .simulate import Deviations
 from .transforms import euler_zyx_trans, to_euler_zyx_trans
+from .gravity import model_inertials
+from .joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "gtsam_covariance", "identifiability_of", "to_gtsam", "gtsam_levenberg_marquardt"]
@@ -61,6 +63,12 @@ class CalibrationOptions:
         factor is a Python callback). The covariance is computed the same way for both.
     extra, exclude : tuple of str
         Slots to add to, or remove from, the identifiable parameters.
+    noise_scale : dict or None
+        Fixed factors on each level's declared noise (``{"poses": 12.0}``), for example the
+        ones a previous ``estimate_noise`` run found.
+    joint_errors : JointErrorSpec or None
+        A block of non-geometric joint errors (compliance, error map) estimated with the geometry
+        (:mod:`fgcal.joint_errors`); ``None``: the geometric model.
     """
 
     levels: tuple | None = None
@@ -74,6 +82,8 @@ class CalibrationOptions:
     exclude: tuple = ()
     max_iterations: int = 100
     tolerance: float = 1e-12
+    noise_scale: dict | None = None
+    joint_errors: JointErrorSpec | None = None
     engine: str = "batch"
 
 
@@ -160,6 +170,8 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     Only poses with at least one measurement at the chosen levels take part.
     """
     levels = _levels(ds, options)
+    block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.joint_errors)
+    names = [n for n in names if not is_block_name(n)]
     params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
     params = type(params)(model, tuple(names))
     held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
@@ -171,7 +183,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
     row = {p: i for i, p in enumerate(pose_ids)}
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose_ids)])
-    sig = _sigmas(ds, model, options, scale)
+    sig = _sigmas(ds, model, options, scale if scale is not None else options.noise_scale)
     kw = {}
     world_points = {}
     init_c = None
@@ -219,9 +231,15 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
-    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
-
     start = _initial_base(model, held, q, world_points) if pivot_start is None or world_points else pivot_start
+    if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
+        block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,
+                                      model_inertials(model), block_names, model.chain)
+        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
+        params = BlockParameters(params, block)
+        kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
+        kw["joint_errors"] = block.design(q, start)
+    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
     theta0 = params.take(start)
     if init_c is not None and len(graph.ball_pose):
         # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
@@ -414,7 +432,7 @@ def _hold_order(names) -> list[int]:
 
 
 def _identifiability(graph: Graph, state: State):
-    names = list(graph.params.names)
+    names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
     order = _hold_order(names)
     S = graph.parameter_information(state)[np.ix_(order, order)]
     return analyse_information(S, [names[i] for i in order])
@@ -445,6 +463,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     """
     params = model.parameters(extra=options.extra, exclude=options.exclude)
     names = list(params.names)
+    if options.joint_errors is not None:
+        names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
     # Degrees of freedom per pose: full pose 6, two balls 5, one ball 3.
     dof = 0
@@ -478,7 +498,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         graph, state, pose_ids = build_graph(ds, model, names, options)
 
     state, iterations, converged = _solve(graph, state, options)
-    scale = {}
+    scale = dict(options.noise_scale or {})
     if options.estimate_noise:
         for _ in range(8):
             lin = graph.linearise(state)
@@ -537,7 +557,20 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         levels=levels_summary, iterations=iterations, converged=converged, cost=float(lin.cost),
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
-        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist())
+        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist(),
+        joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
+
+
+def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
+    """What a result keeps of its joint-error block: the spec, the names, the joint region (file units)."""
+    if not isinstance(params, BlockParameters):
+        return {}
+    names = list(params.block.names)
+    return {"spec": options.joint_errors.to_dict(), "names": names,
+            "map_terms": sum(n.startswith("map.") for n in names),
+            "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],
+            "validity": "the joint error map holds only inside these joint ranges and in the set-up it was "
+                        "fitted on (tool, payload, mounting)" if any(n.startswith("map.") for n in names) else ""}
 
 
 def nonlinear_graph(graph: Graph, state: State):
@@ -549,6 +582,8 @@ def nonlinear_graph(graph: Graph, state: State):
     """
     import factors as fx
 
+    if graph.K:
+        raise FgcalError("the GTSAM reference graph covers the geometric model only (no joint-error block)")
     g = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     t_key = fx.theta_key()

@@ -111,11 +111,14 @@ class Graph:
         Ballbar lengths from the world origin (the pivot) to a tool ball.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
+    joint_errors : ndarray, shape (N, n, K), optional
+        ``G`` of a joint-error block (:mod:`fgcal.joint_errors`) whose K parameters follow the
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[-K:]``.
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
                  ball_offset=None, radius=0.0, centres=None, poses=None, distances=None, prior=None, robust=None,
-                 robust_k=None):
+                 robust_k=None, joint_errors=None):
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
@@ -128,6 +131,10 @@ class Graph:
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
+        # --- joint-error block (fgcal.joint_errors): theta = [geometry (n_geo), phi (K)]
+        self.n_geo = len(self.index)
+        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
+        self.K = 0 if self.G is None else self.G.shape[2]
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -207,11 +214,21 @@ class Graph:
         return State(np.asarray(theta, dtype=float).copy(), self.readings.copy(), c.copy())
 
     def joints(self, state: State) -> np.ndarray:
-        return state.q if self.joint_vars else self.readings
+        if self.joint_vars:
+            return state.q
+        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:]
+
+    def _with_block(self, pose, J_t, J_q):
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
+        if not self.K:
+            return J_t
+        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else np.einsum("nmj,njk->nmk", J_q, self.G[pose])
+        return np.concatenate([J_t, extra], axis=2)
 
     def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself."""
-        n, m, P, nz = self.n_poses, self.m, len(self.index), self.nz
+        n, m, P, nz = self.n_poses, self.m, self.n_geo + self.K, self.nz
+        theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
         Jt = np.zeros((n, m, P))
         Jz = np.zeros((n, m, nz))
@@ -245,28 +262,37 @@ class Graph:
             put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
                 sigma=self.sigmas.probe)
         if len(self.ball_pose):
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[self.ball_pose], self.ball_offset, state.c,
+            e, J_t, J_q = fx.ball_centre_error(theta, q[self.ball_pose], self.ball_offset, state.c,
                                                self.index, self.held, self.chain)
+            J_t = self._with_block(self.ball_pose, J_t, J_q)
             J_c = np.broadcast_to(-np.eye(3), (len(self.ball_pose), 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], e, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.ball_centre_error(theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
         if self.poses is not None:
             pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.pose_error(theta, q[pose_i], T, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
         if self.distances is not None:
             pose_i, offset, length = self.distances
-            e, J_t, J_q = fx.distance_error(state.theta, q[pose_i], offset, length, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.distance_error(theta, q[pose_i], offset, length, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             put("distances", pose_i, self.row["distances"], e, J_t, J_q, sigma=self.sigmas.distance)
         if self.joint_vars:
-            e = fx.joint_error(state.q, self.readings)
             nj = self.n_joints
-            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
+            J_t = None
+            if self.K:  # the joint variable is the reading plus the block's correction
+                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:])
+                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G], axis=2)
+            else:
+                e = fx.joint_error(state.q, self.readings)
+            put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))
@@ -283,10 +309,13 @@ class Graph:
 
     # ------------------------------------------------------------------ solving
     def normal_equations(self, lin: Linearisation):
-        A = np.einsum("nmp,nmq->pq", lin.J_theta, lin.J_theta) + lin.prior_J.T @ lin.prior_J
-        B = np.einsum("nmp,nmz->npz", lin.J_theta, lin.J_local)
-        D = np.einsum("nmz,nmy->nzy", lin.J_local, lin.J_local)
-        g_t = np.einsum("nmp,nm->p", lin.J_theta, lin.r) + lin.prior_J.T @ lin.prior_r
+        # matmul (BLAS) rather than einsum: the parameter block can make P several hundred
+        P = lin.J_theta.shape[2]
+        Jt2 = lin.J_theta.reshape(-1, P)
+        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+        B = lin.J_theta.transpose(0, 2, 1) @ lin.J_local
+        D = lin.J_local.transpose(0, 2, 1) @ lin.J_local
+        g_t = Jt2.T @ lin.r.reshape(-1) + lin.prior_J.T @ lin.prior_r
         g_z = np.einsum("nmz,nm->nz", lin.J_local, lin.r)
         # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
         D[~self.local_used] = 0.0
@@ -301,8 +330,9 @@ class Graph:
             dd = np.maximum(np.diagonal(D, axis1=1, axis2=2), 1e-12)
             D = D + damping * np.einsum("nz,zy->nzy", dd, np.eye(self.nz))
         Dinv = np.linalg.inv(D) if self.nz else D
-        BD = np.einsum("npz,nzy->npy", B, Dinv)
-        S = A - np.einsum("npz,nqz->pq", BD, B)
+        BD = B @ Dinv
+        P = A.shape[0]
+        S = A - BD.transpose(1, 0, 2).reshape(P, -1) @ B.transpose(1, 0, 2).reshape(P, -1).T if self.nz else A
         rhs = None
         if g_t is not None:
             rhs = g_t - np.einsum("npz,nz->p", BD, g_z)
@@ -339,11 +369,11 @@ class Graph:
         _, _, Dinv = self.reduced(A, B, D)
         St = covariance  # (P, P) = S^-1
         E = -np.einsum("nzy,npy->nzp", Dinv, B)  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = np.einsum("nzp,pq->nzq", E, St)
+        Szt = E @ St
         Szz = Dinv + np.einsum("nzp,nyp->nzy", Szt, E)
         Jt, Jz = lin.J_theta, lin.J_local
-        h = (np.einsum("nmp,pq,nmq->nm", Jt, St, Jt) + 2 * np.einsum("nmp,nzp,nmz->nm", Jt, Szt, Jz)
-             + np.einsum("nmz,nzy,nmy->nm", Jz, Szz, Jz))
+        h = (np.sum((Jt @ St) * Jt, axis=2) + 2 * np.sum((Jt @ Szt.transpose(0, 2, 1)) * Jz, axis=2)
+             + np.sum((Jz @ Szz) * Jz, axis=2))
         out = {}
         for level, start in self.row.items():
             width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
