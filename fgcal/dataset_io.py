@@ -23,7 +23,7 @@ from .model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from .robot_file import load_model
 from .yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
-__all__ = ["load_dataset", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
+__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -291,19 +291,13 @@ def load_dataset_meta(directory) -> Dataset:
                    joints_deg=np.zeros((0, 6)), path=directory, chain=chain)
 
 
-def load_dataset(directory) -> Dataset:
-    """Read and validate a dataset directory.
+def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
+    """A ``joints.csv``-like file: ``(pose ids (N,), joint readings (N, n) deg or mm)``, columns
+    ``pose,q1..qn``.
 
-    Raises
-    ------
-    DatasetError
-        With a one-line message naming the file and line, for any malformed input.
+    Raises :class:`DatasetError` naming the file and line for a malformed row or repeated id.
     """
-    directory = Path(directory)
-    if not directory.is_dir():
-        raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
-    joints_path = directory / "joints.csv"
+    joints_path = Path(path)
     rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)])
     if not rows:
         raise DatasetError(f"{joints_path}: no poses")
@@ -321,9 +315,25 @@ def load_dataset(directory) -> Dataset:
         seen[pid] = line
         ids.append(pid)
         q.append([_number(r[c], where, c, MAX_DEG) for c in columns[1:]])
-    known = set(ids)
-    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.array(ids),
-                 joints_deg=np.array(q), path=directory, chain=chain)
+    return np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints)
+
+
+def load_dataset(directory) -> Dataset:
+    """Read and validate a dataset directory.
+
+    Raises
+    ------
+    DatasetError
+        With a one-line message naming the file and line, for any malformed input.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    ids, q = read_joints(directory / "joints.csv")
+    known = set(ids.tolist())
+    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=ids,
+                 joints_deg=q, path=directory, chain=chain)
     if os.path.lexists(directory / "probes.csv"):
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")

@@ -1,10 +1,10 @@
 """Which poses to measure: observability indices and optimal experiment design.
 
-The information a pose brings about the parameters uses the estimator's own noise model: each
-of its measured balls is a centre fitted to 4 probe points on its accessible cap (covariance
-from that geometry and the CMM noise), and the joint readings' noise moves all of a pose's balls
-together (``J_q Sigma_q J_q^T``), which is what makes some poses far less informative than their
-Jacobian alone suggests. Indices on the information scaled by the expected parameter errors:
+The information a pose brings about the parameters is the estimator's own (built from its
+measurement definitions, :mod:`fgcal.design_info`): probed balls, ball centres or tracker
+reflectors, full poses, with the joint readings' noise, which moves all of a pose's measurements
+together and is what makes some poses far less informative than their Jacobian alone suggests.
+Indices on the information scaled by the expected parameter errors:
 
 * O1 (Borm & Menq): ``(s_1 ... s_L)^(1/L) / sqrt(m)``; O2: ``s_min / s_max``; O3: ``s_min``;
   O4 (noise amplification): ``s_min^2 / s_max``; O5: ``1 / sum(1 / s_i)``;
@@ -16,84 +16,42 @@ Plans are chosen from a candidate pool by a greedy start and the DETMAX exchange
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .dataset import Noise
 from .errors import FgcalError
-from .kinematics import forward, jacobians
+from .design_info import Layout, information, layout_from_access
+from .identifiability import analyse_information
 from .model import ParameterSet, RobotModel
-from .simulate import PLAN_MARGIN_DEG, PLAN_MARGIN_MM, UP, Deviations, ball_access
+from .simulate import PLAN_MARGIN_DEG, PLAN_MARGIN_MM, Deviations
 
 __all__ = ["INDICES", "pose_information", "indices", "predicted_rms", "Design", "design_plan", "candidate_pool",
            "verification_weight", "Candidates", "random_design_values"]
 
+log = logging.getLogger(__name__)
+
 INDICES = ("O1", "O2", "O3", "O4", "O5", "pred")
 
 
-def _cap_information(n_points: int = 4, polar_deg: float = 60.0) -> np.ndarray:
-    """Information (3, 3) about a centre from unit-sigma points on a cap around +z (pole + ring)."""
-    dirs = [np.array([0.0, 0.0, 1.0])]
-    p = np.radians(polar_deg)
-    for k in range(n_points - 1):
-        a = 2 * np.pi * k / (n_points - 1)
-        dirs.append(np.array([np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)]))
-    D = np.array(dirs)
-    return D.T @ D
-
-
-def _frame_from_axis(axis) -> np.ndarray:
-    a = axis / np.linalg.norm(axis)
-    h = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
-    e1 = np.cross(a, h)
-    e1 /= np.linalg.norm(e1)
-    return np.column_stack([e1, np.cross(a, e1), a])
-
-
 def pose_information(model: RobotModel, q, noise: Noise, params: ParameterSet | None = None, slots=None,
-                     n_balls: int = 3, probes_per_ball: int = 4):
+                     n_balls: int = 3, probes_per_ball: int = 4, levels=("probes",)):
     """Per-pose information about the parameters, ``(N, P, P)`` (internal units).
 
-    Also returns ``usable`` (N,) bool: the pose shows ``n_balls`` balls to the CMM.
+    The ``n_balls`` most accessible balls of each pose are measured at ``levels`` (see
+    :mod:`fgcal.design_info`). Also returns ``usable`` (N,) bool: the pose gives measurements.
     """
-    params = params or model.parameters()
-    x = model.nominal if slots is None else np.asarray(slots, dtype=float)
-    q = np.atleast_2d(q)
-    tooling = model.tooling
-    T = forward(x, q)
-    ok, upness, _ = ball_access(T, tooling, model.volume)
-    offsets = tooling.offsets()
-    jac = jacobians(x, q, offsets=offsets)
-    cap = _cap_information(probes_per_ball)
-    sigma_cmm = max(noise.cmm_sigma, 1e-6)
-    sigma_q = np.radians(noise.joint_sigma_deg)
-    idx = params.index
-    P = len(idx)
-    info = np.zeros((len(q), P, P))
-    usable = ok.sum(axis=1) >= n_balls
-    outward = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
-    for i in np.nonzero(usable)[0]:
-        vis = np.nonzero(ok[i])[0]
-        balls = vis[np.argsort(-upness[i, vis], kind="stable")[:n_balls]]
-        m = 3 * len(balls)
-        R = np.zeros((m, m))
-        for k, b in enumerate(balls):
-            axis = T[i, :3, :3] @ outward[b] + UP
-            F = _frame_from_axis(axis)
-            R[3 * k:3 * k + 3, 3 * k:3 * k + 3] = F @ np.linalg.inv(cap) @ F.T * sigma_cmm**2
-        Jt = jac.point_slots[i, balls][:, :, idx].reshape(m, P)
-        Jq = jac.point_joints[i, balls].reshape(m, 6)
-        R += sigma_q**2 * Jq @ Jq.T  # the readings move all balls of the pose together
-        info[i] = Jt.T @ np.linalg.solve(R, Jt)
-    return info, usable
+    layout = layout_from_access(model, q, levels, n_balls, slots, probes_per_ball)
+    return information(model, q, layout, noise, params, slots), layout.usable()
 
 
 def verification_weight(model: RobotModel, q_verify, params: ParameterSet | None = None, slots=None) -> np.ndarray:
     """``W`` (P, P) with ``trace(W Sigma)`` the mean squared tool-position error at ``q_verify``."""
     params = params or model.parameters()
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
-    J = jacobians(x, np.atleast_2d(q_verify)).pose_slots[:, :3][:, :, params.index]
+    J = model.chain.jacobians(x, np.atleast_2d(q_verify)).pose_slots[:, :3][:, :, params.index]
     return np.einsum("nrp,nrq->pq", J, J) / len(J)
 
 
@@ -118,25 +76,55 @@ def indices(info, m: int, scale, W=None) -> dict[str, float]:
 
 
 def _scores(infos, scale, index: str, W=None) -> np.ndarray:
-    """Criterion (larger is better) for a batch of information matrices (K, P, P)."""
+    """Criterion (larger is better) for a batch of information matrices (K, P, P); never NaN."""
     if index == "pred":
         try:
             cov = np.linalg.inv(infos)
+            out = -np.sqrt(np.clip(np.einsum("pq,kqp->k", W, cov), 0.0, None))
         except np.linalg.LinAlgError:
-            return np.array([-predicted_rms(I, W) for I in infos])
-        return -np.sqrt(np.clip(np.einsum("pq,kqp->k", W, cov), 0.0, None))
+            out = np.array([-predicted_rms(I, W) for I in infos])
+        return np.where(np.isfinite(out), out, -np.inf)
     s = np.sqrt(np.clip(np.linalg.eigvalsh(infos * np.outer(scale, scale)[None]), 1e-300, None))
     if index == "O1":
-        return np.mean(np.log(s), axis=1)  # log of det^(1/L): same order, no overflow
-    if index == "O2":
-        return s[:, 0] / s[:, -1]
-    if index == "O3":
-        return s[:, 0]
-    if index == "O4":
-        return s[:, 0] ** 2 / s[:, -1]
-    if index == "O5":
-        return 1.0 / np.sum(1.0 / s, axis=1)
-    raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
+        out = np.mean(np.log(s), axis=1)  # log of det^(1/L): same order, no overflow
+    elif index == "O2":
+        out = s[:, 0] / s[:, -1]
+    elif index == "O3":
+        out = s[:, 0]
+    elif index == "O4":
+        out = s[:, 0] ** 2 / s[:, -1]
+    elif index == "O5":
+        out = 1.0 / np.sum(1.0 / s, axis=1)
+    else:
+        raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
+    return np.where(np.isfinite(out), out, -np.inf)
+
+
+def _low_rank(info, rtol: float = 1e-12):
+    """Factors ``L`` (K, P, r) with ``info[k] = L[k] L[k]^T``, or None when the poses' information
+    is not of low rank (then a rank-r update is no cheaper than an inverse)."""
+    w, V = np.linalg.eigh(info)
+    r = int((w > rtol * np.maximum(w[:, -1:], 1e-300)).sum(axis=1).max(initial=0))
+    if r == 0 or 2 * r > info.shape[1]:
+        return None
+    return V[:, :, -r:] * np.sqrt(np.clip(w[:, None, -r:], 0.0, None))
+
+
+def _pred_update(total, L, W, sign: float) -> np.ndarray:
+    """``pred`` score (minus the predicted RMS) of ``total + sign L_k L_k^T`` for every k, by the
+    Woodbury identity: ``tr(W (T + s L L^T)^-1) = tr(W C) - s tr((I + s L^T C L)^-1 L^T C W C L)``
+    with ``C = T^-1``; r-by-r solves instead of P-by-P inverses."""
+    C = np.linalg.inv(total)
+    CL = C @ L
+    G = np.swapaxes(L, 1, 2) @ CL
+    H = np.swapaxes(CL, 1, 2) @ W @ CL
+    eye = np.eye(L.shape[2])[None]
+    try:
+        change = np.einsum("kii->k", np.linalg.solve(eye + sign * G, H))
+    except np.linalg.LinAlgError:
+        return _scores(total[None] + sign * L @ np.swapaxes(L, 1, 2), None, "pred", W)
+    out = -np.sqrt(np.clip(np.trace(W @ C) - sign * change, 0.0, None))
+    return np.where(np.isfinite(out), out, -np.inf)
 
 
 @dataclass
@@ -150,35 +138,68 @@ class Design:
     iterations: int
 
 
-def candidate_pool(model: RobotModel, n: int, rng: np.random.Generator) -> np.ndarray:
-    """``n`` random joint sets (rad) whose balls the CMM reaches on the nominal robot, with the
-    planning margins (the actual robot is a few mm off)."""
+def candidate_pool(model: RobotModel, n: int, rng: np.random.Generator, n_balls: int = 3, levels=("probes",),
+                   max_tries: int = 200_000) -> np.ndarray:
+    """``n`` random joint sets (n, joints) rad that the instrument measures on the nominal robot,
+    with the planning margins (the actual robot is a few mm off).
+
+    At most ``max_tries`` joint sets are drawn; :class:`FgcalError` says so when too few qualify.
+    """
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
-    out = []
-    while sum(len(o) for o in out) < n:
-        q = rng.uniform(lo, hi, size=(4 * n, 6))
-        ok, _, _ = ball_access(forward(model.nominal, q), model.tooling, model.volume, PLAN_MARGIN_MM,
-                               PLAN_MARGIN_DEG)
-        out.append(q[ok.sum(axis=1) >= 3])
+    n_balls = min(n_balls, len(model.tooling.balls)) if model.tooling is not None else 0
+    out, found, tries = [], 0, 0
+    while found < n:
+        if tries >= max_tries:
+            raise FgcalError(f"only {found} of {tries} random joint sets of {model.name} let the instrument measure "
+                             f"{n_balls} ball(s) ({', '.join(levels)}); {n} candidates asked for: enlarge the "
+                             "measuring volume or ask for fewer candidates")
+        q = rng.uniform(lo, hi, size=(4 * n, len(lo)))
+        tries += len(q)
+        good = q[layout_from_access(model, q, levels, n_balls, margin_mm=PLAN_MARGIN_MM,
+                                    margin_deg=PLAN_MARGIN_DEG).usable()]
+        out.append(good)
+        found += len(good)
     return np.vstack(out)[:n]
 
 
 @dataclass
 class Candidates:
-    """A candidate pool with each pose's information and the verification weight."""
+    """A candidate pool with each pose's information and the verification weight.
+
+    ``names`` are the parameters designed for: those of the model that the whole pool can
+    identify; ``dropped`` names the others (with the parameters each is confused with).
+    """
 
     q: np.ndarray
     info: np.ndarray
     usable: np.ndarray
     W: np.ndarray
     scale: np.ndarray
+    names: tuple = ()
+    dropped: dict = field(default_factory=dict)
 
     @classmethod
-    def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations()):
-        params = model.parameters()
-        info, usable = pose_information(model, candidates, noise, params)
-        W = verification_weight(model, candidates if q_verify is None else q_verify, params)
-        return cls(np.asarray(candidates, dtype=float), info, usable, W, deviations.sigmas(params.names))
+    def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
+              layout: Layout | None = None, params: ParameterSet | None = None):
+        """Information of every candidate (measured as ``layout`` says; by default the three most
+        accessible balls, probed) and the weight of the accuracy at ``q_verify``."""
+        params = params or model.parameters()
+        q = np.atleast_2d(np.asarray(candidates, dtype=float))
+        layout = layout if layout is not None else layout_from_access(model, q, ("probes",))
+        usable = layout.usable()
+        if not usable.any():
+            raise FgcalError(f"none of the {len(q)} candidate poses gives a measurement "
+                             f"({', '.join(layout.levels)}): no ball is accessible at any of them")
+        info = information(model, q, layout, noise, params)
+        W = verification_weight(model, q[usable] if q_verify is None else q_verify, params)
+        scale = deviations.sigmas(params.names)
+        dropped = analyse_information(info[usable].sum(axis=0), params.names).redundant
+        keep = np.array([n not in dropped for n in params.names])
+        if dropped:
+            log.warning("not identifiable from any of these %d candidates, so not designed for: %s", usable.sum(),
+                        ", ".join(dropped))
+            info, W, scale = info[:, keep][:, :, keep], W[keep][:, keep], scale[keep]
+        return cls(q, info, usable, W, scale, tuple(np.array(params.names)[keep]), dropped)
 
     def values(self, sel) -> dict[str, float]:
         """O1-O5 and ``pred`` of the plan made of candidates ``sel``."""
@@ -187,11 +208,14 @@ class Candidates:
 
 def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index: str = "pred",
                 q_verify=None, deviations: Deviations = Deviations(), max_iterations: int = 200,
-                ridge: float = 1e-9, prepared: Candidates | None = None) -> Design:
-    """Choose ``n_poses`` of ``candidates`` (K, 6) rad maximising ``index`` (greedy, then DETMAX).
+                ridge: float = 1e-9, prepared: Candidates | None = None, progress=None) -> Design:
+    """Choose ``n_poses`` of ``candidates`` (K, joints) rad maximising ``index`` (greedy, then DETMAX).
 
     ``q_verify`` (default: the candidates) are the poses whose accuracy ``pred`` predicts;
-    ``prepared`` reuses a :class:`Candidates` built once for several designs.
+    ``prepared`` reuses a :class:`Candidates` built once for several designs. At most
+    ``max_iterations`` exchanges; ``progress(text)`` hears of each step. Raises
+    :class:`FgcalError` (one line) when there are fewer usable candidates than poses, or when no
+    plan of ``n_poses`` of them can identify the parameters.
     """
     if index not in INDICES:
         raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
@@ -199,19 +223,37 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
     scale, W = prep.scale, prep.W
     pool = np.nonzero(prep.usable)[0]
     if len(pool) < n_poses:
-        raise FgcalError(f"only {len(pool)} usable candidates for {n_poses} poses")
+        raise FgcalError(f"only {len(pool)} usable candidate poses for a plan of {n_poses}: give more candidates "
+                         "or ask for fewer poses")
     info = prep.info[pool]
+    n_par = len(scale)
+    sv = np.linalg.svd(info * np.outer(scale, scale)[None], compute_uv=False)
+    ranks = (sv > 1e-9 * np.maximum(sv[:, :1], 1e-300)).sum(axis=1)
+    if np.sort(ranks)[::-1][:n_poses].sum() < n_par:
+        need = int(np.ceil(n_par / max(ranks.max(initial=0), 1)))
+        raise FgcalError(f"{n_poses} poses of these candidates cannot identify the {n_par} parameters (each pose "
+                         f"gives at most {ranks.max(initial=0)} independent equations): at least {need} poses needed")
+    say = progress or (lambda text: None)
+    factors = _low_rank(info) if index == "pred" else None
+
+    def batch(total, sign, members):
+        """Scores of ``total + sign * info[m]`` for each candidate m of ``members``."""
+        if factors is not None:
+            return _pred_update(total, factors[members], W, sign)
+        return _scores(total[None] + sign * info[members], scale, index, W)
+
     # A vanishing ridge (relative to the parameters' expected spread) makes the first, rank
     # deficient steps of the greedy start well defined; it does not change the final choice.
     base = np.diag(ridge / scale**2)
     chosen: list[int] = []
     total = base.copy()
-    for _ in range(n_poses):
-        scores = _scores(total[None] + info, scale, index, W)
+    for step in range(n_poses):
+        scores = batch(total, 1.0, slice(None))
         scores[chosen] = -np.inf
         j = int(np.argmax(scores))
         chosen.append(j)
         total = total + info[j]
+        say(f"greedy start: {step + 1} of {n_poses} poses")
 
     def score_of(sel):
         return float(_scores((base + info[sel].sum(axis=0))[None], scale, index, W)[0])
@@ -221,19 +263,24 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
     for it in range(1, max_iterations + 1):
         # DETMAX excursion of size one: add the best candidate, then drop the weakest point.
         total = base + info[chosen].sum(axis=0)
-        add = _scores(total[None] + info, scale, index, W)
+        add = batch(total, 1.0, slice(None))
         add[chosen] = -np.inf
         j = int(np.argmax(add))
         grown = chosen + [j]
-        drop = _scores((total + info[j])[None] - info[grown], scale, index, W)
+        drop = batch(total + info[j], -1.0, grown)
         k = int(np.argmax(drop))
         new = [c for i, c in enumerate(grown) if i != k]
         new_score = score_of(new)
-        if new_score <= best + 1e-12 * abs(best):
+        if not new_score > best + 1e-12 * abs(best):
             break
         chosen, best = new, new_score
+        say(f"exchange {it} (at most {max_iterations}): {index} {abs(best):.4g}")
     sel = pool[np.array(chosen)]
-    return Design(prep.q[sel], sel, prep.values(sel), index, it)
+    values = prep.values(sel)
+    if index == "pred" and not np.isfinite(values["pred"]):
+        raise FgcalError(f"no plan of {n_poses} of these candidates identifies the {n_par} parameters: "
+                         "ask for more poses")
+    return Design(prep.q[sel], sel, values, index, it)
 
 
 def random_design_values(prepared: Candidates, n_poses: int, rng: np.random.Generator):

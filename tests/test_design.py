@@ -73,3 +73,22 @@ def test_cli_design(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "fgcal.cli", "design", "--poses", "3", "--out", str(out)],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "at least 5" in bad.stderr
+
+
+def test_rank_update_scores_equal_the_direct_inverse(puma):
+    """The fast ``pred`` score (Woodbury, rank-r updates) equals trace(W inv(T +- info_k)) directly."""
+    from fgcal.design import _low_rank, _pred_update, _scores
+    from fgcal.design_info import information, layout_from_access
+
+    pool = candidate_pool(puma, 60, np.random.default_rng(122))
+    for level in ("poses", "centres"):
+        info = information(puma, pool, layout_from_access(puma, pool, (level,)), NOISE)
+        L = _low_rank(info)
+        assert L is not None and L.shape[2] == 6  # a pose moves the tool rigidly: 6 directions
+        np.testing.assert_allclose(L @ np.swapaxes(L, 1, 2), info, rtol=1e-9, atol=1e-9 * np.abs(info).max())
+        W = np.eye(info.shape[1])
+        total = info[:20].sum(axis=0)
+        np.testing.assert_allclose(_pred_update(total, L, W, 1.0), _scores(total[None] + info, None, "pred", W),
+                                   rtol=1e-9)
+        np.testing.assert_allclose(_pred_update(total, L[:20], W, -1.0),
+                                   _scores(total[None] - info[:20], None, "pred", W), rtol=1e-7)

@@ -1,0 +1,147 @@
+"""Design for a dataset's measurement type (probes, centres = position only, poses), robot and noise."""
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgcal.calibrate import calibrate
+from fgcal.dataset import Noise
+from fgcal.dataset_io import save_dataset
+from fgcal.design import candidate_pool
+from fgcal.design_dataset import dataset_layout, design_from_dataset, load_plan, save_plan
+from fgcal.design_info import information
+from fgcal.design_validate import compare_on_held_out
+from fgcal.errors import FgcalError
+from fgcal.model import slots_from_file_units
+from fgcal.robot_file import model_from_dict, model_to_dict, save_model
+from fgcal.simulate import SimulationSettings, simulate
+
+NOISE = Noise(0.01, 0.01)
+_REL = Path("shared/data/landgraf-ur10/Series_B/measurements_joint_configurations.csv")
+SERIES = next((p / _REL for p in Path(__file__).resolve().parents if (p / _REL).exists()), None)
+
+
+def _cli(*args, timeout=120):
+    return subprocess.run([sys.executable, "-m", "fgcal.cli", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.mark.parametrize("level", ["centres", "poses"])
+def test_information_matches_the_estimators_covariance(puma, level):
+    """The design's information for position-only and full-pose data predicts a calibration's sigmas."""
+    ds, _ = simulate(puma, np.random.default_rng(130), SimulationSettings(n_poses=20, noise=NOISE, levels=(level,)))
+    info = information(puma, ds.joints_rad, dataset_layout(ds, puma), ds.noise)
+    predicted = np.sqrt(np.diag(np.linalg.inv(info.sum(axis=0))))
+    r = calibrate(ds, puma)
+    actual = r.sigma / np.where(np.array([p.unit == "deg" for p in r.parameters]), np.degrees(1), 1)
+    ratio = actual / predicted
+    assert 0.8 < np.median(ratio) < 1.25 and ratio.min() > 0.5 and ratio.max() < 2.0
+
+
+@pytest.mark.parametrize("level", ["centres", "poses"])
+def test_plan_from_a_dataset_beats_random_sets_at_held_out_poses(puma, level):
+    """Position-only and full-pose datasets: the plan keeps the dataset's pose ids, is predicted
+    better than most random sets, and verifies better than the median random set on new poses
+    of the same simulated robot."""
+    settings = SimulationSettings(n_poses=150, noise=NOISE, levels=(level,))
+    ds, _ = simulate(puma, np.random.default_rng(131), settings)
+    truth = np.array(list(ds.truth.values()))  # all slots, in order (mm, deg)
+    held, _ = simulate(puma, np.random.default_rng(132), SimulationSettings(n_poses=60, noise=NOISE, levels=(level,)),
+                       truth=slots_from_file_units(truth))
+    c = compare_on_held_out(ds, held, puma, 12, random_sets=9, rng=np.random.default_rng(133))
+    plan = c.plan
+    assert set(plan.pose_ids) <= set(ds.pose_ids) and len(set(plan.pose_ids)) == 12
+    np.testing.assert_allclose(plan.joints_deg, ds.joints_deg[ds.row_of(plan.pose_ids)])
+    assert plan.levels == (level,) and not plan.dropped
+    assert plan.values["pred"] < np.percentile(plan.random_pred, 10)
+    assert c.plan_mean < np.median(c.random_mean)
+
+
+def test_plan_round_trip_and_cli_with_candidate_file(puma, tmp_path):
+    ds, _ = simulate(puma, np.random.default_rng(134), SimulationSettings(n_poses=30, noise=NOISE, levels=("centres",)))
+    save_dataset(ds, tmp_path / "ds")
+    # the user's own candidates: other poses, other ids
+    q = candidate_pool(puma, 80, np.random.default_rng(135))
+    ids = np.arange(501, 581)
+    outside = np.degrees(q[:1]) + [400.0, 0, 0, 0, 0, 0]  # beyond joint 1's limit: left out
+    messages = []
+    plan = design_from_dataset(ds, puma, 10, (np.r_[ids, 999], np.vstack([np.degrees(q), outside])),
+                               random_sets=20, progress=messages.append)
+    assert plan.n_candidates == 80 and 999 not in plan.pose_ids
+    # progress: every step is told, and their number is bounded
+    assert "greedy start: 10 of 10 poses" in messages and len(messages) <= 1 + 10 + 200
+    save_plan(plan, tmp_path / "plan.csv")
+    back_ids, back_q = load_plan(tmp_path / "plan.csv")
+    np.testing.assert_array_equal(back_ids, plan.pose_ids)
+    np.testing.assert_array_equal(back_q, plan.joints_deg)
+    assert set(plan.pose_ids) <= set(ids)
+    save_plan(plan.__class__(ids, np.degrees(q), "pred", {}, np.zeros(1), ("centres",), 80, 80, 0),
+              tmp_path / "candidates.csv")
+    run = _cli("design", "--dataset", tmp_path / "ds", "--candidates", tmp_path / "candidates.csv", "--poses", 10,
+               "--out", tmp_path / "cli-plan.csv")
+    assert run.returncode == 0, run.stderr
+    cli_ids, _ = load_plan(tmp_path / "cli-plan.csv")
+    assert set(cli_ids) <= set(ids) and len(cli_ids) == 10
+    assert "predicted position error RMS" in run.stdout and "quartiles" in run.stdout
+    too_many = _cli("design", "--dataset", tmp_path / "ds", "--poses", 31, "--out", tmp_path / "x.csv")
+    assert too_many.returncode == 2 and "fewer candidates than poses" in too_many.stderr
+    assert len(too_many.stderr.strip().splitlines()) == 1
+
+
+@pytest.fixture(scope="module")
+def one_reflector(tmp_path_factory, puma):
+    """The PUMA with a single tracker reflector at the flange (issue 12: design looped forever)."""
+    d = model_to_dict(puma)
+    d["name"] = "puma-one-reflector"
+    d["tooling"] = {"radius": 0.0, "balls": {"P": [0.0, 0.0, 0.0]}}
+    path = tmp_path_factory.mktemp("reflector") / "robot.yaml"
+    save_model(model_from_dict(d), path)
+    return path
+
+
+def test_one_reflector_ends_and_says_what_it_cannot_do(one_reflector, tmp_path):
+    out = tmp_path / "plan.csv"
+    probes = _cli("design", "--robot", one_reflector, "--poses", 12, "--candidates", 300, "--out", out)
+    assert probes.returncode == 2 and "radius" in probes.stderr
+    assert len(probes.stderr.strip().splitlines()) == 1
+    few = _cli("design", "--robot", one_reflector, "--level", "centres", "--poses", 6, "--candidates", 300,
+               "--out", out)
+    assert few.returncode == 2 and "Traceback" not in few.stderr
+    errors = [line for line in few.stderr.splitlines() if line.startswith("fgcal: error")]
+    assert len(errors) == 1 and "at least 9 poses needed" in errors[0]
+    ok = _cli("design", "--robot", one_reflector, "--level", "centres", "--poses", 15, "--candidates", 300,
+              "--out", out)
+    assert ok.returncode == 0, ok.stderr
+    # a point at the flange origin sees nothing of the tool's orientation: named, not designed for
+    assert "not identifiable" in ok.stdout and "tool.phi" in ok.stdout
+    assert np.loadtxt(out, delimiter=",", skiprows=1).shape == (15, 7)
+
+
+def test_candidate_pool_gives_up_when_nothing_is_reachable(puma):
+    d = model_to_dict(puma)
+    d["volume"] = {"min": [5000.0, 5000.0, 5000.0], "max": [5100.0, 5100.0, 5100.0]}
+    far = model_from_dict(d)
+    with pytest.raises(FgcalError, match="only 0 of"):
+        candidate_pool(far, 50, np.random.default_rng(0), max_tries=2000)
+
+
+@pytest.mark.skipif(SERIES is None, reason="the Landgraf UR10 series (shared/data/landgraf-ur10) is not beside the "
+                                           "checkout: real-data design test skipped")
+def test_landgraf_plan_against_random_sets():
+    """Issue 15: 30 of ~1050 recorded UR10 poses, designed, against random 30-pose sets from the
+    same candidates, each calibrated and verified at the held-out goals (bench/bench_design_landgraf.py
+    runs it with 40 sets and 3 splits). The predicted (geometric) accuracy of the plan beats the
+    random sets clearly; the realised held-out error, dominated by ~0.4 mm of non-geometric error,
+    does not robustly beat their median (measured on split 0 with 40 sets: pred plan 0.4673 mm,
+    random median 0.4536 mm, quartiles 0.4436-0.4716; on split 2 the plan beats 90%), so only
+    what holds is asserted: the plan calibrates about as well as typical random sets."""
+    from fgcal.landgraf import read_series, series_to_datasets
+
+    calib, held, model_dict, _ = series_to_datasets(read_series(SERIES), str(SERIES), holdout=0.3,
+                                                    rng=np.random.default_rng(0))
+    c = compare_on_held_out(calib, held, model_from_dict(model_dict), 30, random_sets=10,
+                            rng=np.random.default_rng([0, 1]))
+    assert c.plan.values["pred"] < np.percentile(c.plan.random_pred, 5)
+    assert 0.35 < c.plan_mean < np.percentile(c.random_mean, 90)
