@@ -251,15 +251,63 @@ def _cmd_calibrate(args) -> int:
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
         extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
-    result = calibrate(ds, model, options)
+    if getattr(args, "model", "geometric") == "geometric" and getattr(args, "verification", None) is None:
+        result = calibrate(ds, model, options)
+    else:
+        result = _compare_models(args, ds, model, options)
     save_result(result, args.out)
     from .sanity import unused_poses
 
     for note in unused_poses(ds, result.pose_ids, options.levels or ds.levels()):
         print(f"note: {note}")
     _print_result(result)
+    _print_selection(result)
     print(f"wrote {args.out}")
     return 0
+
+
+def _parse_payload(text):
+    from .gravity import Payload
+
+    if not text:
+        return Payload()
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (1, 4) or v[0] < 0:
+        raise FgcalError(f"--payload: expected KG or KG,X,Y,Z (kg, mm in the tool frame), got {text!r}")
+    return Payload(v[0], tuple(v[1:]) if len(v) == 4 else (0.0, 0.0, 0.0))
+
+
+def _compare_models(args, ds, model, options):
+    """``calibrate --model``: cross-validated comparison of the models up to the one asked for."""
+    from .dataset_io import load_dataset
+    from .model_select import HARMONICS_GRID, compare_models
+
+    ver = load_dataset(args.verification) if args.verification is not None else None
+    results, _ = compare_models(ds, model, options, up_to=args.model, verification=ver, folds=args.folds,
+                                rng=np.random.default_rng(args.seed), payload=_parse_payload(args.payload),
+                                harmonics_grid=tuple(h for h in HARMONICS_GRID if h < args.max_harmonics)
+                                + (args.max_harmonics,), fold_order=args.fold_order)
+    return results[args.model]
+
+
+def _print_selection(result) -> None:
+    sel = result.joint_errors.get("selection")
+    if result.joint_errors.get("validity"):
+        ranges = ", ".join(f"q{j + 1} {lo:.1f}..{hi:.1f}" for j, (lo, hi) in
+                           enumerate(result.joint_errors["joint_ranges_deg"]))
+        print(f"  NOTE: {result.joint_errors['validity']}: {ranges} deg")
+    if not sel:
+        return
+    print(f"  {'model':15s} {'parameters':>10s} {'cross-validated':>16s} {'held-out':>10s}  ({sel['folds']} folds)")
+    for s in sel["scores"]:
+        held = f"{s['heldout_error']:.4g}" if s.get("heldout_error") is not None else "-"
+        print(f"  {s['model']:15s} {s['n_parameters']:10d} {s['cv_error']:12.4g} {s['unit']:3s} {held:>10s}")
+        for w in s.get("warnings", []):
+            print(f"    warning: {w}")
+    print(f"  recommended: {sel['reason']}")
 
 
 def _cmd_verify(args) -> int:
@@ -290,7 +338,7 @@ def _cmd_verify(args) -> int:
     def line(label, summary):
         p, o = summary["position_mm"], summary["orientation_deg"]
         text = f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm"
-        if o is not None:
+        if o is not None:  # None for position-only data
             text += f"; orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg"
         return text
 
@@ -336,30 +384,86 @@ def _cmd_report(args) -> int:
         volume = result.model().volume
     except FgcalError:
         log.info("robot %s not found: the pose plot has no measuring volume", result.robot)
-    path = write_report(result, args.out, verification, volume)
+    tolerance = getattr(args, "tolerance", None)
+    if tolerance is not None and not tolerance > 0:
+        raise FgcalError(f"--tolerance must be a positive length in mm, got {tolerance:g}")
+    path = write_report(result, args.out, verification, volume, tolerance=tolerance)
     print(f"wrote {path} (and report.md, figures as PNG) in {args.out}")
+    if tolerance is not None and verification is not None:
+        from .accuracy import tolerance_verdict
+        tv = tolerance_verdict(verification, tolerance)
+        print(tv.sentence())
+        return 0 if tv.passed else 1
     return 0
 
 
+def _parse_tcp(text):
+    from .compensate import tcp_matrix
+
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (3, 6) or not np.all(np.isfinite(v)):
+        raise FgcalError(f"--tcp {text!r}: give X,Y,Z or X,Y,Z,RX,RY,RZ (mm, deg) in the tool frame")
+    return tcp_matrix(v[:3], v[3:] or (0.0, 0.0, 0.0))
+
+
+def _parse_branch(text):
+    from .ik import BRANCHES
+
+    for b in BRANCHES:
+        if str(b) == text:
+            return b
+    raise FgcalError(f"--branch {text!r}: one of {', '.join(map(str, BRANCHES))}")
+
+
+PARTIAL = 3  # exit status of compensate when some targets were not reachable
+
+
 def _cmd_compensate(args) -> int:
-    from .compensate import compensate
+    from .compensate import Frame, compensate_targets
     from .dataset_io import JOINT_COLUMNS, read_targets, write_csv
     from .result import load_result
 
     if args.out:
         check_output_file(args.out, [args.result, args.targets])
+    tcp = _parse_tcp(args.tcp) if args.tcp else None
+    branch = _parse_branch(args.branch) if args.branch else None
     result = load_result(args.result)
     ids, T, seeds = read_targets(args.targets)
-    q, pos_err, rot_err = compensate(result.model(), result.slot_vector(), T, seeds)
-    rows = [[int(p), *map(float, np.degrees(qi))] for p, qi in zip(ids, q)]
+    model = result.model()
+    c = compensate_targets(model, result.slot_vector(model), T, seeds, frame=Frame(args.frame), tcp=tcp,
+                           branch=branch, max_change_deg=args.max_change)
+    for note in c.notes:
+        print(f"note: {note}", file=sys.stderr)
+    ok = c.reachable
+    q = np.array(c.q, dtype=float)
+    if result.joint_errors.get("names") and ok.any():  # joint-error block: command what lands on q
+        from .joint_errors import commands_for, outside_region
+
+        for message in outside_region(result, q[ok]):
+            print(f"warning: {args.targets}: {message}", file=sys.stderr)
+        q[ok] = commands_for(result, q[ok])
+    rows = [[int(p), *map(float, np.degrees(qi))] for p, qi, good in zip(ids, q, ok) if good]
     if args.out:
         write_csv(args.out, JOINT_COLUMNS, rows)
-        print(f"wrote {args.out}: {len(ids)} joint commands; calibrated model reaches every target within "
-              f"{pos_err.max():.2g} mm and {rot_err.max():.2g} deg")
+        if ok.any():
+            print(f"wrote {args.out}: {len(rows)} of {len(ids)} joint commands; the calibrated model reaches them "
+                  f"within {np.nanmax(c.position_error_mm):.2g} mm and {np.nanmax(c.orientation_error_deg):.2g} deg, "
+                  f"every joint within {np.nanmax(c.joint_change_deg):.2g} deg of its seed (same configuration)")
+        else:
+            print(f"wrote {args.out}: no target was reachable")
     else:
         print(",".join(JOINT_COLUMNS))
         for r in rows:
             print(",".join([str(r[0])] + [repr(v) for v in r[1:]]))
+    for p, why in zip(ids, c.reasons):
+        if why:
+            print(f"{args.targets}: pose {p}: not written: {why}", file=sys.stderr)
+    if not ok.all():
+        print(f"{int((~ok).sum())} of {len(ids)} targets not reachable (exit status {PARTIAL})", file=sys.stderr)
+        return PARTIAL
     return 0
 
 
@@ -369,14 +473,16 @@ def _cmd_export(args) -> int:
     from .urdf import export_urdf
     from .yamlio import atomic_write_text
 
-    if args.model is None and args.urdf is None:
-        raise FgcalError("export: give --model FILE and/or --urdf FILE")
+    if args.model is None and args.urdf is None and args.deltas is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
     if args.model:
         check_output_file(args.model, [args.result], option="--model")
     if args.urdf:
         check_output_file(args.urdf, [args.result, args.model], option="--urdf")
         if args.model and Path(args.model).absolute() == Path(args.urdf).absolute():
             raise FgcalError(f"--model and --urdf: both are {args.urdf}; give two files")
+    if args.deltas:
+        check_output_file(args.deltas, [args.result, args.model, args.urdf], option="--deltas")
     result = load_result(args.result)
     model = result.model()
     from dataclasses import replace
@@ -391,6 +497,30 @@ def _cmd_export(args) -> int:
         atomic_write_text(args.urdf, export_urdf(calibrated, slots))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
         print(f"wrote {args.urdf} ({kind})")
+    if args.deltas:
+        from .dataset_io import write_csv
+
+        rows = [[p.name, p.unit, p.nominal, p.estimate, p.estimate - p.nominal, p.sigma, "identified"]
+                for p in result.parameters]
+        nominal = model.slots_to_file_units(model.nominal)
+        for h in result.held:
+            unit = "deg" if model.slot_is_angle[model.slot(h["name"])] else "mm"
+            value = float(h["value"])
+            rows.append([h["name"], unit, float(nominal[model.slot(h["name"])]), value,
+                         value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
+        write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
+        print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
+    if result.joint_errors.get("names"):  # what neither format can hold goes beside them as a table
+        from .dataset_io import write_csv
+
+        table = Path(str(args.urdf or args.model or args.deltas) + ".joint_errors.csv")
+        write_csv(table, ["name", "unit", "estimate", "sigma"],
+                  [[p.name, p.unit, p.estimate, p.sigma] for p in result.parameters
+                   if p.name in set(result.joint_errors["names"])])
+        print(f"wrote {table}: the {len(result.joint_errors['names'])} joint-error parameters, which a "
+              f"{'URDF' if args.urdf else 'model file'} cannot hold (joint = reading + correction, see fgcal.joint_errors)")
+        if result.joint_errors.get("validity"):
+            print(f"note: {result.joint_errors['validity']}")
     return 0
 
 
@@ -628,6 +758,19 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--exact-joints", action="store_true", help="treat the joint readings as exact")
     k.add_argument("--extra", default=None, help="extra slots to estimate, e.g. j1.theta (redundancy is reported)")
     k.add_argument("--exclude", default=None, help="parameters to hold at nominal")
+    k.add_argument("--model", choices=("geometric", "compliance", "compliance+map"), default="geometric",
+                   help="beyond geometry: gravity compliance of the loaded joints, plus a per-joint error map "
+                        "(harmonics, chosen by cross-validation on these poses); the simpler models are scored too")
+    k.add_argument("--verification", type=Path, default=None,
+                   help="held-out dataset: each model's error there is reported (never used for fitting)")
+    k.add_argument("--folds", type=int, default=5, help="cross-validation folds (default 5)")
+    k.add_argument("--max-harmonics", type=int, default=30,
+                   help="largest number of map harmonics per joint tried by the cross-validation (default 30)")
+    k.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default 0)")
+    k.add_argument("--fold-order", choices=("random", "blocked"), default="random",
+                   help="folds drawn at random, or as contiguous stretches of the poses in id (time) order, which "
+                        "also scores drift over the session (default random)")
+    k.add_argument("--payload", default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
     k.set_defaults(func=_cmd_calibrate)
 
     v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")
@@ -641,6 +784,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("result", type=Path)
     r.add_argument("--verify", type=Path, default=None, help="verify.json from fgcal verify")
     r.add_argument("--out", type=Path, required=True, help="output directory")
+    r.add_argument("--tolerance", type=float, default=None, metavar="MM",
+                   help="position tolerance (mm): pass or fail at the verification poses "
+                        "(exit status 1 on fail, the report is written either way)")
     r.set_defaults(func=_cmd_report)
 
     from .cli_import import add_import_parser
@@ -650,13 +796,28 @@ def build_parser() -> argparse.ArgumentParser:
     c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
     c2.add_argument("result", type=Path)
     c2.add_argument("targets", type=Path, help="CSV: pose,x,y,z,qw,qx,qy,qz[,q1..q6 seed joints in deg]")
-    c2.add_argument("--out", type=Path, default=None, help="CSV of pose,q1..q6 (deg); standard output if omitted")
+    c2.add_argument("--out", type=Path, default=None,
+                    help="CSV of pose,q1..q6 (deg) of the reachable targets; standard output if omitted. The "
+                         "unreachable ones are named on standard error and the exit status is 3")
+    c2.add_argument("--frame", choices=("instrument", "base"), default="instrument",
+                    help="frame of the targets: the measuring instrument's (default) or the robot's base as the "
+                         "model places it (calibrated); a first link's d and theta are folded into the base, so "
+                         "for the UR10 this frame is 127.3 mm above the mounting face")
+    c2.add_argument("--tcp", default=None, metavar="X,Y,Z[,RX,RY,RZ]",
+                    help="the targets are for this TCP, given in the model's tool frame (the flange for the "
+                         "built-in robots): mm, and deg as R = Rz(RZ) Ry(RY) Rx(RX)")
+    c2.add_argument("--branch", default=None, help="configuration of targets without seed joints (PUMA-type arms), "
+                                                   "e.g. righty/up/noflip; default: the one reaching most targets")
+    c2.add_argument("--max-change", type=float, default=10.0, metavar="DEG",
+                    help="refuse a solution moving a joint further than this from its seed (default 10)")
     c2.set_defaults(func=_cmd_compensate)
 
     e = sub.add_parser("export", help="the calibrated model as a robot model file and/or URDF")
     e.add_argument("result", type=Path)
     e.add_argument("--model", type=Path, default=None, help="fgcal-robot/1 YAML file to write")
     e.add_argument("--urdf", type=Path, default=None, help="URDF file to write")
+    e.add_argument("--deltas", type=Path, default=None,
+                   help="CSV of the identified parameters: name,unit,nominal,estimate,delta,sigma (and held ones)")
     e.set_defaults(func=_cmd_export)
 
     o = sub.add_parser("online", help="incremental calibration as poses arrive (iSAM2, iterated EKF, UKF)")

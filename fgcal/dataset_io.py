@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset import FORMAT, Dataset, Noise, PointObservations, PoseObservations
+from .dataset import FORMAT, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
 from .errors import DatasetError, FgcalError
 from .model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from .robot_file import load_model
@@ -38,6 +38,7 @@ def joint_columns(n: int) -> list[str]:
     return ["pose"] + [f"q{i}" for i in range(1, n + 1)]
 POINT_COLUMNS = ["pose", "ball", "x", "y", "z"]
 POSE_COLUMNS = ["pose", "x", "y", "z", "qw", "qx", "qy", "qz"]
+DISTANCE_COLUMNS = ["pose", "ball", "length"]
 
 
 # Bounds beyond which a value is a mistake, not a measurement: 1000 km, or a million degrees.
@@ -148,6 +149,32 @@ def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> Poi
                              np.frombuffer(lines, dtype=np.int64).astype(int))
 
 
+def _distance_table(path: Path, known_poses: set, balls: dict) -> DistanceObservations:
+    """``distances.csv``: ``pose,ball,length`` (mm), one ballbar length per pose and ball."""
+    rows = _read_table(path, DISTANCE_COLUMNS)
+    pose, ball, length, lines, seen = [], [], [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        if r["ball"] not in balls:
+            raise DatasetError(f"{where}: unknown ball {short_repr(r['ball'])} (dataset.yaml tool.balls has {', '.join(balls)})")
+        key = (pid, r["ball"])
+        if key in seen:
+            raise DatasetError(f"{where}: duplicate length of ball {r['ball']} at pose {pid} (first on line {seen[key]})")
+        seen[key] = line
+        value = _number(r["length"], where, "length")
+        if value <= 0:
+            raise DatasetError(f"{where}: length must be positive (mm), got {value!r}")
+        pose.append(pid)
+        ball.append(r["ball"])
+        length.append(value)
+        lines.append(line)
+    return DistanceObservations(np.array(pose, dtype=int), np.array(ball, dtype=str), np.array(length, dtype=float),
+                                np.array(lines, dtype=int))
+
+
 def _pose_row(where: str, r: dict) -> tuple[int, np.ndarray, np.ndarray]:
     """``(pose, xyz, unit quaternion)`` of a ``pose,x,y,z,qw,qx,qy,qz`` row; the norm is checked."""
     pid = _integer(r["pose"], where, "pose")
@@ -217,7 +244,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
 
     noise_raw = data["noise"]
     allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
-               "centre_sigma")
+               "centre_sigma", "distance_sigma")
     if not isinstance(noise_raw, dict):
         raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
     unknown = set(noise_raw) - set(allowed)
@@ -305,10 +332,13 @@ def load_dataset(directory) -> Dataset:
         ds.centres = _point_table(directory / "centres.csv", known, tooling.balls, unique=True)
     if os.path.lexists(directory / "poses.csv"):
         ds.poses = _pose_table(directory / "poses.csv", known)
+    if os.path.lexists(directory / "distances.csv"):
+        ds.distances = _distance_table(directory / "distances.csv", known, tooling.balls)
     if os.path.lexists(directory / "truth.yaml"):
         ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
-        log.warning("%s: no measurements (probes.csv, centres.csv or poses.csv); joint readings only", directory)
+        log.warning("%s: no measurements (probes.csv, centres.csv, poses.csv or distances.csv); joint readings only",
+                    directory)
     return ds
 
 
@@ -398,6 +428,10 @@ def _write_into(ds: Dataset, directory: Path) -> None:
         quat = ds.poses.quat / np.linalg.norm(ds.poses.quat, axis=1, keepdims=True)
         write_csv(directory / "poses.csv", POSE_COLUMNS,
                   ([int(p), *map(float, x), *map(float, qq)] for p, x, qq in zip(ds.poses.pose, ds.poses.xyz, quat)))
+    if ds.distances is not None:
+        d = ds.distances
+        write_csv(directory / "distances.csv", DISTANCE_COLUMNS,
+                  ([int(p), b, float(v)] for p, b, v in zip(d.pose, d.ball, d.length)))
     if ds.truth is not None:
         truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
         if ds.truth_outliers:

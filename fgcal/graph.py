@@ -24,7 +24,7 @@ from .model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
-LEVELS = ("probes", "kinematic", "centres", "poses", "joints", "prior")
+LEVELS = ("probes", "kinematic", "centres", "poses", "distances", "joints", "prior")
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,7 @@ class Sigmas:
     pose_rotation: float
     joint: float
     kinematic: float = 1e-4
+    distance: float = 0.01
 
 
 @dataclass
@@ -106,12 +107,18 @@ class Graph:
     radius : float
     centres : tuple (pose_index (Mc,), offset (Mc, 3), xyz (Mc, 3)) or None
     poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
+    distances : tuple (pose_index (Md,), offset (Md, 3), length (Md,)) or None
+        Ballbar lengths from the world origin (the pivot) to a tool ball.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
+    joint_errors : ndarray, shape (N, n, K), optional
+        ``G`` of a joint-error block (:mod:`fgcal.joint_errors`) whose K parameters follow the
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[-K:]``.
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
-                 ball_offset=None, radius=0.0, centres=None, poses=None, prior=None, robust=None, robust_k=None):
+                 ball_offset=None, radius=0.0, centres=None, poses=None, distances=None, prior=None, robust=None,
+                 robust_k=None, joint_errors=None):
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
@@ -124,6 +131,10 @@ class Graph:
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
+        # --- joint-error block (fgcal.joint_errors): theta = [geometry (n_geo), phi (K)]
+        self.n_geo = len(self.index)
+        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
+        self.K = 0 if self.G is None else self.G.shape[2]
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -132,6 +143,7 @@ class Graph:
         self.probes = probes
         self.centres = centres
         self.poses = poses
+        self.distances = distances
 
         # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
         qdim = nj if self.joint_vars else 0
@@ -169,6 +181,8 @@ class Graph:
             self.row["centres"] = take(centres[0], 3)
         if poses is not None:
             self.row["poses"] = take(poses[0], 6)
+        if distances is not None:
+            self.row["distances"] = take(distances[0], 1)
         if self.joint_vars:
             self.row["joints"] = take(np.arange(n), nj)
         self.m = int(rows.max()) if n else 0
@@ -186,9 +200,10 @@ class Graph:
         for j, rws in per_ball.items():
             self.ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
         self.pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("joints", nj)):
+        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", nj)):
             if level in self.row:
-                pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "joints": lambda: np.arange(n)}
+                pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "distances": lambda: distances[0],
+                           "joints": lambda: np.arange(n)}
                 for p, start in zip(pose_of[level](), self.row[level]):
                     self.pose_rows[p] += list(range(int(start), int(start) + width))
         self.pose_rows = [np.array(r, dtype=int) for r in self.pose_rows]
@@ -199,11 +214,21 @@ class Graph:
         return State(np.asarray(theta, dtype=float).copy(), self.readings.copy(), c.copy())
 
     def joints(self, state: State) -> np.ndarray:
-        return state.q if self.joint_vars else self.readings
+        if self.joint_vars:
+            return state.q
+        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:]
+
+    def _with_block(self, pose, J_t, J_q):
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
+        if not self.K:
+            return J_t
+        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else np.einsum("nmj,njk->nmk", J_q, self.G[pose])
+        return np.concatenate([J_t, extra], axis=2)
 
     def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself."""
-        n, m, P, nz = self.n_poses, self.m, len(self.index), self.nz
+        n, m, P, nz = self.n_poses, self.m, self.n_geo + self.K, self.nz
+        theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
         Jt = np.zeros((n, m, P))
         Jz = np.zeros((n, m, nz))
@@ -216,7 +241,8 @@ class Graph:
             width = e.shape[1]
             ew = e / sigma
             s = np.linalg.norm(ew, axis=1)
-            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses") else None, self.robust_k)
+            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses", "distances") else None,
+                             self.robust_k)
             raw[level] = (e, s, w)
             cost += float(rho.sum())
             sw = np.sqrt(w)[:, None] / sigma
@@ -236,24 +262,37 @@ class Graph:
             put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
                 sigma=self.sigmas.probe)
         if len(self.ball_pose):
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[self.ball_pose], self.ball_offset, state.c,
+            e, J_t, J_q = fx.ball_centre_error(theta, q[self.ball_pose], self.ball_offset, state.c,
                                                self.index, self.held, self.chain)
+            J_t = self._with_block(self.ball_pose, J_t, J_q)
             J_c = np.broadcast_to(-np.eye(3), (len(self.ball_pose), 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], e, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.ball_centre_error(theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
         if self.poses is not None:
             pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.pose_error(theta, q[pose_i], T, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
+        if self.distances is not None:
+            pose_i, offset, length = self.distances
+            e, J_t, J_q = fx.distance_error(theta, q[pose_i], offset, length, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
+            put("distances", pose_i, self.row["distances"], e, J_t, J_q, sigma=self.sigmas.distance)
         if self.joint_vars:
-            e = fx.joint_error(state.q, self.readings)
             nj = self.n_joints
-            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
+            J_t = None
+            if self.K:  # the joint variable is the reading plus the block's correction
+                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:])
+                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G], axis=2)
+            else:
+                e = fx.joint_error(state.q, self.readings)
+            put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))
@@ -270,10 +309,13 @@ class Graph:
 
     # ------------------------------------------------------------------ solving
     def normal_equations(self, lin: Linearisation):
-        A = np.einsum("nmp,nmq->pq", lin.J_theta, lin.J_theta) + lin.prior_J.T @ lin.prior_J
-        B = np.einsum("nmp,nmz->npz", lin.J_theta, lin.J_local)
-        D = np.einsum("nmz,nmy->nzy", lin.J_local, lin.J_local)
-        g_t = np.einsum("nmp,nm->p", lin.J_theta, lin.r) + lin.prior_J.T @ lin.prior_r
+        # matmul (BLAS) rather than einsum: the parameter block can make P several hundred
+        P = lin.J_theta.shape[2]
+        Jt2 = lin.J_theta.reshape(-1, P)
+        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+        B = lin.J_theta.transpose(0, 2, 1) @ lin.J_local
+        D = lin.J_local.transpose(0, 2, 1) @ lin.J_local
+        g_t = Jt2.T @ lin.r.reshape(-1) + lin.prior_J.T @ lin.prior_r
         g_z = np.einsum("nmz,nm->nz", lin.J_local, lin.r)
         # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
         D[~self.local_used] = 0.0
@@ -288,8 +330,9 @@ class Graph:
             dd = np.maximum(np.diagonal(D, axis1=1, axis2=2), 1e-12)
             D = D + damping * np.einsum("nz,zy->nzy", dd, np.eye(self.nz))
         Dinv = np.linalg.inv(D) if self.nz else D
-        BD = np.einsum("npz,nzy->npy", B, Dinv)
-        S = A - np.einsum("npz,nqz->pq", BD, B)
+        BD = B @ Dinv
+        P = A.shape[0]
+        S = A - BD.transpose(1, 0, 2).reshape(P, -1) @ B.transpose(1, 0, 2).reshape(P, -1).T if self.nz else A
         rhs = None
         if g_t is not None:
             rhs = g_t - np.einsum("npz,nz->p", BD, g_z)
@@ -326,16 +369,18 @@ class Graph:
         _, _, Dinv = self.reduced(A, B, D)
         St = covariance  # (P, P) = S^-1
         E = -np.einsum("nzy,npy->nzp", Dinv, B)  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = np.einsum("nzp,pq->nzq", E, St)
+        Szt = E @ St
         Szz = Dinv + np.einsum("nzp,nyp->nzy", Szt, E)
         Jt, Jz = lin.J_theta, lin.J_local
-        h = (np.einsum("nmp,pq,nmq->nm", Jt, St, Jt) + 2 * np.einsum("nmp,nzp,nmz->nm", Jt, Szt, Jz)
-             + np.einsum("nmz,nzy,nmy->nm", Jz, Szz, Jz))
+        h = (np.sum((Jt @ St) * Jt, axis=2) + 2 * np.sum((Jt @ Szt.transpose(0, 2, 1)) * Jz, axis=2)
+             + np.sum((Jz @ Szz) * Jz, axis=2))
         out = {}
         for level, start in self.row.items():
-            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": self.n_joints}[level]
+            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
+                     "joints": self.n_joints}[level]
             pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
                     "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                    "distances": lambda: self.distances[0],
                     "joints": lambda: np.arange(self.n_poses)}[level]()
             rows_ = start[:, None] + np.arange(width)
             out[level] = (rows_.size, float(h[pose[:, None], rows_].sum()))

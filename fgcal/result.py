@@ -76,6 +76,11 @@ class CalibrationResult:
         Calibrated tool origin at each pose used (mm, world), for plots of where the poses were.
     robot_model : dict
         The nominal robot model (``fgcal-robot/1`` as a mapping), so a result stands on its own.
+    joint_errors : dict
+        The non-geometric joint-error block, if any (:mod:`fgcal.joint_errors`): ``spec``,
+        ``names``, ``map_terms``, ``joint_ranges_deg`` (the region a map is valid in), ``validity``
+        and, after a model comparison, ``selection`` (:mod:`fgcal.model_select`). Empty for the
+        geometric model.
     """
 
     robot: str
@@ -97,6 +102,7 @@ class CalibrationResult:
     residuals: dict[str, list[float]] = field(default_factory=dict)
     tool_xyz: list[list[float]] = field(default_factory=list)
     robot_model: dict = field(default_factory=dict)
+    joint_errors: dict = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -142,7 +148,8 @@ class CalibrationResult:
              "parameters": [asdict(p) for p in self.parameters],
              "covariance": np.asarray(self.covariance).tolist()}
         for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
-                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model"):
+                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model",
+                    "joint_errors"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         return d
@@ -199,7 +206,7 @@ def load_result(path) -> CalibrationResult:
             dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")),
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
             tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
-            robot_model=dict(d.get("robot_model") or {}))
+            robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}))
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     try:

@@ -158,7 +158,9 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         base = to_euler_zyx_trans(A)
         first["theta"] = first["d"] = 0.0
     # A last link row sits between the last joint's motion and the tool: fold it into the tool.
+    last_row = None
     if len(rows) == n:
+        last_row = _link_transform(rows[-1])
         tool = to_euler_zyx_trans(_link_transform(rows.pop()) @ euler_zyx_trans(*tool))
 
     limits = np.array([_vector(v, 2, f"{source}: joint_limits[{i}]") for i, v in enumerate(limits_raw)])
@@ -190,6 +192,10 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     link_names = joint_names[:-1] if joint_names else ()
     nominal = np.concatenate([base, np.array([[r[f] for f in LINK_FIELDS] for r in rows]).reshape(-1), tool])
     extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
+    if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.gravity)
+        from .gravity import inertials_from_dict, inertials_to_dict
+
+        extra["inertials"] = inertials_to_dict(inertials_from_dict(extra["inertials"], n, source, last_row))
     try:
         return RobotModel(name=name, nominal=nominal, joint_limits=limits, tooling=tooling, volume=box("volume"),
                           paper_box=box("paper_box"), description=str(data.get("description", "")), extra=extra,

@@ -1,3 +1,10 @@
+import os
+
+# One BLAS thread per process: on a 2-core machine threaded OpenBLAS made a 400x400 solve 25 times
+# slower under load (the joint-error map's normal equations), and subprocesses inherit this.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import numpy as np
 import pytest
 
