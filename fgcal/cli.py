@@ -21,6 +21,7 @@ from .errors import FgcalError
 log = logging.getLogger("fgcal")
 
 MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
+MAX_BATCH_ROWS = 250_000  # measurement rows of one batch graph (calibrate, check) within about 1 GB
 
 
 def _cmd_simulate(args) -> int:
@@ -108,6 +109,14 @@ def _cmd_check(args) -> int:
     if not ds.levels():
         print("identifiability: no measurements")
         return 0
+    if _measurement_rows(ds) > MAX_BATCH_ROWS and ds.tooling is not None and ds.tooling.balls:
+        from .identifiability import analyse, compact_jacobian
+
+        params = model.parameters()
+        J = compact_jacobian(params, model.joints_to_internal(ds.joints_deg), measurement=ds.tooling.offsets())
+        print(f"identifiability (ball centres at these poses; {_measurement_rows(ds)} rows are more than the "
+              f"{MAX_BATCH_ROWS} of the estimator's graph): " + analyse(J, params.names).summary())
+        return 0
     result = identifiability_of(ds, model)
     print(f"identifiability ({', '.join(ds.levels())} at these poses, with the estimator's noise model): "
           + result.summary())
@@ -146,6 +155,10 @@ def _cmd_measure(args) -> int:
     for note in unused_poses(ds, [q.pose for q in poses], ["probes"]):
         print(f"note: {note}")
     return 0
+
+
+def _measurement_rows(ds) -> int:
+    return sum(len(getattr(ds, lv)) for lv in ds.levels())
 
 
 def _warn_units(ds, model) -> None:
@@ -227,6 +240,11 @@ def _cmd_calibrate(args) -> int:
     ids = parse_pose_selection(args.poses, ds.pose_ids)
     if len(ids) != ds.n_poses:
         ds = ds.select(ids)
+    rows = _measurement_rows(ds)
+    if rows > MAX_BATCH_ROWS:
+        raise FgcalError(f"{args.dataset}: {rows} measurement rows ({ds.n_poses} poses) are more than a batch "
+                         f"calibration holds in memory ({MAX_BATCH_ROWS}); choose poses with --poses, or use "
+                         "fgcal online")
     extra = parameter_names(model, args.extra, "--extra")
     exclude = parameter_names(model, args.exclude, "--exclude")
     options = CalibrationOptions(

@@ -257,12 +257,18 @@ def rotation_from_columns(values, spec: ColumnSpec) -> np.ndarray:
 
 def read_lines(path: Path) -> list[str]:
     """The lines of a text file (UTF-8, byte-order mark ignored); :class:`DatasetError` when unreadable."""
+    from .yamlio import read_text_file
+
+    return read_text_file(path, DatasetError).removeprefix("\ufeff").splitlines()
+
+
+def _csv_rows(reader, path):
+    """``(line, fields)`` of a csv reader; a malformed record is a :class:`DatasetError` naming the line."""
     try:
-        return Path(path).read_text(encoding="utf-8-sig").splitlines()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{path}: cannot read ({exc})") from None
+        for r in reader:
+            yield reader.line_num, r
+    except csv.Error as exc:
+        raise DatasetError(f"{path}: line {reader.line_num + 1}: {exc}") from None
 
 
 def _rows(path: Path, delimiter: str | None, decimal_comma: bool | None):
@@ -273,8 +279,7 @@ def _rows(path: Path, delimiter: str | None, decimal_comma: bool | None):
     if delimiter == " ":
         rows = ((i + 1, ln.split()) for i, ln in enumerate(lines))
     else:
-        reader = csv.reader(lines, delimiter=delimiter)
-        rows = ((reader.line_num, r) for r in reader)
+        rows = _csv_rows(csv.reader(lines, delimiter=delimiter), path)
     first = next(rows, None)
     if first is None:
         raise DatasetError(f"{path}: empty file")

@@ -196,6 +196,10 @@ def atomic_write_bytes(path, data: bytes) -> None:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
         tmp = None
+    except OSError as exc:
+        if exc.filename is None:  # a failed write names no file: name the one being written
+            raise OSError(exc.errno, exc.strerror, str(path)) from None
+        raise
     finally:
         if tmp is not None:
             with contextlib.suppress(OSError):

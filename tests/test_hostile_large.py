@@ -44,3 +44,15 @@ def test_compact_jacobian_analyses_like_the_full_one(puma):
         np.testing.assert_allclose(small.singular_values, full.singular_values, rtol=1e-9,
                                    atol=1e-9 * full.singular_values[0])
         assert small.rank == full.rank and small.redundant == full.redundant
+
+
+def test_batch_size_limit_refuses_calibrate_and_bounds_check(puma, tmp_path, capsys, monkeypatch):
+    import fgcal.cli as cli
+    from hostile_util import call, one_line_error, small_dataset
+
+    small_dataset(puma, tmp_path / "ds", n_poses=6)
+    monkeypatch.setattr(cli, "MAX_BATCH_ROWS", 50)  # 6 poses x 3 balls x 4 points = 72 rows
+    code, _, err = call(["calibrate", tmp_path / "ds", "--out", tmp_path / "r.json"], capsys)
+    one_line_error(code, err, "72 measurement rows (6 poses)", "--poses")
+    code, out, err = call(["check", tmp_path / "ds"], capsys)
+    assert code == 0 and "72 rows are more than the 50" in out and "rank 30 of 30" in out
