@@ -1,0 +1,158 @@
+"""Are the default calibration's uncertainties honest? Seeded scenarios against the simulated truth.
+
+Each :data:`SCENARIOS` row simulates a PUMA 560 with the paper's noise (CMM 0.01 mm, joint
+resolution 0.01 deg, 21 random poses, 3 balls x 4 probe points) changed in one respect,
+calibrates it with default options, and compares with the truth: the chi-square of the true
+error per parameter (1 is honest), the share of 95% intervals that cover the truth, and the RMS
+position error of the balls at 100 random joint sets against the paper's two-stage method
+(:func:`fgcal.baseline.two_stage`; least squares on the measured centres or poses when there are
+no probe points). Where the noise in the file differs from the simulated one ("undeclared"), the
+dataset keeps the declared values. Used by ``bench/bench_honest.py`` and the tests. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .baseline import two_stage
+from .calibrate import CalibrationOptions, calibrate
+from .dataset import Noise
+from .kinematics import forward, jacobians, tool_points
+from .model import SLOT_NAMES, ParameterSet, slots_from_file_units
+from .simulate import SimulationSettings, simulate
+from .transforms import pose_difference
+
+__all__ = ["Scenario", "SCENARIOS", "run_scenario", "add_gross_errors", "summarise"]
+
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One row: simulation settings, the noise the file declares, and injected gross probe errors."""
+
+    settings: SimulationSettings = SimulationSettings(n_poses=21)
+    declared: Noise | None = None  # None: the simulated noise is declared
+    gross_errors: int = 0
+    gross_size: float = 0.5  # mm along the probe direction
+    options: CalibrationOptions = field(default_factory=CalibrationOptions)
+
+
+PAPER = Noise(0.01, 0.01)
+SCENARIOS = {
+    "21 poses": Scenario(),
+    "7 poses": Scenario(SimulationSettings(n_poses=7)),
+    "200 poses": Scenario(SimulationSettings(n_poses=200)),
+    "centres only": Scenario(SimulationSettings(n_poses=21, levels=("centres",))),
+    "poses only": Scenario(SimulationSettings(n_poses=21, levels=("poses",))),
+    "1 ball per pose": Scenario(SimulationSettings(n_poses=21, n_balls=1)),
+    "2 balls per pose": Scenario(SimulationSettings(n_poses=21, n_balls=2)),
+    "joint resolution 0": Scenario(SimulationSettings(n_poses=21, noise=Noise(0.01, 0.0))),
+    "joint resolution 0.1 deg": Scenario(SimulationSettings(n_poses=21, noise=Noise(0.01, 0.1))),
+    "repeatability 0.01 deg undeclared": Scenario(SimulationSettings(n_poses=21, noise=Noise(0.01, 0.01, 0.01)),
+                                                  declared=PAPER),
+    "CMM noise 5x declared": Scenario(SimulationSettings(n_poses=21, noise=Noise(0.05, 0.01)), declared=PAPER),
+    "3 gross probe errors": Scenario(gross_errors=3),
+}
+
+
+def add_gross_errors(ds, truth, n: int, size: float, rng) -> list[tuple[int, str, int]]:
+    """Displace ``n`` random probe points by ``size`` mm along their true probing direction (in place).
+
+    Returns ``(pose, ball, row in probes.csv)`` of each.
+    """
+    pr = ds.probes
+    rows = rng.choice(len(pr), size=n, replace=False)
+    q = ds.joints_rad[ds.row_of(pr.pose[rows])]
+    offsets = np.array([ds.tooling.balls[b] for b in pr.ball[rows]])
+    centres = tool_points(forward(truth, q), offsets[:, None, :])[:, 0]
+    d = pr.xyz[rows] - centres
+    pr.xyz[rows] += size * rng.choice([-1.0, 1.0], size=(n, 1)) * d / np.linalg.norm(d, axis=1, keepdims=True)
+    return [(int(pr.pose[k]), str(pr.ball[k]), int(k)) for k in rows]
+
+
+def _baseline(ds, model, names) -> np.ndarray:
+    """Two-stage (probes) or single-stage least squares on centres or poses, readings taken as exact."""
+    if ds.probes is not None:
+        return two_stage(ds, model, names)[0]
+    params = ParameterSet(model, tuple(names))
+    if ds.centres is not None:
+        c = ds.centres
+        q = ds.joints_rad[ds.row_of(c.pose)]
+        off = np.array([ds.tooling.balls[b] for b in c.ball]).reshape(-1, 1, 3)
+
+        def res(th):
+            return (jacobians(params.full(th), q, off).points[:, 0] - c.xyz).ravel()
+    else:
+        p = ds.poses
+        q = ds.joints_rad[ds.row_of(p.pose)]
+        T = p.matrices()
+        rot_scale = ds.noise.pose_position_sigma / np.radians(ds.noise.pose_orientation_sigma)
+
+        def res(th):
+            d, delta = pose_difference(T, forward(params.full(th), q))
+            return np.concatenate([d.ravel(), rot_scale * delta.ravel()])
+    sol = least_squares(res, params.nominal(), method="lm", xtol=1e-12, ftol=1e-12)
+    return params.full(sol.x)
+
+
+def _reference(result, truth, model, q, points) -> np.ndarray:
+    """The truth of the estimated parameters, with the held ones' deviations absorbed as the data allow."""
+    names = result.names
+    held = [h["name"] for h in result.held]
+    t = np.array([truth[SLOT_NAMES.index(n)] for n in names])
+    if not held:
+        return t
+    params = ParameterSet(model, tuple(names + held))
+    J = jacobians(truth, q, points).point_slots[..., params.index].reshape(-1, len(names) + len(held))
+    x = result.slot_vector()
+    dh = np.array([truth[SLOT_NAMES.index(n)] - x[SLOT_NAMES.index(n)] for n in held])
+    return t + np.linalg.lstsq(J[:, :len(names)], J[:, len(names):] @ dh, rcond=None)[0]
+
+
+def run_scenario(model, scenario: Scenario, seeds) -> list[dict]:
+    """One dict per seed: ``chi2_per_dof``, ``covered`` (fraction), ``fgcal_mm``, ``baseline_mm``, ``outliers``."""
+    out = []
+    points = model.tooling.offsets()
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        ds, _ = simulate(model, rng, scenario.settings)
+        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
+        planted = add_gross_errors(ds, truth, scenario.gross_errors, scenario.gross_size, rng) \
+            if scenario.gross_errors else []
+        if scenario.declared is not None:
+            ds.noise = replace(scenario.declared, pose_position_sigma=ds.noise.pose_position_sigma,
+                               pose_orientation_sigma=ds.noise.pose_orientation_sigma)
+        r = calibrate(ds, model, scenario.options)
+        # the truth in the estimated parameters (file units, as the result's)
+        ref = _reference(r, truth, model, ds.joints_rad, points)
+        params = ParameterSet(model, tuple(r.names))
+        err = r.estimate - params.to_file_units(ref)
+        chi2 = float(err @ np.linalg.solve(r.covariance, err))
+        q_new = rng.uniform(model.joint_limits[:, 0], model.joint_limits[:, 1], size=(100, 6))
+        true_pts = tool_points(forward(truth, q_new), points)
+
+        def rms(slots):
+            return float(np.sqrt(np.mean(np.sum((tool_points(forward(slots, q_new), points) - true_pts) ** 2, axis=2))))
+
+        base = _baseline(ds, model, model.identifiable_names())
+        found = {(o.pose, o.ball) for o in r.outliers if o.level == "probes"}
+        out.append({"seed": seed, "chi2_per_dof": chi2 / len(err),
+                    "covered": float(np.mean(np.abs(err) <= Z95 * r.sigma)), "fgcal_mm": rms(r.slot_vector()),
+                    "baseline_mm": rms(base), "n_params": len(err), "held": len(r.held),
+                    "outliers": len(r.outliers), "planted_found": sum((p, b) in found for p, b, _ in planted),
+                    "noise": {k: n.used for k, n in r.noise.items()}})
+    return out
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Mean chi-square per dof, coverage, mean accuracy of fgcal and the baseline over the seeds."""
+    return {"n": len(rows), "chi2_per_dof": float(np.mean([r["chi2_per_dof"] for r in rows])),
+            "coverage": float(np.mean([r["covered"] for r in rows])),
+            "fgcal_mm": float(np.mean([r["fgcal_mm"] for r in rows])),
+            "baseline_mm": float(np.mean([r["baseline_mm"] for r in rows])),
+            "outliers": float(np.mean([r["outliers"] for r in rows])),
+            "planted_found": float(np.mean([r["planted_found"] for r in rows])),
+            "held": float(np.mean([r["held"] for r in rows]))}
