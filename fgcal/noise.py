@@ -91,12 +91,15 @@ class LevelNoise:
 class Outlier:
     """A measurement excluded as a gross error, so that it can be re-measured.
 
-    ``statistic`` is its residual in sigmas of the level's scale, corrected for its redundancy.
+    ``index`` is its row among the level's measurements (0-based, file order), ``line`` its line
+    in the file (0 when made in memory); ``statistic`` is its residual in sigmas of the level's
+    scale, corrected for its redundancy.
     """
 
     level: str
     pose: int
     ball: str | None
+    index: int
     line: int
     residual: float
     unit: str
@@ -209,8 +212,8 @@ def name_outliers(graph, lin, h, ds, pose_ids) -> list[Outlier]:
             resid = float(np.abs(e[k, 0])) if level == "probes" else float(np.linalg.norm(
                 e[k, 3:] if level == "poses" else e[k]))
             out.append(Outlier(level, int(pose_ids[pose[k]]), str(obs.ball[k]) if level != "poses" else None,
-                               int(obs.line[k]), resid, "mm", float(np.sqrt(t[k] / scale / width))))
-    return sorted(out, key=lambda o: (o.pose, o.level, o.ball or "", o.line))
+                               int(k), int(obs.line[k]), resid, "mm", float(np.sqrt(t[k] / scale / width))))
+    return sorted(out, key=lambda o: (o.pose, o.level, o.index))
 
 
 def fit_test(ssq: float, redundancy: float) -> float:

@@ -63,6 +63,13 @@ def _summary(result: CalibrationResult, verification: dict | None) -> list[tuple
         if s.rms_rotation_deg is not None:
             text += f"; rotation {s.rms_rotation_deg:.4g} deg RMS"
         items.append((f"residuals: {level}", text))
+    for name, at in result.at_readings.items():
+        rot = f"; rotation {at.rms_rotation_deg:.4g} deg RMS" if at.rms_rotation_deg is not None else ""
+        items.append((f"residuals at the joint readings: {name}", f"{at.rms:.4g} {at.unit} RMS over {at.n}{rot}"))
+    for name, n in result.noise.items():
+        est = f"{n.estimated:.3g}" if n.estimated is not None else "-"
+        items.append((f"noise ({result.noise_mode}): {name}", f"declared {n.declared:.3g} {n.unit}, estimated {est}, "
+                      f"used {n.used:.3g}; redundancy {n.redundancy:.4g}; test of the declared p = {n.p_value:.2g}"))
     if verification is not None:
         for label, d in (("verification, nominal", verification["before"]), ("verification, calibrated", verification)):
             items.append((label, f"position {d['position_mm']['rms']:.4g} mm RMS (max {d['position_mm']['max']:.4g}); "
