@@ -24,7 +24,8 @@ from .model import SLOT_NAMES, ParameterSet, slots_from_file_units
 from .simulate import SimulationSettings, simulate
 from .transforms import pose_difference
 
-__all__ = ["Scenario", "SCENARIOS", "run_scenario", "add_gross_errors", "summarise"]
+__all__ = ["Scenario", "SCENARIOS", "run_scenario", "add_gross_errors", "summarise", "scenario_dataset",
+           "online_agreement"]
 
 Z95 = 1.959963984540054
 
@@ -112,19 +113,54 @@ def _reference(result, truth, model, q, points) -> np.ndarray:
     return t + np.linalg.lstsq(J[:, :len(names)], J[:, len(names):] @ dh, rcond=None)[0]
 
 
+def scenario_dataset(model, scenario: Scenario, seed: int):
+    """``(dataset, truth slots, planted gross errors, rng)`` of one seeded row of a scenario."""
+    rng = np.random.default_rng(seed)
+    ds, _ = simulate(model, rng, scenario.settings)
+    truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
+    planted = add_gross_errors(ds, truth, scenario.gross_errors, scenario.gross_size, rng) \
+        if scenario.gross_errors else []
+    if scenario.declared is not None:
+        ds.noise = replace(scenario.declared, pose_position_sigma=ds.noise.pose_position_sigma,
+                           pose_orientation_sigma=ds.noise.pose_orientation_sigma)
+    return ds, truth, planted, rng
+
+
+def online_agreement(model, kind: str, seed: int, reverse: bool = False, scenario: Scenario = Scenario()) -> dict:
+    """An online engine fed a scenario's poses (reversed on request) against the batch solve of all of them.
+
+    Returns ``max_sigma`` (largest |online - batch| over the batch sigma), ``rejected`` (poses the
+    engine refused) and ``mirrored`` (balls whose plain sphere fit, without the kinematic
+    prediction, lands more than a radius from the true centre: the mirror image).
+    """
+    from .online import make_engine, pose_records
+    from .spherefit import fit_spheres_checked
+
+    ds, truth, _, _ = scenario_dataset(model, scenario, seed)
+    batch = calibrate(ds, model, replace(scenario.options, prior="weak"))
+    engine = make_engine(kind, ds, model, scenario.options)
+    records = pose_records(ds)[::-1] if reverse else pose_records(ds)
+    rejected = sum(not engine.update(rec).accepted for rec in records)
+    engine.finish()
+    theta, _ = engine.estimate()
+    est = engine.params.to_file_units(theta)
+    mirrored = 0
+    for rec in records:
+        if not rec.probes:
+            continue
+        fits = fit_spheres_checked([p for _, p in rec.probes], ds.tooling.radius, ds.noise.cmm_sigma)
+        true = tool_points(forward(truth, rec.q[None]), np.array([ds.tooling.balls[b] for b, _ in rec.probes]))[0]
+        mirrored += sum(np.linalg.norm(f.centre - t) > ds.tooling.radius for f, t in zip(fits, true))
+    return {"max_sigma": float(np.max(np.abs(est - batch.estimate) / batch.sigma)), "rejected": rejected,
+            "mirrored": int(mirrored)}
+
+
 def run_scenario(model, scenario: Scenario, seeds) -> list[dict]:
     """One dict per seed: ``chi2_per_dof``, ``covered`` (fraction), ``fgcal_mm``, ``baseline_mm``, ``outliers``."""
     out = []
     points = model.tooling.offsets()
     for seed in seeds:
-        rng = np.random.default_rng(seed)
-        ds, _ = simulate(model, rng, scenario.settings)
-        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
-        planted = add_gross_errors(ds, truth, scenario.gross_errors, scenario.gross_size, rng) \
-            if scenario.gross_errors else []
-        if scenario.declared is not None:
-            ds.noise = replace(scenario.declared, pose_position_sigma=ds.noise.pose_position_sigma,
-                               pose_orientation_sigma=ds.noise.pose_orientation_sigma)
+        ds, truth, planted, rng = scenario_dataset(model, scenario, seed)
         r = calibrate(ds, model, scenario.options)
         # the truth in the estimated parameters (file units, as the result's)
         ref = _reference(r, truth, model, ds.joints_rad, points)
