@@ -38,6 +38,7 @@ class Scenario:
     declared: Noise | None = None  # None: the simulated noise is declared
     gross_errors: int = 0
     gross_size: float = 0.5  # mm along the probe direction
+    mirrored: int = 0  # balls re-probed on a narrow cap where a plain sphere fit lands on the mirror image
     options: CalibrationOptions = field(default_factory=CalibrationOptions)
 
 
@@ -72,6 +73,40 @@ def add_gross_errors(ds, truth, n: int, size: float, rng) -> list[tuple[int, str
     d = pr.xyz[rows] - centres
     pr.xyz[rows] += size * rng.choice([-1.0, 1.0], size=(n, 1)) * d / np.linalg.norm(d, axis=1, keepdims=True)
     return [(int(pr.pose[k]), str(pr.ball[k]), int(k)) for k in rows]
+
+
+def add_mirrored_caps(ds, truth, n: int, rng, half_angle_deg: float = 8.0) -> list[tuple[int, str]]:
+    """Re-probe ``n`` random balls on a narrow cap (in place) where a plain sphere fit (no prediction)
+    converges to the mirror image of the centre through the points. Returns their ``(pose, ball)``."""
+    from .spherefit import fit_spheres_checked
+
+    pr = ds.probes
+    keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
+    out = []
+    for k in rng.permutation(len(keys)):
+        if len(out) == n:
+            break
+        pose, ball = keys[k]
+        rows = np.nonzero((pr.pose == pose) & (pr.ball == ball))[0]
+        q = ds.joints_rad[ds.row_of([pose])]
+        centre = tool_points(forward(truth, q), np.array([ds.tooling.balls[ball]]))[0, 0]
+        axis = pr.xyz[rows].mean(axis=0) - centre
+        axis /= np.linalg.norm(axis)
+        e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        for _ in range(200):
+            polar = np.radians(rng.uniform(0, half_angle_deg, len(rows)))
+            az = rng.uniform(0, 2 * np.pi, len(rows))
+            d = (np.cos(polar)[:, None] * axis + np.sin(polar)[:, None] * (np.cos(az)[:, None] * e1
+                                                                              + np.sin(az)[:, None] * e2))
+            pts = centre + ds.tooling.radius * d + rng.normal(size=d.shape) * ds.noise.cmm_sigma
+            fit = fit_spheres_checked([pts], ds.tooling.radius, max(ds.noise.cmm_sigma, 1e-6))[0]
+            if fit.ok and np.linalg.norm(fit.centre - centre) > ds.tooling.radius:
+                pr.xyz[rows] = pts
+                out.append((int(pose), str(ball)))
+                break
+    return out
 
 
 def _baseline(ds, model, names) -> np.ndarray:
@@ -120,6 +155,8 @@ def scenario_dataset(model, scenario: Scenario, seed: int):
     truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
     planted = add_gross_errors(ds, truth, scenario.gross_errors, scenario.gross_size, rng) \
         if scenario.gross_errors else []
+    if scenario.mirrored:
+        add_mirrored_caps(ds, truth, scenario.mirrored, rng)
     if scenario.declared is not None:
         ds.noise = replace(scenario.declared, pose_position_sigma=ds.noise.pose_position_sigma,
                            pose_orientation_sigma=ds.noise.pose_orientation_sigma)
@@ -130,8 +167,9 @@ def online_agreement(model, kind: str, seed: int, reverse: bool = False, scenari
     """An online engine fed a scenario's poses (reversed on request) against the batch solve of all of them.
 
     Returns ``max_sigma`` (largest |online - batch| over the batch sigma), ``rejected`` (poses the
-    engine refused) and ``mirrored`` (balls whose plain sphere fit, without the kinematic
-    prediction, lands more than a radius from the true centre: the mirror image).
+    engine refused), ``mirrored`` (balls whose plain sphere fit, without the kinematic
+    prediction, lands more than a radius from the true centre: the mirror image) and
+    ``batch_truth`` (largest |batch - truth| over the batch sigma).
     """
     from .online import make_engine, pose_records
     from .spherefit import fit_spheres_checked
@@ -151,8 +189,10 @@ def online_agreement(model, kind: str, seed: int, reverse: bool = False, scenari
         fits = fit_spheres_checked([p for _, p in rec.probes], ds.tooling.radius, ds.noise.cmm_sigma)
         true = tool_points(forward(truth, rec.q[None]), np.array([ds.tooling.balls[b] for b, _ in rec.probes]))[0]
         mirrored += sum(np.linalg.norm(f.centre - t) > ds.tooling.radius for f, t in zip(fits, true))
+    truth_est = ParameterSet(model, tuple(batch.names)).to_file_units(_reference(batch, truth, model, ds.joints_rad,
+                                                                               model.tooling.offsets()))
     return {"max_sigma": float(np.max(np.abs(est - batch.estimate) / batch.sigma)), "rejected": rejected,
-            "mirrored": int(mirrored)}
+            "mirrored": int(mirrored), "batch_truth": float(np.max(np.abs(batch.estimate - truth_est) / batch.sigma))}
 
 
 def run_scenario(model, scenario: Scenario, seeds) -> list[dict]:

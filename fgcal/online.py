@@ -43,6 +43,7 @@ __all__ = ["PoseData", "pose_records", "records_dataset", "weak_prior", "UpdateR
 log = logging.getLogger(__name__)
 
 INNOVATION_FALSE_ALARM = 1e-6
+MIRROR_CHI2 = float(chi2.ppf(1 - INNOVATION_FALSE_ALARM, 1))  # a mirror image this close in fit is a candidate
 
 
 @dataclass
@@ -89,7 +90,7 @@ class UpdateReport:
     reason: str = "ok"
 
 
-def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, prediction=None):
+def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, prediction=None, flip=()):
     """Fitted centres (ball, xyz, cov) of a pose's probed balls, or a rejection reason.
 
     ``prediction`` (ball -> xyz, mm): where the current estimate puts each ball. As in the batch
@@ -102,25 +103,50 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, 
     bad += [f"ball {b}: {len(p)} probe points" for b, p in rec.probes if len(p) < 3]
     sigma = max(sigma_cmm, 1e-6)
     fits = fit_spheres_checked([p for _, p in usable], tooling.radius, sigma)
+    kept = []
     for (ball, pts), fit in zip(usable, fits):
         # A residual above the sphere check's limit alone does not reject the ball: as in the batch
         # solve, the innovation gate (with the kinematic prediction's redundancy) judges the pose.
         if not fit.ok and not (prediction is not None and fit.status.startswith("residual")):
             bad.append(f"ball {ball}: {fit.status}")
             continue
+        kept.append((ball, pts, fit))
+    chosen, ambiguous = {}, []
+    if prediction is not None:
+        # the fit, its mirror image and a fit started at the prediction; balls with equal point counts at once
+        by_count: dict[int, list] = {}
+        for ball, pts, fit in kept:
+            if ball in prediction:
+                by_count.setdefault(len(pts), []).append((ball, pts, fit))
+        for group in by_count.values():
+            pts = np.array([p for _, p, _ in group])
+            first = np.array([f.centre for _, _, f in group])
+            pred = np.array([prediction[b] for b, _, _ in group])
+            refits = fit_spheres_batch(np.concatenate([pts, pts]), tooling.radius,
+                                       guess=np.concatenate([mirror_through_points(pts, first), pred]))
+            cands = [first, refits[:len(group)], refits[len(group):]]
+            near = best_of_candidates(pts, tooling.radius, cands, sigma, pred)
+            # the mirror image, where it fits nearly as well (within the 1e-6 chi-square limit of
+            # one residual): the innovation gate may take it for the balls in ``flip``
+            other = fit_spheres_batch(pts, tooling.radius, guess=mirror_through_points(pts, near))
+            ssr = [np.sum((np.linalg.norm(pts - c[:, None], axis=2) - tooling.radius) ** 2, axis=1)
+                   for c in (near, other)]
+            alike = (ssr[1] <= ssr[0] + MIRROR_CHI2 * sigma**2) & (np.linalg.norm(other - near, axis=1) > tooling.radius)
+            for k, (ball, _, _) in enumerate(group):
+                if alike[k]:
+                    ambiguous.append(ball)
+                chosen[ball] = other[k] if (ball in flip and alike[k]) else near[k]
+    for ball, pts, fit in kept:
         centre, cov = fit.centre, fit.covariance
-        if prediction is not None and ball in prediction:
-            guess = np.array([centre, mirror_through_points(pts[None], centre[None])[0], prediction[ball]])
-            cands = [fit_spheres_batch(pts[None], tooling.radius, guess=g[None]) for g in guess]
-            chosen = best_of_candidates(pts[None], tooling.radius, cands, sigma, prediction[ball][None])[0]
-            if np.linalg.norm(chosen - centre) > 1e-9:
-                d = pts - chosen
-                J = d / np.linalg.norm(d, axis=1, keepdims=True)
-                centre, cov = chosen, np.linalg.inv(J.T @ J) * sigma**2
+        if ball in chosen and np.linalg.norm(chosen[ball] - centre) > 1e-9:
+            d = pts - chosen[ball]
+            J = d / np.linalg.norm(d, axis=1, keepdims=True)
+            centre, cov = chosen[ball], np.linalg.inv(J.T @ J) * sigma**2
         good.append((ball, centre, cov))
     if rec.probes and len(good) < min_balls:
         return None, f"{len(good)} good ball(s) of {len(rec.probes)}; a pose needs {min_balls}" + (
             f" ({'; '.join(bad)})" if bad else "")
+    _good_centres.ambiguous = ambiguous  # balls whose mirror image fits as well (read by the caller)
     return good, None
 
 
@@ -217,14 +243,14 @@ class _Engine:
                                              self.held)
         return dict(zip(balls, e))
 
-    def _measurement(self, rec: PoseData):
+    def _measurement(self, rec: PoseData, flip=()):
         """``(evaluate, None)`` or ``(None, reason)``; ``evaluate(theta)`` gives the stacked residual
         ``h(theta) - z``, its Jacobian and the declared noise R with the joints' noise folded in."""
         sig = self.sigmas
         centre_parts, T_meas = [], rec.T
         if rec.probes:
             good, reason = _good_centres(rec, self.ds.tooling, self.ds.noise.cmm_sigma,
-                                         prediction=self._prediction(rec, self._current()))
+                                         prediction=self._prediction(rec, self._current()), flip=flip)
             if good is None:
                 return None, reason
             centre_parts += [(self.ds.tooling.balls[b], c, cov) for b, c, cov in good]
@@ -260,6 +286,7 @@ class _Engine:
             return np.concatenate(e), np.vstack(Jt), R0 + Jq @ Rj @ Jq.T  # joint noise folded in
 
         evaluate.parts = centre_parts
+        evaluate.ambiguous = list(getattr(_good_centres, "ambiguous", [])) if rec.probes else []
         return evaluate, None
 
     def _screen(self, rec: PoseData, theta, cov):
@@ -268,8 +295,8 @@ class _Engine:
         points, the variant without the one probe point that makes it pass with the smallest
         innovation. Returns ``(evaluate, record used, noise factor, None)`` or ``(None, rec, f, reason)``."""
 
-        def statistic(r):
-            evaluate, why = self._measurement(r)
+        def statistic(r, flip=()):
+            evaluate, why = self._measurement(r, flip)
             if evaluate is None:
                 return None, why, None
             e, H, R = evaluate(theta)
@@ -282,6 +309,22 @@ class _Engine:
             if reason is None:
                 return evaluate, rec, f, None
         best = None
+        # where the prediction is still poor (early poses), a ball's mirror image may be the
+        # consistent one: try them, then single probe points left out
+        from itertools import combinations
+
+        amb = evaluate.ambiguous if evaluate is not None else []
+        for n in range(1, len(amb) + 1):
+            for flip in combinations(amb, n):
+                ev, _, vAR_k = statistic(rec, flip)
+                if ev is None:
+                    continue
+                v, A, R = vAR_k
+                d2 = float(v @ np.linalg.solve(A + f * R, v))
+                if NoiseTracker.implausible(v, A + f * R) is None and (best is None or d2 < best[0]):
+                    best = (d2, ev, rec)
+        if best is not None:
+            return best[1], best[2], f, None
         for j, (ball, pts) in enumerate(rec.probes):
             if len(pts) < 4:
                 continue
