@@ -9,8 +9,9 @@ component estimation). A component is estimated only where its redundancy reache
 
 Gross errors are found by data snooping: each measurement's squared residual over its
 redundancy, in units of the level's robust (median) scale, is tested against the chi-square
-quantile of :data:`OUTLIER_ALPHA`; per pose and round the worst one is excluded and the solve is
-repeated. Every exclusion is named (pose, ball, line of the file).
+quantile of :data:`OUTLIER_ALPHA` (or of :data:`FAMILY_ALPHA` over the level's count, if
+stricter: a good measurement excluded costs accuracy); per pose and round the worst one is
+excluded and the solve is repeated. Every exclusion is named (pose, ball, line of the file).
 
 Pure functions of a :class:`~fgcal.graph.Graph` and its linearisation; no I/O.
 """
@@ -29,7 +30,8 @@ __all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "M
 log = logging.getLogger(__name__)
 
 MIN_REDUNDANCY = 5.0  # below this a variance factor is too uncertain (its relative sigma sqrt(2/r) > 0.6)
-OUTLIER_ALPHA = 2 * stats.norm.sf(4.0)  # a single-coordinate residual beyond 4 sigma (6.3e-5)
+OUTLIER_ALPHA = 2 * stats.norm.sf(4.0)  # a single-coordinate residual beyond 4 sigma (6.3e-5) ...
+FAMILY_ALPHA = 0.01  # ... or below 1% false alarms over a level's measurements, whichever is stricter
 MAX_OUTLIER_FRACTION = 0.05  # more than this in a level is a heavy-tailed distribution, not gross errors
 SCALE_LIMITS = (1e-2, 1e3)  # an estimated sigma stays within these multiples of the declared one
 
@@ -182,7 +184,7 @@ def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.n
         scale = np.median(t[~excluded]) / stats.chi2.median(width)  # robust variance factor
         if not scale > 0:
             continue
-        ratio = t / scale / stats.chi2.isf(alpha, width)
+        ratio = t / scale / stats.chi2.isf(min(alpha, FAMILY_ALPHA / len(pose)), width)
         ratio[excluded] = 0.0
         if np.sum(excluded) + np.sum(ratio > 1) > MAX_OUTLIER_FRACTION * len(pose):
             log.info("%s: %d residuals beyond the outlier limit: heavy tails, none excluded", level,
