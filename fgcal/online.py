@@ -224,7 +224,8 @@ class _Engine:
         self.prior_sigma = weak_prior(self.params)
         self.n_accepted = 0
         self.noise = NoiseTracker()
-        self.records: list[PoseData] = []  # the accepted poses, for the final smoothing
+        self.records: list[PoseData] = []  # the accepted poses (as taken: a bad probe point left out)
+        self.seen: dict[int, PoseData] = {}  # every pose fed with measurements, for the final smoothing
         self._final = None
 
     def estimate(self):
@@ -295,6 +296,10 @@ class _Engine:
         points, the variant without the one probe point that makes it pass with the smallest
         innovation. Returns ``(evaluate, record used, noise factor, None)`` or ``(None, rec, f, reason)``."""
 
+        if rec.probes or rec.centres or rec.T is not None:
+            self.seen[rec.pose] = rec
+            self._final = None
+
         def statistic(r, flip=()):
             evaluate, why = self._measurement(r, flip)
             if evaluate is None:
@@ -308,36 +313,33 @@ class _Engine:
             reason = NoiseTracker.implausible(vAR[0], vAR[1] + f * vAR[2])
             if reason is None:
                 return evaluate, rec, f, None
-        best = None
-        # where the prediction is still poor (early poses), a ball's mirror image may be the
-        # consistent one: try them, then single probe points left out
+        # Where the prediction is still poor (early poses), a ball's mirror image may be the
+        # consistent one: try them; then single probe points left out. The passing variant with
+        # the smallest innovation is taken.
         from itertools import combinations
 
-        amb = evaluate.ambiguous if evaluate is not None else []
-        for n in range(1, len(amb) + 1):
-            for flip in combinations(amb, n):
-                ev, _, vAR_k = statistic(rec, flip)
-                if ev is None:
-                    continue
-                v, A, R = vAR_k
-                d2 = float(v @ np.linalg.solve(A + f * R, v))
-                if NoiseTracker.implausible(v, A + f * R) is None and (best is None or d2 < best[0]):
-                    best = (d2, ev, rec)
-        if best is not None:
-            return best[1], best[2], f, None
-        for j, (ball, pts) in enumerate(rec.probes):
-            if len(pts) < 4:
-                continue
-            for k in range(len(pts)):
-                variant = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T)
-                variant.probes[j] = (ball, np.delete(pts, k, axis=0))
-                ev, _, vAR_k = statistic(variant)
+        def best_of(variants):
+            best = None
+            for variant, flip in variants:
+                ev, _, vAR_k = statistic(variant, flip)
                 if ev is None:
                     continue
                 v, A, R = vAR_k
                 d2 = float(v @ np.linalg.solve(A + f * R, v))
                 if NoiseTracker.implausible(v, A + f * R) is None and (best is None or d2 < best[0]):
                     best = (d2, ev, variant)
+            return best
+
+        def without_one(rec):
+            for j, (ball, pts) in enumerate(rec.probes):
+                for k in range(len(pts) if len(pts) >= 4 else 0):
+                    variant = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T)
+                    variant.probes[j] = (ball, np.delete(pts, k, axis=0))
+                    yield variant, ()
+
+        amb = evaluate.ambiguous if evaluate is not None else []
+        flips = ((rec, flip) for n in range(1, len(amb) + 1) for flip in combinations(amb, n))
+        best = best_of(flips) or best_of(without_one(rec))
         if best is not None:
             return best[1], best[2], f, None
         return None, rec, f, reason
@@ -349,9 +351,11 @@ class _Engine:
         return UpdateReport(rec.pose, True)
 
     def _smooth(self):
-        """The final smoothing: one batch solve over every accepted pose (weak prior, noise
-        estimated and gross errors excluded as in ``calibrate``), so that the end does not depend on
-        the order the poses came in. Returns ``(theta, covariance)`` in internal units."""
+        """The final smoothing: one batch solve over every pose fed (weak prior, noise estimated and
+        gross errors excluded as in ``calibrate``), so that the end depends neither on the order
+        the poses came in nor on what the running estimate refused on the way (a pose refused
+        against an early, poor estimate is judged again, as the batch judges it). Returns
+        ``(theta, covariance)`` in internal units."""
         from dataclasses import replace
 
         from .calibrate import calibrate
@@ -360,7 +364,7 @@ class _Engine:
         names = list(self.params.names)
         options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
                           exclude=tuple(n for n in ident if n not in names))
-        r = calibrate(records_dataset(self.ds, self.records), self.model, options)
+        r = calibrate(records_dataset(self.ds, list(self.seen.values())), self.model, options)
         if r.names != names:
             raise FgcalError(f"final smoothing: the batch solve holds {', '.join(h['name'] for h in r.held)}")
         scale = np.where(self.params.is_angle, np.radians(1.0), 1.0)
@@ -457,7 +461,7 @@ class ISAM2Engine(_Engine):
         from .online_run import _record_to_json
 
         return {"records": [_record_to_json(r) for r in self.records], "factors": self._factors,
-                "noise": self.noise.values}
+                "noise": self.noise.values, "seen": [_record_to_json(r) for r in self.seen.values()]}
 
     def restore(self, state: dict, n_accepted: int) -> None:
         from .online_run import _record_from_json
@@ -469,11 +473,12 @@ class ISAM2Engine(_Engine):
                 raise FgcalError(f"restoring pose {rec.pose}: {reason}")
             self._add(rec, evaluate.parts, f)
         self.noise.values = [tuple(v) for v in state.get("noise", [])]
+        self.seen = {r.pose: r for r in map(_record_from_json, state.get("seen", []))}
         self.n_accepted = n_accepted
 
     def finish(self) -> None:
         """The final smoothing (see :meth:`_Engine._smooth`); the incremental state stays as it was."""
-        if self.records and self._final is None:
+        if self.seen and self._final is None:
             self._final = self._smooth()
 
     def estimate(self):
@@ -549,7 +554,7 @@ class KalmanEngine(_Engine):
     def finish(self) -> None:
         """The final smoothing (see :meth:`_Engine._smooth`) when the parameters do not drift: the
         filter's state becomes the smoothed one, whatever the order the poses came in."""
-        if self.records and self._final is None and not np.any(self.kf.Q):
+        if self.seen and self._final is None and not np.any(self.kf.Q):
             self._final = self._smooth()
             self.kf.x, self.kf.P = self._final[0].copy(), self._final[1].copy()
 
@@ -560,7 +565,8 @@ class KalmanEngine(_Engine):
         from .online_run import _record_to_json
 
         return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist(), "noise": self.noise.values,
-                "records": [_record_to_json(r) for r in self.records]}
+                "records": [_record_to_json(r) for r in self.records],
+                "seen": [_record_to_json(r) for r in self.seen.values()]}
 
     def restore(self, state: dict, n_accepted: int) -> None:
         from .online_run import _record_from_json
@@ -569,6 +575,7 @@ class KalmanEngine(_Engine):
         self.kf.P = np.array(state["P"], dtype=float)
         self.noise.values = [tuple(v) for v in state.get("noise", [])]
         self.records = [_record_from_json(r) for r in state.get("records", [])]
+        self.seen = {r.pose: r for r in map(_record_from_json, state.get("seen", []))}
         self.n_accepted = n_accepted
 
 
