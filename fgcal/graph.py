@@ -1,6 +1,6 @@
 """The calibration problem as a factor graph over parameters, joints and ball centres.
 
-Variables: the parameter vector ``theta`` (P), each pose's joints ``q_i`` (6, rad; only when
+Variables: the parameter vector ``theta`` (P), each pose's joints ``q_i`` (n, rad or mm; only when
 the readings carry noise) and each probed ball's centre ``c_ib`` (3, mm). Factors (see the
 ``factors`` package): probe points on spheres around ``c_ib``; ``c_ib`` at the forward
 kinematics (a tight "kinematic" factor whose sigma is the unmodelled error); measured centres
@@ -41,7 +41,7 @@ class Sigmas:
 
 @dataclass
 class State:
-    """The variables: ``theta`` (P,), ``q`` (N, 6) rad, ``c`` (Nb, 3) mm."""
+    """The variables: ``theta`` (P,), ``q`` (N, n) rad/mm, ``c`` (Nb, 3) mm."""
 
     theta: np.ndarray
     q: np.ndarray
@@ -96,7 +96,7 @@ class Graph:
     params : ParameterSet
         Estimated parameters; the other slots are held at ``held``.
     held : ndarray, shape (37,)
-    readings : ndarray, shape (N, 6)
+    readings : ndarray, shape (N, n)
         Joint readings (rad).
     sigmas : Sigmas
     probes : tuple (pose_index (Mp,), ball_var (Mp,), xyz (Mp, 3)) or None
@@ -115,14 +115,16 @@ class Graph:
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
-        self.readings = np.asarray(readings, dtype=float).reshape(-1, 6)
+        self.chain = params.model.chain
+        self.n_joints = nj = params.model.n_joints
+        self.readings = np.asarray(readings, dtype=float).reshape(-1, nj)
         self.sigmas = sigmas
         self.radius = float(radius)
         self.robust = robust
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.excluded = {}  # level -> bool mask over its factors (set by the outlier handling)
-        self.joint_vars = sigmas.joint > 0
+        self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -132,8 +134,8 @@ class Graph:
         self.centres = centres
         self.poses = poses
 
-        # Local variable columns: [q (6, if variables)] then 3 per ball variable of the pose.
-        qdim = 6 if self.joint_vars else 0
+        # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
+        qdim = nj if self.joint_vars else 0
         balls_per_pose = np.bincount(self.ball_pose, minlength=n) if nb else np.zeros(n, dtype=int)
         self.ball_slot = np.zeros(nb, dtype=int)
         counter = np.zeros(n, dtype=int)
@@ -169,7 +171,7 @@ class Graph:
         if poses is not None:
             self.row["poses"] = take(poses[0], 6)
         if self.joint_vars:
-            self.row["joints"] = take(np.arange(n), 6)
+            self.row["joints"] = take(np.arange(n), nj)
         self.m = int(rows.max()) if n else 0
         self.rows_per_pose = rows
         # Row lists per pose, for GTSAM factors: each ball's probe and kinematic rows, and the
@@ -185,7 +187,7 @@ class Graph:
         for j, rws in per_ball.items():
             self.ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
         self.pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("joints", 6)):
+        for level, width in (("centres", 3), ("poses", 6), ("joints", nj)):
             if level in self.row:
                 pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "joints": lambda: np.arange(n)}
                 for p, start in zip(pose_of[level](), self.row[level]):
@@ -227,7 +229,7 @@ class Graph:
             if J_t is not None:
                 Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
             if J_q is not None and self.joint_vars:
-                Jz[pose[:, None, None], rows_[:, :, None], np.arange(6)[None, None, :]] = J_q * sw[:, :, None]
+                Jz[pose[:, None, None], rows_[:, :, None], np.arange(self.n_joints)[None, None, :]] = J_q * sw[:, :, None]
             if J_c is not None:
                 cols = c_col[:, None] + np.arange(3)
                 Jz[pose[:, None, None], rows_[:, :, None], cols[:, None, :]] = J_c * sw[:, :, None]
@@ -239,22 +241,23 @@ class Graph:
                 sigma=self.sigmas.probe)
         if len(self.ball_pose):
             e, J_t, J_q = fx.ball_centre_error(state.theta, q[self.ball_pose], self.ball_offset, state.c,
-                                               self.index, self.held)
+                                               self.index, self.held, self.chain)
             J_c = np.broadcast_to(-np.eye(3), (len(self.ball_pose), 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], e, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held)
+            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
             put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
         if self.poses is not None:
             pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held)
+            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held, self.chain)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
         if self.joint_vars:
             e = fx.joint_error(state.q, self.readings)
-            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(6), (n, 6, 6)),
+            nj = self.n_joints
+            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))
@@ -304,7 +307,7 @@ class Graph:
         new = state.copy()
         new.theta = state.theta + d_theta
         if self.joint_vars:
-            new.q = state.q + d_z[:, :6]
+            new.q = state.q + d_z[:, :self.n_joints]
         if len(self.ball_pose):
             cols = self.ball_col[:, None] + np.arange(3)
             new.c = state.c + d_z[self.ball_pose[:, None], cols]
@@ -322,7 +325,7 @@ class Graph:
 
     def factor_rows(self, level: str):
         """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
-        width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": 6}[level]
+        width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": self.n_joints}[level]
         pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
                 "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
                 "joints": lambda: np.arange(self.n_poses)}[level]()

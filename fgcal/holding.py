@@ -22,18 +22,21 @@ from .simulate import Deviations
 __all__ = ["held_parameters", "holding_cost"]
 
 
-def held_parameters(graph, state) -> dict[str, list[str]]:
+def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
     """Unidentifiable parameters of ``graph`` at ``state``, with the parameters each is confused with.
 
-    ``graph`` must carry the declared noise; robust weights are switched off for the decision.
+    ``graph`` must carry the declared noise; robust weights and exclusions are switched off for the
+    decision. ``decide(graph, state)`` (default: :func:`~fgcal.identifiability.analyse_information`
+    of the parameters' information) names them.
     """
     robust, excluded = graph.robust, graph.excluded
     graph.robust, graph.excluded = None, {}
     try:
-        S = graph.parameter_information(state)
+        if decide is not None:
+            return decide(graph, state)
+        return analyse_information(graph.parameter_information(state), graph.params.names).redundant
     finally:
         graph.robust, graph.excluded = robust, excluded
-    return analyse_information(S, graph.params.names).redundant
 
 
 def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_new: int = 200,

@@ -56,7 +56,7 @@ COMPONENTS = {
     "centres": ("centres", slice(0, 3), "centre", "mm", 1.0),
     "poses": ("poses", slice(3, 6), "pose_position", "mm", 1.0),
     "poses_rotation": ("poses", slice(0, 3), "pose_rotation", "deg", float(np.degrees(1.0))),
-    "joints": ("joints", slice(0, 6), "joint", "deg", float(np.degrees(1.0))),
+    "joints": ("joints", slice(0, None), "joint", "deg", float(np.degrees(1.0))),  # revolute joints: deg
 }
 MEASUREMENT_LEVELS = ("probes", "centres", "poses")
 
@@ -141,15 +141,16 @@ def update_sigmas(sigmas, comps, declared, tolerance: float = 0.01):
     new = {}
     for name, (ssq, red) in comps.items():
         field = COMPONENTS[name][2]
-        if red < MIN_REDUNDANCY or getattr(sigmas, field) <= 0:
+        current = np.asarray(getattr(sigmas, field), dtype=float)  # per joint for the joints
+        if red < MIN_REDUNDANCY or np.any(current <= 0):
             continue
         f = ssq / red
         if not np.isfinite(f) or abs(f - 1.0) < tolerance:
             continue
-        lo, hi = (s * getattr(declared, field) for s in SCALE_LIMITS)
-        value = float(np.clip(getattr(sigmas, field) * np.sqrt(f), lo, hi))
-        if value != getattr(sigmas, field):
-            new[field] = value
+        decl = np.asarray(getattr(declared, field), dtype=float)
+        value = np.clip(current * np.sqrt(f), SCALE_LIMITS[0] * decl, SCALE_LIMITS[1] * decl)
+        if np.any(value != current):
+            new[field] = value if value.ndim else float(value)
             changed = True
     return replace(sigmas, **new), changed
 
@@ -230,7 +231,8 @@ def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNois
     out = {}
     for name, (ssq, red) in comps.items():
         _, _, field, unit, k = COMPONENTS[name]
-        used, decl = getattr(sigmas, field), getattr(declared, field)
+        used = float(np.max(getattr(sigmas, field)))  # joints: the largest (one scale for all of them)
+        decl = float(np.max(getattr(declared, field)))
         ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")
         vf_declared = ssq / red * ratio2 if red > 0 else float("nan")
         estimable = red >= MIN_REDUNDANCY

@@ -220,7 +220,7 @@ class _Engine:
         self.options = options
         self.params = model.parameters() if names is None else ParameterSet(model, tuple(names))
         self.held = model.nominal.copy()
-        self.sigmas: Sigmas = _sigmas(ds, options)
+        self.sigmas: Sigmas = _sigmas(ds, model, options)
         self.prior_sigma = weak_prior(self.params)
         self.n_accepted = 0
         self.noise = NoiseTracker()
@@ -258,7 +258,7 @@ class _Engine:
         centre_parts += [(self.ds.tooling.balls[b], xyz, np.eye(3) * sig.centre**2) for b, xyz in rec.centres]
         if not centre_parts and T_meas is None:
             return None, "no measurements"
-        Rj = np.eye(6) * sig.joint**2
+        Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
         offsets = np.array([p[0] for p in centre_parts]).reshape(-1, 3)
         zs = np.array([p[1] for p in centre_parts]).reshape(-1, 3)
         R_blocks = [p[2] for p in centre_parts]
@@ -425,7 +425,7 @@ class ISAM2Engine(_Engine):
         if not self._started:
             graph.add(fx.parameter_prior(self.t_key, self.params.nominal(), self.prior_sigma))
             values.insert(self.t_key, self.params.nominal())
-        joint_vars = sig.joint > 0
+        joint_vars = bool(np.all(np.asarray(sig.joint) > 0))
         qargs = {"q_key": fx.joint_key(i)} if joint_vars else {"q_fixed": rec.q}
         if joint_vars:
             graph.add(fx.joint_prior(fx.joint_key(i), rec.q, sig.joint * np.sqrt(f)))
