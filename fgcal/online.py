@@ -355,7 +355,8 @@ class _Engine:
         gross errors excluded as in ``calibrate``), so that the end depends neither on the order
         the poses came in nor on what the running estimate refused on the way (a pose refused
         against an early, poor estimate is judged again, as the batch judges it). Returns
-        ``(theta, covariance)`` in internal units."""
+        ``(theta, covariance)`` in internal units, or None while the poses cannot determine the
+        parameters without the prior (the running estimate stands then)."""
         from dataclasses import replace
 
         from .calibrate import calibrate
@@ -364,7 +365,11 @@ class _Engine:
         names = list(self.params.names)
         options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
                           exclude=tuple(n for n in ident if n not in names))
-        r = calibrate(records_dataset(self.ds, list(self.seen.values())), self.model, options)
+        try:
+            r = calibrate(records_dataset(self.ds, list(self.seen.values())), self.model, options)
+        except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
+            log.info("final smoothing skipped: %s", exc)
+            return None
         if r.names != names:
             raise FgcalError(f"final smoothing: the batch solve holds {', '.join(h['name'] for h in r.held)}")
         scale = np.where(self.params.is_angle, np.radians(1.0), 1.0)
@@ -556,7 +561,8 @@ class KalmanEngine(_Engine):
         filter's state becomes the smoothed one, whatever the order the poses came in."""
         if self.seen and self._final is None and not np.any(self.kf.Q):
             self._final = self._smooth()
-            self.kf.x, self.kf.P = self._final[0].copy(), self._final[1].copy()
+            if self._final is not None:
+                self.kf.x, self.kf.P = self._final[0].copy(), self._final[1].copy()
 
     def estimate(self):
         return self.kf.x.copy(), self.kf.P.copy()
