@@ -17,11 +17,14 @@ from . import __version__
 from .dataset import LEVELS, Dataset
 from .errors import FgcalError
 from .graph import Graph, Sigmas, State
+from .holding import held_parameters, holding_cost
 from .identifiability import analyse_information
 from .kinematics import tool_points
 from .model import EULER_FIELDS, RobotModel
+from .noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
+                    scaled_inverse, update_sigmas)
 from .posefit import rigid_fit
-from .result import CalibrationResult, LevelSummary, ParameterEstimate
+from .result import CalibrationResult, LevelSummary, ParameterEstimate, ResidualSummary
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from .simulate import Deviations
 from .transforms import euler_zyx_trans, to_euler_zyx_trans
@@ -36,6 +39,7 @@ log = logging.getLogger(__name__)
 # Weak prior: ten times the typical deviations of DESIGN.md (mm, deg).
 WEAK_PRIOR = Deviations(length=5.0, angle=0.5, base_length=50.0, base_angle=5.0)
 MIN_SIGMA = 1e-6  # exact data (sigma 0) still has floating-point noise
+MAX_NOISE_ROUNDS = 40
 
 
 @dataclass(frozen=True)
@@ -55,8 +59,14 @@ class CalibrationOptions:
         Model the joint readings' rounding and repeatability with joint variables.
     kinematic_sigma : float
         Unmodelled error (mm) between a ball-centre variable and the forward kinematics.
+    noise : NoiseMode
+        ``estimated`` (default): each level's noise (joint readings included) is estimated from the
+        residuals where the redundancy allows, and the covariance is at that noise; ``declared``:
+        dataset.yaml's values only.
+    outliers : OutlierMode
+        ``exclude`` (default): gross errors are found by data snooping, excluded and named.
     estimate_noise : bool
-        Re-weight each measurement level by its estimated variance factor until it is 1.
+        Kept for old callers: True forces ``noise="estimated"``.
     engine : {"batch", "gtsam"}
         ``batch``: fgcal's Levenberg-Marquardt with one batched Schur complement per step;
         ``gtsam``: GTSAM's own Levenberg-Marquardt on :func:`to_gtsam` (slower: every custom
@@ -77,6 +87,8 @@ class CalibrationOptions:
     prior: str = "none"
     joint_noise: bool = True
     kinematic_sigma: float = 1e-4
+    noise: NoiseMode = NoiseMode.ESTIMATED
+    outliers: OutlierMode = OutlierMode.EXCLUDE
     estimate_noise: bool = False
     extra: tuple = ()
     exclude: tuple = ()
@@ -396,6 +408,8 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
     sig = graph.sigmas
     for level, (e, s, w) in lin.raw.items():
         n_rows, h = red.get(level, (0, 0.0))
+        if level in graph.excluded:
+            e = e[~graph.excluded[level]]
         redundancy = n_rows - h
         vf = float(np.sum(w * s**2) / redundancy) if redundancy > 1e-9 else float("nan")
         if level == "poses":
@@ -453,14 +467,67 @@ def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptio
     return _identifiability(graph, state)
 
 
+def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
+    """``gtsam_covariance``, or the scaled inverse of the Schur complement where GTSAM's elimination
+    declares a nearly singular (but positive definite) system indeterminate."""
+    try:
+        return gtsam_covariance(graph, state, lin)
+    except RuntimeError as exc:
+        S = graph.parameter_information(state, lin)
+        d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+        ev = np.linalg.eigvalsh(S / np.outer(d, d))
+        if ev[0] <= 1e-12 * ev[-1]:
+            raise FgcalError(f"the {graph.n_poses} poses cannot determine the {len(state.theta)} parameters "
+                             "(singular information): measure more poses") from None
+        log.info("GTSAM: %s; covariance from the scaled Schur complement instead", str(exc).strip().split("\n")[0])
+        return scaled_inverse(S)
+
+
+def _at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
+    """Residuals with the joints at their readings and centres on the kinematics (the training error)."""
+    if not graph.joint_vars:
+        return {}
+    at = state.copy()
+    at.q = graph.readings.copy()
+    if len(graph.ball_pose):
+        T = graph.params.model.forward(graph.params.full(state.theta, graph.held), at.q[graph.ball_pose])
+        at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
+    raw = graph.linearise(at).raw
+    out = {}
+    for level in ("probes", "centres", "poses"):
+        if level not in raw:
+            continue
+        e = raw[level][0][~graph.excluded.get(level, np.zeros(len(raw[level][0]), dtype=bool))]
+        if level == "poses":
+            out[level] = ResidualSummary(len(e), float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))), "mm",
+                                         float(np.degrees(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1))))))
+        else:
+            out[level] = ResidualSummary(len(e), float(np.sqrt(np.mean(np.sum(e.reshape(len(e), -1) ** 2, axis=1)))),
+                                         "mm")
+    return out
+
+
+def _measured_points(ds: Dataset, levels) -> np.ndarray | str:
+    if "poses" in levels:
+        return "pose"
+    balls = sorted(set().union(*(set(getattr(ds, lv).ball.tolist()) for lv in levels if lv != "poses")))
+    return np.array([ds.tooling.balls[b] for b in balls]).reshape(-1, 3)
+
+
 def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
     """Identify the kinematic parameters of ``model`` from ``ds`` by one factor-graph solve.
+
+    By default each level's noise is estimated from the residuals where the redundancy allows
+    (:mod:`fgcal.noise`) and gross errors are excluded and named; the covariance is at the
+    estimated noise.
 
     Raises
     ------
     FgcalError
         If the data cannot determine the parameters (too few poses), naming how many are needed.
     """
+    noise_mode = NoiseMode(options.noise)
+    outlier_mode = OutlierMode(options.outliers)
     params = model.parameters(extra=options.extra, exclude=options.exclude)
     names = list(params.names)
     if options.joint_errors is not None:
@@ -487,7 +554,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
 
     graph, state, pose_ids = build_graph(ds, model, names, options)
     held_info = []
-    redundant = _unidentifiable(graph, state)
+    redundant = held_parameters(graph, state, _unidentifiable)
     if redundant:
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
@@ -498,26 +565,35 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         graph, state, pose_ids = build_graph(ds, model, names, options)
 
     state, iterations, converged = _solve(graph, state, options)
-    scale = dict(options.noise_scale or {})
+    declared = graph.sigmas
     if options.estimate_noise:
-        for _ in range(8):
-            lin = graph.linearise(state)
-            summaries = _level_summaries(graph, state, np.linalg.inv(graph.parameter_information(state, lin)), lin)
-            factors_ = {lv: s.variance_factor for lv, s in summaries.items()
-                        if lv in LEVELS and np.isfinite(s.variance_factor)}
-            if all(abs(f - 1) < 0.01 for f in factors_.values()):
-                break
-            for lv, f in factors_.items():
-                scale[lv] = scale.get(lv, 1.0) * np.sqrt(f)
-            graph_new, _, _ = build_graph(ds, model, names, options, scale=scale)
-            graph_new.held = graph.held
-            graph = graph_new
-            state, it2, converged = _solve(graph, state, options)
-            iterations += it2
+        noise_mode = NoiseMode.ESTIMATED
+    if options.noise_scale:  # a fixed scale (a model comparison reuses the geometric fit's noise)
+        noise_mode = NoiseMode.DECLARED
+    # Noise estimation and outlier exclusion, alternated with re-solves until neither changes.
+    rounds = 0
+    for rounds in range(1, MAX_NOISE_ROUNDS + 1):
+        lin = graph.linearise(state)
+        h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
+        changed = False
+        if outlier_mode is OutlierMode.EXCLUDE:
+            for level, ks in find_outliers(graph, lin, h).items():
+                mask = graph.excluded.setdefault(level, np.zeros(len(graph.row[level]), dtype=bool))
+                mask[ks] = True
+                changed = True
+        if noise_mode is NoiseMode.ESTIMATED:
+            graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared)
+            changed |= moved
+        if not changed:
+            break
+        state, it2, converged = _solve(graph, state, options)
+        iterations += it2
+    else:
+        log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
 
     # Everything below works from one linearisation at the solution.
     lin = graph.linearise(state)
-    cov = gtsam_covariance(graph, state, lin)
+    cov = _covariance(graph, state, lin)
     final = graph.params
     identifiability = analyse_information(graph.parameter_information(state, lin), final.names)
     sv = identifiability.singular_values
@@ -531,8 +607,20 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     cov_file = final.covariance_to_file_units(cov)
     sigma = np.sqrt(np.diag(cov_file))
     levels_summary = _level_summaries(graph, state, cov, lin)
+    h = graph.row_leverage(state, cov, lin)
+    noise_table = level_noise(components(graph, lin, h), graph.sigmas, declared, noise_mode)
+    ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())
+    red_total = sum(n.redundancy for n in noise_table.values())
+    outliers = name_outliers(graph, lin, h, ds, pose_ids)
+    if held_info:
+        cost = holding_cost(model, slots, final.names, [h_["name"] for h_ in held_info], graph.readings,
+                            _measured_points(ds, levels))
+        for h_ in held_info:
+            h_["cost_mm"] = cost[h_["name"]]
     opts = asdict(options)
-    opts["noise_scale"] = scale
+    opts["noise_scale"] = {lv: n.used / n.declared for lv, n in noise_table.items()
+                           if n.declared > 0 and abs(n.used / n.declared - 1) > 1e-12}
+    opts["noise"], opts["outliers"] = noise_mode.value, outlier_mode.value
     raw = lin.raw
     residuals = {}
     if "probes" in raw:
@@ -558,6 +646,10 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
         fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist(),
+        noise_mode=noise_mode.value, noise=noise_table, outliers=outliers,
+        fit_test={"statistic": float(ssq_declared), "redundancy": float(red_total),
+                  "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
+        at_readings=_at_readings(graph, state),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
 
 

@@ -220,8 +220,21 @@ def _print_result(result) -> None:
         extra = f", rotation {s.rms_rotation_deg:.4g} deg" if s.rms_rotation_deg is not None else ""
         print(f"  {level:8s} {s.n:6d}  rms {s.rms:.4g} {s.unit}{extra}  (sigma {s.sigma:.3g}; "
               f"variance factor {s.variance_factor:.3g})")
+    for name, s in result.at_readings.items():
+        extra = f", rotation {s.rms_rotation_deg:.4g} deg" if s.rms_rotation_deg is not None else ""
+        print(f"  {name:8s} at the joint readings: rms {s.rms:.4g} {s.unit}{extra}")
+    print(f"  noise ({result.noise_mode}):")
+    for name, n in result.noise.items():
+        est = f"estimated {n.estimated:.3g}" if n.estimated is not None else n.note
+        print(f"    {name:15s} declared {n.declared:.3g} {n.unit}, {est}; test of the declared: p = {n.p_value:.2g}")
+    from .uncertainty import outlier_location
+
+    for o in result.outliers:
+        print(f"  excluded as a gross error: {o.level} at {outlier_location(o)}, {o.residual:.3g} {o.unit} "
+              f"({o.statistic:.3g} sigma)")
     for h in result.held:
-        print(f"  held at nominal: {h['name']} = {h['value']:g} ({h['reason']})")
+        cost = f"; costs {h['cost_mm']:.3g} mm at new poses" if "cost_mm" in h else ""
+        print(f"  held at nominal: {h['name']} = {h['value']:g} ({h['reason']}{cost})")
     print(f"  {'parameter':12s} {'nominal':>12s} {'estimate':>14s} {'sigma':>10s}")
     for p in result.parameters:
         print(f"  {p.name:12s} {p.nominal:12.6g} {p.estimate:14.8g} {p.sigma:10.3g} {p.unit}")
@@ -249,7 +262,8 @@ def _cmd_calibrate(args) -> int:
     exclude = parameter_names(model, args.exclude, "--exclude")
     options = CalibrationOptions(
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
-        joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
+        joint_noise=not args.exact_joints, estimate_noise=getattr(args, "estimate_noise", False),
+        noise=getattr(args, "noise", "estimated"), outliers=getattr(args, "outliers", "exclude"),
         extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
     if getattr(args, "model", "geometric") == "geometric" and getattr(args, "verification", None) is None:
         result = calibrate(ds, model, options)
@@ -714,7 +728,8 @@ def _cmd_demo(args) -> int:
     _cmd_check(argparse.Namespace(dataset=ds_dir))
     print("\n== calibrate on the odd poses: one factor graph from raw probe points")
     _cmd_calibrate(argparse.Namespace(dataset=ds_dir, out=out / "result.json", poses="odd", levels=None, robust=None,
-                                      prior="none", exact_joints=False, estimate_noise=False, extra=None, exclude=None))
+                                      prior="none", exact_joints=False, noise="estimated", outliers="exclude", extra=None,
+                                      exclude=None))
     print("\n== verify on the even poses (the paper's VERIFY)")
     _cmd_verify(argparse.Namespace(result=out / "result.json", dataset=ds_dir, poses="even", out=out / "verify.json"))
     print("\n== the uncertainty report")
@@ -802,8 +817,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "same factor graph (slower, same result)")
     k.add_argument("--prior", choices=("none", "weak"), default="none",
                    help="weak: 10x the typical deviation on every parameter (default none)")
-    k.add_argument("--estimate-noise", action="store_true",
-                   help="estimate each level's noise (variance factor) and re-weight")
+    k.add_argument("--noise", choices=("estimated", "declared"), default="estimated",
+                   help="estimated (default): each level's noise, joint readings included, from the residuals "
+                        "where the redundancy allows; declared: dataset.yaml's values only")
+    k.add_argument("--estimate-noise", action="store_const", dest="noise", const="estimated",
+                   help="the default now (kept for old scripts)")
+    k.add_argument("--outliers", choices=("exclude", "none"), default="exclude",
+                   help="exclude (default): detect gross errors, exclude and name them; none: keep all")
     k.add_argument("--exact-joints", action="store_true", help="treat the joint readings as exact")
     k.add_argument("--extra", default=None, help="extra slots to estimate, e.g. j1.theta (redundancy is reported)")
     k.add_argument("--exclude", default=None, help="parameters to hold at nominal")

@@ -130,6 +130,7 @@ class Graph:
         self.robust = robust
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
+        self.excluded = {}  # level -> bool mask over its factors (set by the outlier handling)
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
         # --- joint-error block (fgcal.joint_errors): theta = [geometry (n_geo), phi (K)]
         self.n_geo = len(self.index)
@@ -243,6 +244,9 @@ class Graph:
             s = np.linalg.norm(ew, axis=1)
             w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses", "distances") else None,
                              self.robust_k)
+            if level in self.excluded:  # excluded measurements: zero weight, no cost
+                w = np.where(self.excluded[level], 0.0, w)
+                rho = np.where(self.excluded[level], 0.0, rho)
             raw[level] = (e, s, w)
             cost += float(rho.sum())
             sw = np.sqrt(w)[:, None] / sigma
@@ -362,8 +366,21 @@ class Graph:
         S, _, _ = self.reduced(A, B, D)
         return S
 
-    def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
-        """Redundancy of each factor level: rows minus the sum of the hat matrix diagonal."""
+    def factor_rows(self, level: str):
+        """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
+        width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
+                 "joints": self.n_joints}[level]
+        pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
+                "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                "distances": lambda: self.distances[0], "joints": lambda: np.arange(self.n_poses)}[level]()
+        return np.asarray(pose, dtype=int), self.row[level][:, None] + np.arange(width)
+
+    def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
+        """Diagonal of the hat matrix (N, m) of the whitened rows; ``covariance`` is theta's (P, P).
+
+        One minus it is each row's redundancy number (Foerstner): the share of its noise that
+        shows in its residual.
+        """
         lin = self.linearise(state) if lin is None else lin
         A, B, D, _, _ = self.normal_equations(lin)
         _, _, Dinv = self.reduced(A, B, D)
@@ -372,19 +389,19 @@ class Graph:
         Szt = E @ St
         Szz = Dinv + np.einsum("nzp,nyp->nzy", Szt, E)
         Jt, Jz = lin.J_theta, lin.J_local
-        h = (np.sum((Jt @ St) * Jt, axis=2) + 2 * np.sum((Jt @ Szt.transpose(0, 2, 1)) * Jz, axis=2)
-             + np.sum((Jz @ Szz) * Jz, axis=2))
+        return (np.sum((Jt @ St) * Jt, axis=2) + 2 * np.sum((Jt @ Szt.transpose(0, 2, 1)) * Jz, axis=2)
+                + np.sum((Jz @ Szz) * Jz, axis=2))
+
+    def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
+        """Redundancy of each factor level: rows (excluded ones not counted) and the sum of their leverage."""
+        lin = self.linearise(state) if lin is None else lin
+        h = self.row_leverage(state, covariance, lin)
         out = {}
-        for level, start in self.row.items():
-            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
-                     "joints": self.n_joints}[level]
-            pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
-                    "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
-                    "distances": lambda: self.distances[0],
-                    "joints": lambda: np.arange(self.n_poses)}[level]()
-            rows_ = start[:, None] + np.arange(width)
-            out[level] = (rows_.size, float(h[pose[:, None], rows_].sum()))
+        for level in self.row:
+            pose, rows_ = self.factor_rows(level)
+            kept = ~self.excluded.get(level, np.zeros(len(pose), dtype=bool))
+            out[level] = (int(rows_[kept].size), float(h[pose[kept, None], rows_[kept]].sum()))
         if self.prior is not None:
-            hp = np.einsum("kp,pq,kq->k", lin.prior_J, St, lin.prior_J)
+            hp = np.einsum("kp,pq,kq->k", lin.prior_J, covariance, lin.prior_J)
             out["prior"] = (len(hp), float(hp.sum()))
         return out

@@ -33,14 +33,17 @@ from .dataset import Dataset
 from .errors import FgcalError
 from .graph import Sigmas
 from .model import ParameterSet, RobotModel
-from .spherefit import fit_spheres_checked
-from .transforms import pose_matrices
+from .dataset import PointObservations, PoseObservations
+from .spherefit import best_of_candidates, fit_spheres_batch, fit_spheres_checked, mirror_through_points
+from .transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseData", "pose_records", "weak_prior", "UpdateReport", "ISAM2Engine", "KalmanEngine", "make_engine"]
+__all__ = ["PoseData", "pose_records", "records_dataset", "weak_prior", "UpdateReport", "NoiseTracker",
+           "ISAM2Engine", "KalmanEngine", "make_engine"]
 
 log = logging.getLogger(__name__)
 
 INNOVATION_FALSE_ALARM = 1e-6
+MIRROR_CHI2 = float(chi2.ppf(1 - INNOVATION_FALSE_ALARM, 1))  # a mirror image this close in fit is a candidate
 
 
 @dataclass
@@ -87,21 +90,126 @@ class UpdateReport:
     reason: str = "ok"
 
 
-def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3):
-    """Fitted centres (ball, xyz, cov) of a pose's probed balls, or a rejection reason."""
+def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, prediction=None, flip=()):
+    """Fitted centres (ball, xyz, cov) of a pose's probed balls, or a rejection reason.
+
+    ``prediction`` (ball -> xyz, mm): where the current estimate puts each ball. As in the batch
+    solve, of the centres that fit a cap of points equally well (the fit and its mirror image
+    through the points) the one nearer the prediction is taken, and a residual above the sphere
+    check's limit is left to the innovation gate.
+    """
     good, bad = [], []
     usable = [(b, p) for b, p in rec.probes if len(p) >= 3]
     bad += [f"ball {b}: {len(p)} probe points" for b, p in rec.probes if len(p) < 3]
-    fits = fit_spheres_checked([p for _, p in usable], tooling.radius, max(sigma_cmm, 1e-6))
-    for (ball, _), fit in zip(usable, fits):
-        if fit.ok:
-            good.append((ball, fit.centre, fit.covariance))
-        else:
+    sigma = max(sigma_cmm, 1e-6)
+    fits = fit_spheres_checked([p for _, p in usable], tooling.radius, sigma)
+    kept = []
+    for (ball, pts), fit in zip(usable, fits):
+        # A residual above the sphere check's limit alone does not reject the ball: as in the batch
+        # solve, the innovation gate (with the kinematic prediction's redundancy) judges the pose.
+        if not fit.ok and not (prediction is not None and fit.status.startswith("residual")):
             bad.append(f"ball {ball}: {fit.status}")
+            continue
+        kept.append((ball, pts, fit))
+    chosen, ambiguous = {}, []
+    if prediction is not None:
+        # the fit, its mirror image and a fit started at the prediction; balls with equal point counts at once
+        by_count: dict[int, list] = {}
+        for ball, pts, fit in kept:
+            if ball in prediction:
+                by_count.setdefault(len(pts), []).append((ball, pts, fit))
+        for group in by_count.values():
+            pts = np.array([p for _, p, _ in group])
+            first = np.array([f.centre for _, _, f in group])
+            pred = np.array([prediction[b] for b, _, _ in group])
+            refits = fit_spheres_batch(np.concatenate([pts, pts]), tooling.radius,
+                                       guess=np.concatenate([mirror_through_points(pts, first), pred]))
+            cands = [first, refits[:len(group)], refits[len(group):]]
+            near = best_of_candidates(pts, tooling.radius, cands, sigma, pred)
+            # the mirror image, where it fits nearly as well (within the 1e-6 chi-square limit of
+            # one residual): the innovation gate may take it for the balls in ``flip``
+            other = fit_spheres_batch(pts, tooling.radius, guess=mirror_through_points(pts, near))
+            ssr = [np.sum((np.linalg.norm(pts - c[:, None], axis=2) - tooling.radius) ** 2, axis=1)
+                   for c in (near, other)]
+            alike = (ssr[1] <= ssr[0] + MIRROR_CHI2 * sigma**2) & (np.linalg.norm(other - near, axis=1) > tooling.radius)
+            for k, (ball, _, _) in enumerate(group):
+                if alike[k]:
+                    ambiguous.append(ball)
+                chosen[ball] = other[k] if (ball in flip and alike[k]) else near[k]
+    for ball, pts, fit in kept:
+        centre, cov = fit.centre, fit.covariance
+        if ball in chosen and np.linalg.norm(chosen[ball] - centre) > 1e-9:
+            d = pts - chosen[ball]
+            J = d / np.linalg.norm(d, axis=1, keepdims=True)
+            centre, cov = chosen[ball], np.linalg.inv(J.T @ J) * sigma**2
+        good.append((ball, centre, cov))
     if rec.probes and len(good) < min_balls:
         return None, f"{len(good)} good ball(s) of {len(rec.probes)}; a pose needs {min_balls}" + (
             f" ({'; '.join(bad)})" if bad else "")
+    _good_centres.ambiguous = ambiguous  # balls whose mirror image fits as well (read by the caller)
     return good, None
+
+
+def records_dataset(meta: Dataset, records: list[PoseData]) -> Dataset:
+    """A dataset (robot, tool and noise of ``meta``) holding the poses ``records``."""
+    probes = [(r.pose, b, x) for r in records for b, pts in r.probes for x in pts]
+    centres = [(r.pose, b, c) for r in records for b, c in r.centres]
+    poses = [(r.pose, r.T) for r in records if r.T is not None]
+
+    def points(rows):
+        return PointObservations([p for p, _, _ in rows], [b for _, b, _ in rows],
+                                 np.array([x for _, _, x in rows]).reshape(-1, 3)) if rows else None
+
+    return Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
+                   pose_ids=[r.pose for r in records], joints_deg=np.degrees([r.q for r in records]).reshape(-1, 6),
+                   probes=points(probes), centres=points(centres),
+                   poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
+                                          matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
+                   if poses else None, path=meta.path)
+
+
+class NoiseTracker:
+    """The measurement noise factor, estimated from the innovations seen so far.
+
+    With innovation covariance ``S = A + f R`` (A: the parameters' share, R: the declared
+    measurement noise with the joints' folded in, f: the current factor), a pose's innovation
+    ``d2 = v' S^-1 v`` has expectation ``tr(S^-1 A) + f_true tr(S^-1 R)``, so each pose gives an
+    estimate of ``f_true``. Poses whose innovation is mostly measurement noise (redundancy
+    ``tr(S^-1 f R)`` at least half their size; early on the weak prior dominates) are pooled by
+    their weighted median, robust to the poses with gross errors. The current pose takes part
+    (rejected ones too), so a wrong start cannot lock itself in. The factor is at least 1: below
+    it (a pessimistic declared noise, or an innovation the linearisation overrates early on)
+    the gate would only get stricter. Gates and updates use ``f R``.
+    """
+
+    def __init__(self):
+        self.values: list[tuple[float, float]] = []  # (estimate of f, weight)
+
+    def factor(self, extra=()) -> float:
+        vals = self.values + list(extra)
+        if not vals:
+            return 1.0
+        v, w = np.array(vals).T
+        order = np.argsort(v)
+        cum = np.cumsum(w[order])
+        return float(max(v[order][np.searchsorted(cum, 0.5 * cum[-1])], 1.0))
+
+    def observe(self, v, A, R) -> float:
+        """Record innovation ``v`` (A, R as above); returns the factor to gate and update it with."""
+        f = self.factor()
+        Si = np.linalg.inv(A + f * R)
+        d2, a, b = float(v @ Si @ v), float(np.trace(Si @ A)), float(np.trace(Si @ R))
+        if f * b >= 0.5 * len(v):
+            self.values.append((max((d2 - a) / b, 0.0), f * b))
+        return self.factor()
+
+    @staticmethod
+    def implausible(v, S) -> str | None:
+        """The gate: a rejection reason when ``v' S^-1 v`` is beyond the chi-square limit."""
+        d2 = float(v @ np.linalg.solve(S, v))
+        if d2 > chi2.ppf(1 - INNOVATION_FALSE_ALARM, len(v)):
+            return f"innovation implausible (chi-square {d2:.3g} for {len(v)} measurements)"
+        return None
 
 
 class _Engine:
@@ -109,15 +217,163 @@ class _Engine:
                  names=None):
         self.ds = ds
         self.model = model
+        self.options = options
         self.params = model.parameters() if names is None else ParameterSet(model, tuple(names))
         self.held = model.nominal.copy()
         self.sigmas: Sigmas = _sigmas(ds, model, options)
         self.prior_sigma = weak_prior(self.params)
         self.n_accepted = 0
+        self.noise = NoiseTracker()
+        self.records: list[PoseData] = []  # the accepted poses (as taken: a bad probe point left out)
+        self.seen: dict[int, PoseData] = {}  # every pose fed with measurements, for the final smoothing
+        self._final = None
 
     def estimate(self):
         """``(theta (P,), covariance (P, P))`` in internal units."""
         raise NotImplementedError
+
+    def _current(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _prediction(self, rec: PoseData, theta) -> dict:
+        balls = [b for b, _ in rec.probes]
+        if not balls:
+            return {}
+        offsets = np.array([self.ds.tooling.balls[b] for b in balls])
+        e, _, _ = fx.pose_ball_centres_error(theta, rec.q, offsets, np.zeros_like(offsets), self.params.index,
+                                             self.held)
+        return dict(zip(balls, e))
+
+    def _measurement(self, rec: PoseData, flip=()):
+        """``(evaluate, None)`` or ``(None, reason)``; ``evaluate(theta)`` gives the stacked residual
+        ``h(theta) - z``, its Jacobian and the declared noise R with the joints' noise folded in."""
+        sig = self.sigmas
+        centre_parts, T_meas = [], rec.T
+        if rec.probes:
+            good, reason = _good_centres(rec, self.ds.tooling, self.ds.noise.cmm_sigma,
+                                         prediction=self._prediction(rec, self._current()), flip=flip)
+            if good is None:
+                return None, reason
+            centre_parts += [(self.ds.tooling.balls[b], c, cov) for b, c, cov in good]
+        centre_parts += [(self.ds.tooling.balls[b], xyz, np.eye(3) * sig.centre**2) for b, xyz in rec.centres]
+        if not centre_parts and T_meas is None:
+            return None, "no measurements"
+        Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
+        offsets = np.array([p[0] for p in centre_parts]).reshape(-1, 3)
+        zs = np.array([p[1] for p in centre_parts]).reshape(-1, 3)
+        R_blocks = [p[2] for p in centre_parts]
+        if T_meas is not None:
+            R_blocks.append(np.diag([sig.pose_rotation**2] * 3 + [sig.pose_position**2] * 3))
+        m = sum(len(b) for b in R_blocks)
+        R0 = np.zeros((m, m))
+        k = 0
+        for block in R_blocks:
+            R0[k:k + len(block), k:k + len(block)] = block
+            k += len(block)
+
+        def evaluate(theta):
+            e, Jt, Jq = [], [], []
+            if len(offsets):
+                ee, jt, jq = fx.pose_ball_centres_error(theta, rec.q, offsets, zs, self.params.index, self.held)
+                e.append(ee.ravel())
+                Jt.append(jt.reshape(-1, jt.shape[-1]))
+                Jq.append(jq.reshape(-1, 6))
+            if T_meas is not None:
+                ee, jt, jq = fx.pose_error(theta, rec.q[None], T_meas[None], self.params.index, self.held)
+                e.append(ee[0])
+                Jt.append(jt[0])
+                Jq.append(jq[0])
+            Jq = np.vstack(Jq)
+            return np.concatenate(e), np.vstack(Jt), R0 + Jq @ Rj @ Jq.T  # joint noise folded in
+
+        evaluate.parts = centre_parts
+        evaluate.ambiguous = list(getattr(_good_centres, "ambiguous", [])) if rec.probes else []
+        return evaluate, None
+
+    def _screen(self, rec: PoseData, theta, cov):
+        """The pose's measurement if it passes the checks and the innovation gate at the current
+        ``theta`` and its covariance ``cov``; else, as the batch solve excludes single probe
+        points, the variant without the one probe point that makes it pass with the smallest
+        innovation. Returns ``(evaluate, record used, noise factor, None)`` or ``(None, rec, f, reason)``."""
+
+        if rec.probes or rec.centres or rec.T is not None:
+            self.seen[rec.pose] = rec
+            self._final = None
+
+        def statistic(r, flip=()):
+            evaluate, why = self._measurement(r, flip)
+            if evaluate is None:
+                return None, why, None
+            e, H, R = evaluate(theta)
+            return evaluate, None, (-e, H @ cov @ H.T, R)
+
+        evaluate, reason, vAR = statistic(rec)
+        f = self.noise.observe(*vAR) if vAR is not None else self.noise.factor()
+        if evaluate is not None:
+            reason = NoiseTracker.implausible(vAR[0], vAR[1] + f * vAR[2])
+            if reason is None:
+                return evaluate, rec, f, None
+        # Where the prediction is still poor (early poses), a ball's mirror image may be the
+        # consistent one: try them; then single probe points left out. The passing variant with
+        # the smallest innovation is taken.
+        from itertools import combinations
+
+        def best_of(variants):
+            best = None
+            for variant, flip in variants:
+                ev, _, vAR_k = statistic(variant, flip)
+                if ev is None:
+                    continue
+                v, A, R = vAR_k
+                d2 = float(v @ np.linalg.solve(A + f * R, v))
+                if NoiseTracker.implausible(v, A + f * R) is None and (best is None or d2 < best[0]):
+                    best = (d2, ev, variant)
+            return best
+
+        def without_one(rec):
+            for j, (ball, pts) in enumerate(rec.probes):
+                for k in range(len(pts) if len(pts) >= 4 else 0):
+                    variant = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T)
+                    variant.probes[j] = (ball, np.delete(pts, k, axis=0))
+                    yield variant, ()
+
+        amb = evaluate.ambiguous if evaluate is not None else []
+        flips = ((rec, flip) for n in range(1, len(amb) + 1) for flip in combinations(amb, n))
+        best = best_of(flips) or best_of(without_one(rec))
+        if best is not None:
+            return best[1], best[2], f, None
+        return None, rec, f, reason
+
+    def _accepted(self, rec: PoseData) -> UpdateReport:
+        self.records.append(rec)
+        self.n_accepted += 1
+        self._final = None
+        return UpdateReport(rec.pose, True)
+
+    def _smooth(self):
+        """The final smoothing: one batch solve over every pose fed (weak prior, noise estimated and
+        gross errors excluded as in ``calibrate``), so that the end depends neither on the order
+        the poses came in nor on what the running estimate refused on the way (a pose refused
+        against an early, poor estimate is judged again, as the batch judges it). Returns
+        ``(theta, covariance)`` in internal units, or None while the poses cannot determine the
+        parameters without the prior (the running estimate stands then)."""
+        from dataclasses import replace
+
+        from .calibrate import calibrate
+
+        ident = self.model.identifiable_names()
+        names = list(self.params.names)
+        options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
+                          exclude=tuple(n for n in ident if n not in names))
+        try:
+            r = calibrate(records_dataset(self.ds, list(self.seen.values())), self.model, options)
+        except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
+            log.info("final smoothing skipped: %s", exc)
+            return None
+        if r.names != names:
+            raise FgcalError(f"final smoothing: the batch solve holds {', '.join(h['name'] for h in r.held)}")
+        scale = np.where(self.params.is_angle, np.radians(1.0), 1.0)
+        return self.params.from_file_units(r.estimate), r.covariance * np.outer(scale, scale)
 
 
 class ISAM2Engine(_Engine):
@@ -150,43 +406,47 @@ class ISAM2Engine(_Engine):
         self._linpoint = None
         self._started = False
         self._keep = []  # the factors' closures reference their arguments: keep them alive
+        self._factors: list[float] = []  # the noise factor each accepted pose was added with
+
+    def _current(self) -> np.ndarray:
+        return self.isam.calculateEstimateVector(self.t_key) if self._started else self.params.nominal()
 
     def update(self, rec: PoseData) -> UpdateReport:
         sig = self.sigmas
+        i = rec.pose
+        # The innovation against the current estimate, at the noise estimated so far.
+        cov = self.isam.marginalCovariance(self.t_key) if self._started else np.diag(self.prior_sigma**2)
+        evaluate, used, f, reason = self._screen(rec, self._current(), cov)
+        if evaluate is None:
+            return UpdateReport(i, False, reason)
+        return self._add(used, evaluate.parts, f)
+
+    def _add(self, rec: PoseData, parts, f: float) -> UpdateReport:
+        """Add an accepted pose's factors, its noise scaled by the factor ``f``."""
+        sig = self.sigmas
+        i = rec.pose
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         if not self._started:
             graph.add(fx.parameter_prior(self.t_key, self.params.nominal(), self.prior_sigma))
             values.insert(self.t_key, self.params.nominal())
-        i = rec.pose
         joint_vars = bool(np.all(np.asarray(sig.joint) > 0))
         qargs = {"q_key": fx.joint_key(i)} if joint_vars else {"q_fixed": rec.q}
-        good = None
-        if rec.probes:
-            good, reason = _good_centres(rec, self.ds.tooling, self.ds.noise.cmm_sigma)
-            if good is None:
-                return UpdateReport(i, False, reason)
-        if not (rec.probes or rec.centres or rec.T is not None):
-            return UpdateReport(i, False, "no measurements")
         if joint_vars:
-            graph.add(fx.joint_prior(fx.joint_key(i), rec.q, sig.joint))
+            graph.add(fx.joint_prior(fx.joint_key(i), rec.q, sig.joint * np.sqrt(f)))
             values.insert(fx.joint_key(i), rec.q.copy())
-        # Each probed ball enters through its fitted centre with the fit's full covariance: to
-        # first order the same information as its probe points around a centre variable, without
-        # the stiff kinematic factor that would need relinearising at every step.
-        if good:
-            cov = np.zeros((3 * len(good), 3 * len(good)))
-            for k, (_, _, c) in enumerate(good):
-                cov[3 * k:3 * k + 3, 3 * k:3 * k + 3] = c
-            graph.add(fx.ball_centres_factor(self.params.index, self.held,
-                                             [self.ds.tooling.balls[b] for b, _, _ in good], [c for _, c, _ in good],
-                                             cov, t_key=self.t_key, **qargs))
-        for ball, xyz in rec.centres:
-            graph.add(fx.ball_centre_factor(self.params.index, self.held, self.ds.tooling.balls[ball], sig.centre,
-                                            t_key=self.t_key, c_measured=xyz, **qargs))
+        # Each ball enters through its (fitted) centre with the fit's full covariance: to first
+        # order the same information as its probe points around a centre variable, without the
+        # stiff kinematic factor that would need relinearising at every step.
+        if parts:
+            cov = np.zeros((3 * len(parts), 3 * len(parts)))
+            for k, (_, _, c) in enumerate(parts):
+                cov[3 * k:3 * k + 3, 3 * k:3 * k + 3] = c * f
+            graph.add(fx.ball_centres_factor(self.params.index, self.held, [o for o, _, _ in parts],
+                                             [c for _, c, _ in parts], cov, t_key=self.t_key, **qargs))
         if rec.T is not None:
-            graph.add(fx.pose_factor(self.params.index, self.held, rec.T, sig.pose_rotation, sig.pose_position,
-                                     t_key=self.t_key, **qargs))
+            graph.add(fx.pose_factor(self.params.index, self.held, rec.T, sig.pose_rotation * np.sqrt(f),
+                                     sig.pose_position * np.sqrt(f), t_key=self.t_key, **qargs))
         self._keep.append(graph)
         self.isam.update(graph, values)
         self._linpoint = self.isam.getLinearizationPoint()  # keep a reference (DESIGN.md section 5)
@@ -197,13 +457,38 @@ class ISAM2Engine(_Engine):
                 old.push_back(fx.joint_key(self._live.pop(0)))
                 self.isam.marginalizeLeaves(old)
         self._started = True
-        self.n_accepted += 1
-        return UpdateReport(i, True)
+        self._factors.append(f)
+        return self._accepted(rec)
+
+    def state(self) -> dict:
+        """What :meth:`restore` needs: the accepted poses, the noise factor each was added with,
+        and the innovations seen (the tree itself is rebuilt by adding the poses again)."""
+        from .online_run import _record_to_json
+
+        return {"records": [_record_to_json(r) for r in self.records], "factors": self._factors,
+                "noise": self.noise.values, "seen": [_record_to_json(r) for r in self.seen.values()]}
+
+    def restore(self, state: dict, n_accepted: int) -> None:
+        from .online_run import _record_from_json
+
+        for d, f in zip(state["records"], state["factors"]):
+            rec = _record_from_json(d)
+            evaluate, reason = self._measurement(rec)
+            if evaluate is None:
+                raise FgcalError(f"restoring pose {rec.pose}: {reason}")
+            self._add(rec, evaluate.parts, f)
+        self.noise.values = [tuple(v) for v in state.get("noise", [])]
+        self.seen = {r.pose: r for r in map(_record_from_json, state.get("seen", []))}
+        self.n_accepted = n_accepted
 
     def finish(self) -> None:
-        """Nothing to do: the thresholds keep the linearisation current (see ``__init__``)."""
+        """The final smoothing (see :meth:`_Engine._smooth`); the incremental state stays as it was."""
+        if self.seen and self._final is None:
+            self._final = self._smooth()
 
     def estimate(self):
+        if self._final is not None:
+            return self._final
         if not self._started:
             return self.params.nominal(), np.diag(self.prior_sigma**2)
         return self.isam.calculateEstimateVector(self.t_key), self.isam.marginalCovariance(self.t_key)
@@ -227,68 +512,23 @@ class KalmanEngine(_Engine):
         self.kf.Q = np.zeros((P, P)) if drift is None else np.diag(np.asarray(drift, dtype=float) ** 2)
         self.max_iterations = max_iterations
 
-    # the measurement: stacked residual e(theta) = h(theta) - z, its Jacobian, and R
-    def _measurement(self, rec: PoseData):
-        sig = self.sigmas
-        parts = []  # (kind, payload)
-        if rec.probes:
-            good, reason = _good_centres(rec, self.ds.tooling, self.ds.noise.cmm_sigma)
-            if good is None:
-                return None, reason
-            for ball, centre, cov in good:
-                parts.append(("centre", (self.ds.tooling.balls[ball], centre, cov)))
-        for ball, xyz in rec.centres:
-            parts.append(("centre", (self.ds.tooling.balls[ball], xyz, np.eye(3) * sig.centre**2)))
-        if rec.T is not None:
-            parts.append(("pose", rec.T))
-        if not parts:
-            return None, "no measurements"
-        Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
-
-        centre_parts = [p for k, p in parts if k == "centre"]
-        offsets = np.array([p[0] for p in centre_parts]).reshape(-1, 3)
-        zs = np.array([p[1] for p in centre_parts]).reshape(-1, 3)
-        T_meas = next((p for k, p in parts if k == "pose"), None)
-        R_blocks = [p[2] for p in centre_parts]
-        if T_meas is not None:
-            R_blocks.append(np.diag([sig.pose_rotation**2] * 3 + [sig.pose_position**2] * 3))
-        m = sum(len(b) for b in R_blocks)
-        R0 = np.zeros((m, m))
-        k = 0
-        for block in R_blocks:
-            R0[k:k + len(block), k:k + len(block)] = block
-            k += len(block)
-
-        def evaluate(theta):
-            e, Jt, Jq = [], [], []
-            if len(offsets):
-                ee, jt, jq = fx.pose_ball_centres_error(theta, rec.q, offsets, zs, self.params.index, self.held)
-                e.append(ee.ravel())
-                Jt.append(jt.reshape(-1, jt.shape[-1]))
-                Jq.append(jq.reshape(-1, 6))
-            if T_meas is not None:
-                ee, jt, jq = fx.pose_error(theta, rec.q[None], T_meas[None], self.params.index, self.held)
-                e.append(ee[0])
-                Jt.append(jt[0])
-                Jq.append(jq[0])
-            Jq = np.vstack(Jq)
-            return np.concatenate(e), np.vstack(Jt), R0 + Jq @ Rj @ Jq.T  # joint noise folded in
-
-        return evaluate, None
+    def _current(self) -> np.ndarray:
+        return self.kf.x
 
     def update(self, rec: PoseData) -> UpdateReport:
-        evaluate, reason = self._measurement(rec)
-        if evaluate is None:
-            return UpdateReport(rec.pose, False, reason)
         x0 = self.kf.x.copy()
         P0 = self.kf.P + self.kf.Q  # random-walk prediction
+        evaluate, used, f, reason = self._screen(rec, x0, P0)  # f: the measurement noise estimated so far
+        if evaluate is None:
+            return UpdateReport(rec.pose, False, reason)
+        e0, H0, R0 = evaluate(x0)
         if self.kind == "ekf":
             x = x0.copy()
             sigma0 = np.sqrt(np.diag(P0))
             for _ in range(self.max_iterations):
                 e, H, R = evaluate(x)
                 innovation = -e - H @ (x0 - x)
-                S = H @ P0 @ H.T + R
+                S = H @ P0 @ H.T + f * R
                 K = np.linalg.solve(S, H @ P0).T
                 x_new = x0 + K @ innovation
                 # Relinearise while the step is a noticeable fraction of the prior's spread: the
@@ -296,45 +536,52 @@ class KalmanEngine(_Engine):
                 if np.max(np.abs(x_new - x) / sigma0) < 0.1:
                     break
                 x = x_new
-            d2 = float(innovation @ np.linalg.solve(S, innovation))
-            if d2 > chi2.ppf(1 - INNOVATION_FALSE_ALARM, len(innovation)):
-                return UpdateReport(rec.pose, False, f"innovation implausible (chi-square {d2:.3g} for "
-                                                     f"{len(innovation)} measurements)")
+            reason = NoiseTracker.implausible(innovation, S)
+            if reason:
+                return UpdateReport(rec.pose, False, reason)
             # Commit through filterpy's update, linearised at the iterated point.
             self.kf.x, self.kf.P = x0, P0
-            self.kf.update(np.zeros(len(e)), HJacobian=lambda _x: H, Hx=lambda _x: e + H @ (_x - x), R=R)
+            self.kf.update(np.zeros(len(e)), HJacobian=lambda _x: H, Hx=lambda _x: e + H @ (_x - x), R=f * R)
         else:
             from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-            e0, H0, R = evaluate(x0)
-            S = H0 @ P0 @ H0.T + R
-            d2 = float(e0 @ np.linalg.solve(S, e0))
-            if self.n_accepted >= 10 and d2 > chi2.ppf(1 - INNOVATION_FALSE_ALARM, len(e0)):
-                return UpdateReport(rec.pose, False, f"innovation implausible (chi-square {d2:.3g} for "
-                                                     f"{len(e0)} measurements)")
+            R = R0
             n = len(x0)
             points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
             ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
                                         hx=lambda s: evaluate(s)[0], points=points)
             ukf.x, ukf.P, ukf.Q = x0, P0, np.zeros((n, n))
             ukf.predict()
-            ukf.update(np.zeros(len(e0)), R=R)
+            ukf.update(np.zeros(len(e0)), R=f * R)
             self.kf.x, self.kf.P = ukf.x.copy(), 0.5 * (ukf.P + ukf.P.T)
-        self.n_accepted += 1
-        return UpdateReport(rec.pose, True)
+        return self._accepted(used)
 
     def finish(self) -> None:
-        """Nothing to do: a filter's state is final after each update."""
+        """The final smoothing (see :meth:`_Engine._smooth`) when the parameters do not drift: the
+        filter's state becomes the smoothed one, whatever the order the poses came in."""
+        if self.seen and self._final is None and not np.any(self.kf.Q):
+            self._final = self._smooth()
+            if self._final is not None:
+                self.kf.x, self.kf.P = self._final[0].copy(), self._final[1].copy()
 
     def estimate(self):
         return self.kf.x.copy(), self.kf.P.copy()
 
     def state(self) -> dict:
-        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist()}
+        from .online_run import _record_to_json
+
+        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist(), "noise": self.noise.values,
+                "records": [_record_to_json(r) for r in self.records],
+                "seen": [_record_to_json(r) for r in self.seen.values()]}
 
     def restore(self, state: dict, n_accepted: int) -> None:
+        from .online_run import _record_from_json
+
         self.kf.x = np.array(state["x"], dtype=float)
         self.kf.P = np.array(state["P"], dtype=float)
+        self.noise.values = [tuple(v) for v in state.get("noise", [])]
+        self.records = [_record_from_json(r) for r in state.get("records", [])]
+        self.seen = {r.pose: r for r in map(_record_from_json, state.get("seen", []))}
         self.n_accepted = n_accepted
 
 

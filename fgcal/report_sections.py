@@ -260,4 +260,11 @@ def _summary(result: CalibrationResult) -> list[tuple[str, str]]:
         if s.rms_rotation_deg is not None:
             text += f"; rotation {num(s.rms_rotation_deg, 3)} deg RMS"
         items.append((f"residuals: {level}", text))
+    for name, at in getattr(result, "at_readings", {}).items():
+        rot = f"; rotation {num(at.rms_rotation_deg, 3)} deg RMS" if at.rms_rotation_deg is not None else ""
+        items.append((f"residuals at the joint readings: {name}", f"{num(at.rms, 3)} {at.unit} RMS over {at.n}{rot}"))
+    for name, n in getattr(result, "noise", {}).items():
+        est = num(n.estimated) if n.estimated is not None else "-"
+        items.append((f"noise ({result.noise_mode}): {name}", f"declared {num(n.declared)} {n.unit}, estimated {est}, "
+                      f"used {num(n.used)}; redundancy {num(n.redundancy, 4)}; test of the declared p = {num(n.p_value)}"))
     return items

@@ -10,9 +10,10 @@ import numpy as np
 
 from .errors import FgcalError
 from .model import SLOT_NAMES, slots_from_file_units
+from .noise import LevelNoise, Outlier
 from .yamlio import atomic_write_text
 
-__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "CalibrationResult", "save_result", "load_result"]
+__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "CalibrationResult", "save_result", "load_result"]
 
 FORMAT = "fgcal-result/1"
 MAX_RESULT_BYTES = 1 << 30
@@ -49,6 +50,16 @@ class LevelSummary:
 
 
 @dataclass
+class ResidualSummary:
+    """RMS residual of one level over ``n`` measurements (``unit``; poses also in rotation)."""
+
+    n: int
+    rms: float
+    unit: str
+    rms_rotation_deg: float | None = None
+
+
+@dataclass
 class CalibrationResult:
     """What a calibration found, and how far to trust it.
 
@@ -81,6 +92,20 @@ class CalibrationResult:
         ``names``, ``map_terms``, ``joint_ranges_deg`` (the region a map is valid in), ``validity``
         and, after a model comparison, ``selection`` (:mod:`fgcal.model_select`). Empty for the
         geometric model.
+    noise_mode : str
+        ``estimated`` (each level's noise from the residuals where the redundancy allows) or
+        ``declared``.
+    noise : dict of str to LevelNoise
+        Per variance component (``probes``, ``centres``, ``poses``, ``poses_rotation``, ``joints``):
+        declared, estimated and used sigma, redundancy, and the test of the declared sigma.
+    outliers : list of Outlier
+        Measurements excluded as gross errors (pose, ball, line of the file).
+    fit_test : dict
+        Global test of the declared noise: ``statistic`` (sum of squared residuals at the declared
+        sigmas), ``redundancy``, ``p_value``.
+    at_readings : dict of str to ResidualSummary
+        Residuals with the joints at their readings (before the joint variables moved): the
+        training error a user of the readings sees. ``levels`` holds those after they moved.
     """
 
     robot: str
@@ -103,6 +128,11 @@ class CalibrationResult:
     tool_xyz: list[list[float]] = field(default_factory=list)
     robot_model: dict = field(default_factory=dict)
     joint_errors: dict = field(default_factory=dict)
+    noise_mode: str = "declared"
+    noise: dict[str, LevelNoise] = field(default_factory=dict)
+    outliers: list[Outlier] = field(default_factory=list)
+    fit_test: dict = field(default_factory=dict)
+    at_readings: dict[str, ResidualSummary] = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -152,6 +182,10 @@ class CalibrationResult:
                     "joint_errors"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
+        d["noise_mode"], d["fit_test"] = self.noise_mode, self.fit_test
+        d["noise"] = {k: asdict(v) for k, v in self.noise.items()}
+        d["outliers"] = [asdict(o) for o in self.outliers]
+        d["at_readings"] = {k: asdict(v) for k, v in self.at_readings.items()}
         return d
 
 
@@ -165,6 +199,10 @@ def _json_safe(obj):
     if isinstance(obj, (np.floating, np.integer)):
         return _json_safe(obj.item())
     return obj
+
+
+def _float(v):
+    return float("nan") if v is None else (float(v) if not isinstance(v, str) else float(v.replace("Infinity", "inf")))
 
 
 def save_result(result: CalibrationResult, path) -> None:
@@ -206,7 +244,12 @@ def load_result(path) -> CalibrationResult:
             dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")),
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
             tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
-            robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}))
+            robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}),
+            noise_mode=str(d.get("noise_mode", "declared")),
+            noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
+            outliers=[Outlier(**o) for o in d.get("outliers", [])],
+            fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},
+            at_readings={k: ResidualSummary(**v) for k, v in d.get("at_readings", {}).items()})
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     try:

@@ -13,7 +13,11 @@ from .calibrate import WEAK_PRIOR
 from .result import CalibrationResult
 
 __all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations",
-           "joint_error_verdict"]
+           "joint_error_verdict",
+           "noise_verdict", "outlier_location", "readings_note"]
+
+NOISE_P = 0.01  # a declared noise whose test gives less than this is called off
+NOISE_RATIO = 1.25  # ... when it is also off by more than this factor
 
 # Deviations beyond these (the weak prior: ten times the typical ones) are not a manufacturing
 # error: a sign of a wrong nominal model, a unit mix-up, or a parameter the data barely constrain.
@@ -102,32 +106,19 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
     if result.held:
         out.append("The data could not identify " + ", ".join(h["name"] for h in result.held)
                    + ": they are held at nominal (" + "; ".join(f"{h['name']} {h['reason']}" for h in result.held) + ").")
+        costs = [(h["name"], h["cost_mm"]) for h in result.held if "cost_mm" in h]
+        if costs:
+            out.append("Holding them costs, if each deviates by a typical manufacturing error, "
+                       + ", ".join(f"{n} {c:.2g} mm" for n, c in costs)
+                       + " RMS position error at new poses (0: another parameter stands in for it everywhere; "
+                       "more: poses that exercise it would identify it).")
     pairs = strong_correlations(result)
     if pairs:
         shown = ", ".join(f"{a} and {b} ({r:+.3f})" for a, b, r in pairs[:5])
         out.append(f"The data barely separate {len(pairs)} pair(s) of parameters: {shown}"
                    f"{f' and {len(pairs) - 5} more' if len(pairs) > 5 else ''}. Their sum or difference is known better "
                    "than each.")
-    for level, s in result.levels.items():
-        if level in ("kinematic", "prior", "joints") or not np.isfinite(s.variance_factor):
-            continue
-        vf = s.variance_factor
-        if vf > 2.0:
-            out.append(f"The {level} residuals are {np.sqrt(vf):.2g} times the assumed noise ({s.sigma:.3g} {s.unit}): "
-                       "the noise is larger than assumed, or the model misses something (non-geometric errors, "
-                       "outliers). Sigmas are optimistic by about that factor; consider --estimate-noise or --robust.")
-        elif vf < 0.5:
-            out.append(f"The {level} residuals are {np.sqrt(vf):.2g} times the assumed noise: the assumed noise "
-                       "is pessimistic, and so are the sigmas.")
-    for level, scale in (result.options.get("noise_scale") or {}).items():
-        s = result.levels.get(level)
-        if s is None or scale < 2.0:
-            continue
-        stated = s.sigma / scale
-        out.append(f"The {level} scatter is {scale:.3g} times the instrument's stated noise ({stated:.3g} {s.unit} "
-                   f"-> {s.sigma:.3g} {s.unit} estimated): about {np.sqrt(max(s.sigma**2 - stated**2, 0)):.3g} {s.unit} "
-                   "per coordinate is what no geometric model explains here (compliance under gravity, gears, "
-                   "temperature); the calibrated geometry cannot remove it, and the sigmas use the estimated noise.")
+    out += noise_verdict(result)
     implausible = [r.name for r in parameter_table(result) if any("plausible" in f for f in r.flags)]
     if implausible:
         out.append("Deviations larger than a plausible manufacturing error: " + ", ".join(implausible)
@@ -142,5 +133,70 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
             t = verification["truth"]["position_mm"]
             out.append(f"Against the simulated truth: {t['rms']:.3g} mm RMS, max {t['max']:.3g} mm.")
     if not out or (len(out) == 1 and verification is not None):
-        out.insert(0, f"All {len(result.parameters)} parameters are identified; the residuals match the assumed noise.")
+        what = "the estimated noise" if result.noise_mode == "estimated" else "the assumed noise"
+        out.insert(0, f"All {len(result.parameters)} parameters are identified; the residuals match {what}.")
+    out += readings_note(result)
+    return out
+
+
+def outlier_location(o) -> str:
+    where = f"line {o.line}" if o.line else f"row {o.index + 1}"
+    return f"pose {o.pose}" + (f" ball {o.ball}" if o.ball else "") + f" ({where} of {o.level}.csv)"
+
+
+def noise_verdict(result: CalibrationResult) -> list[str]:
+    """What the residuals say about the noise: the levels whose declared noise is off, and the outliers."""
+    out = []
+    estimated = result.noise_mode == "estimated"
+    off = []
+    for name, n in result.noise.items():
+        ratio = np.sqrt(n.variance_factor) if np.isfinite(n.variance_factor) else float("nan")
+        if n.p_value < NOISE_P and (ratio > NOISE_RATIO or ratio < 1 / NOISE_RATIO):
+            off.append((name, n, ratio))
+    for name, n, ratio in off:
+        label = name.replace("_", " ")
+        if estimated and n.estimated is not None:
+            why = ("the arm lands off its readings (repeatability, backlash) or they are coarser than declared"
+                   if name == "joints" else "the instrument or the model's fit is worse than declared"
+                   if ratio > 1 else "the declared noise is pessimistic")
+            out.append(f"The {label} noise is {ratio:.2g} times the declared value ({n.declared:.3g} -> "
+                       f"{n.estimated:.3g} {n.unit} estimated; test of the declared noise p = {n.p_value:.2g}): {why}. "
+                       "The sigmas use the estimated noise.")
+        elif ratio > 1:
+            out.append(f"The {label} residuals are {ratio:.2g} times the assumed noise ({n.declared:.3g} {n.unit}; "
+                       f"p = {n.p_value:.2g}): the noise is larger than assumed, or the model misses something. "
+                       "Sigmas are optimistic by about that factor; the default --noise estimated corrects them.")
+        else:
+            out.append(f"The {label} residuals are {ratio:.2g} times the assumed noise: the assumed noise "
+                       "is pessimistic, and so are the sigmas.")
+    if estimated:
+        fixed = [f"{name.replace('_', ' ')} ({n.note.split(': ', 1)[-1]})" for name, n in result.noise.items()
+                 if n.estimated is None]
+        if fixed:
+            out.append("Noise kept at the declared value for " + "; ".join(fixed) + ".")
+    for name, n in result.noise.items():
+        s = result.levels.get(name)
+        if name not in ("probes", "centres", "poses") or s is None or n.estimated is None or n.used < 2 * n.declared:
+            continue
+        out.append(f"About {np.sqrt(max(n.used**2 - n.declared**2, 0)):.3g} {n.unit} per coordinate of the {name} "
+                   "scatter is what no geometric model explains here (compliance under gravity, gears, temperature); "
+                   "the calibrated geometry cannot remove it.")
+    if result.outliers:
+        shown = "; ".join(f"{o.level} at {outlier_location(o)}: {o.residual:.3g} {o.unit} ({o.statistic:.2g} sigma)"
+                          for o in result.outliers[:10])
+        out.append(f"{len(result.outliers)} measurement(s) excluded as gross errors (re-measure them): {shown}"
+                   f"{' ...' if len(result.outliers) > 10 else ''}.")
+    return out
+
+
+def readings_note(result: CalibrationResult) -> list[str]:
+    """The error at the joint readings where it is well above the one after the joint variables moved."""
+    out = []
+    for level, at in result.at_readings.items():
+        moved = result.levels.get(level)
+        if moved is None or not moved.rms > 0 or at.rms < 1.5 * moved.rms:
+            continue
+        out.append(f"At the joint readings the {level} residuals are {at.rms:.3g} {at.unit} RMS; the "
+                   f"{moved.rms:.3g} {moved.unit} RMS above is after the joint variables moved to absorb the "
+                   "joints' noise. Predictions from joint readings carry the larger figure.")
     return out

@@ -72,7 +72,7 @@ def test_ignoring_the_rounding_makes_the_covariance_lie(puma):
     chi = []
     for seed in range(10):
         ds, _ = simulate(puma, np.random.default_rng(1100 + seed), SimulationSettings(n_poses=21))
-        r = calibrate(ds, puma, CalibrationOptions(joint_noise=False))
+        r = calibrate(ds, puma, CalibrationOptions(joint_noise=False, noise="declared"))
         err = r.estimate - _truth_of(ds, r.names)
         chi.append(err @ np.linalg.solve(r.covariance, err))
     assert np.mean(chi) > 2 * 30
@@ -139,8 +139,8 @@ def test_robust_losses_resist_outliers(puma, loss):
     ds, _ = simulate(puma, np.random.default_rng(75), SimulationSettings(n_poses=30, outlier_fraction=0.03,
                                                                          outlier_size=1.0))
     assert len(ds.truth_outliers) >= 5
-    plain = calibrate(ds, puma)
-    robust = calibrate(ds, puma, CalibrationOptions(robust=loss))
+    plain = calibrate(ds, puma, CalibrationOptions(outliers="none", noise="declared"))
+    robust = calibrate(ds, puma, CalibrationOptions(robust=loss, outliers="none", noise="declared"))
     truth = _truth_of(ds, plain.names)
     z_plain = np.sqrt(np.mean(((plain.estimate - truth) / robust.sigma) ** 2))
     z_robust = np.sqrt(np.mean(((robust.estimate - truth) / robust.sigma) ** 2))
@@ -150,9 +150,10 @@ def test_robust_losses_resist_outliers(puma, loss):
 def test_noise_is_estimated(puma):
     ds, _ = simulate(puma, np.random.default_rng(76), SimulationSettings(n_poses=30, noise=Noise(0.02, 0.01)))
     ds.noise = Noise(0.01, 0.01)  # the file claims half the real CMM noise
-    r = calibrate(ds, puma)
+    r = calibrate(ds, puma, CalibrationOptions(noise="declared"))
     assert 3.0 < r.levels["probes"].variance_factor < 5.0
-    fixed = calibrate(ds, puma, CalibrationOptions(estimate_noise=True))
+    assert r.noise_mode == "declared" and r.noise["probes"].used == 0.01
+    fixed = calibrate(ds, puma)
     assert abs(fixed.levels["probes"].variance_factor - 1) < 0.05
     assert 0.017 < fixed.levels["probes"].sigma < 0.023
 
