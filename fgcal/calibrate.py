@@ -10,7 +10,6 @@ from __future__ import annotations
 import logging
 from dataclasses import asdict, dataclass
 
-import gtsam
 import numpy as np
 
 from . import __version__
@@ -107,13 +106,13 @@ def _initial_base(model: RobotModel, held, q, world_points_by_pose):
     x = held.copy()
     base = [slot(f"base.{f}") for f in EULER_FIELDS]
     x[base] = 0.0
-    pred, meas = [], []
-    for i, (offsets, world) in world_points_by_pose.items():
-        pred.append(tool_points(forward(x, q[i]), offsets)[0])
-        meas.append(world)
-    if not pred:
+    if not world_points_by_pose:
         return held
-    pred, meas = np.vstack(pred), np.vstack(meas)
+    poses = np.array(list(world_points_by_pose), dtype=int)
+    T = forward(x, q[poses])  # one kinematics evaluation for all poses
+    pred = np.vstack([tool_points(T[k:k + 1], offsets)[0]
+                      for k, (offsets, _) in enumerate(world_points_by_pose.values())])
+    meas = np.vstack([world for _, world in world_points_by_pose.values()])
     if len(pred) < 3 or np.linalg.matrix_rank(pred - pred.mean(0), tol=1e-6) < 2:
         return held
     fit = rigid_fit(pred, meas, sigma=1.0)
@@ -209,9 +208,19 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     return graph, state, pose_ids
 
 
-def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
-    """Minimise the graph's cost; returns ``(state, iterations, converged)``."""
-    lin = graph.linearise(state)
+# Relative change of the cost below which two costs are the same up to rounding: the residuals
+# are differences of coordinates of ~1e3 mm computed to ~1e-13 mm, whitened by sigmas of ~1e-2.
+COST_ROUNDING = 1e-10
+
+
+def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None):
+    """Minimise the graph's cost; returns ``(state, iterations, converged)``.
+
+    ``lin``: the linearisation at ``state`` when the caller has it. The solve stops when a step
+    (or the Gauss-Newton model's prediction of it) changes the cost by no more than
+    ``tolerance`` relative, or by no more than rounding: such a step is not tried again damped.
+    """
+    lin = graph.linearise(state) if lin is None else lin
     cost = lin.cost
     damping = 1e-4
     for it in range(1, max_iterations + 1):
@@ -221,9 +230,13 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
             except np.linalg.LinAlgError:
                 damping *= 10
                 continue
+            if damping <= 1e-3 and 0 <= predicted <= tolerance * max(cost, 1e-300):
+                return state, it, True  # at the minimum: what is left to gain is rounding
             new_lin = graph.linearise(new)
             if np.isfinite(new_lin.cost) and new_lin.cost <= cost:
                 break
+            if np.isfinite(new_lin.cost) and new_lin.cost - cost <= COST_ROUNDING * cost and predicted <= COST_ROUNDING * cost:
+                return state, it, True  # the change is rounding, not a worse point
             damping *= 10
         else:
             log.warning("Levenberg-Marquardt: no step reduces the cost (damping %.3g)", damping)
@@ -241,12 +254,17 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
 def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     """Covariance of theta from ``gtsam.Marginals`` on the graph linearised at ``state``.
 
-    The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
+    A cross-check of :meth:`Graph.covariance` (the inverse of the solve's Schur complement),
+    which :func:`calibrate` uses. The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
     over (theta, q_i, c_ib); per pose, its centre, pose and joint rows over (theta, q_i).
     """
+    import gtsam
+
     import factors as fx
 
     lin = graph.linearise(state) if lin is None else lin
+    J_theta = np.zeros((graph.n_poses, graph.m, len(state.theta)))
+    J_theta[:, :graph.m_theta] = lin.J_theta
     gfg = gtsam.GaussianFactorGraph()
     t_key = fx.theta_key()
     qdim = 6 if graph.joint_vars else 0
@@ -264,11 +282,11 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
         q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :6])] if qdim else []  # noqa: E731
         for j, rows in graph.ball_rows[i]:
             col = graph.ball_col[j]
-            add([(t_key, lin.J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
+            add([(t_key, J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
                 -lin.r[i, rows])
         rows = graph.pose_rows[i]
         if len(rows):
-            add([(t_key, lin.J_theta[i, rows])] + q_block(rows), -lin.r[i, rows])
+            add([(t_key, J_theta[i, rows])] + q_block(rows), -lin.r[i, rows])
     if len(lin.prior_r):
         add([(t_key, lin.prior_J)], -lin.prior_r)
     sol = gtsam.VectorValues()
@@ -305,8 +323,8 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
     return out
 
 
-def _unidentifiable(graph: Graph, state: State) -> dict[str, list[str]]:
-    return analyse_information(graph.parameter_information(state), graph.params.names).redundant
+def _unidentifiable(graph: Graph, state: State, lin=None) -> dict[str, list[str]]:
+    return analyse_information(graph.parameter_information(state, lin), graph.params.names).redundant
 
 
 def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
@@ -321,17 +339,17 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     names = list(params.names)
     levels = _levels(ds, options)
     # Degrees of freedom per pose: full pose 6, two balls 5, one ball 3.
-    dof = 0
-    for p in ds.pose_ids:
-        balls = set()
-        full = False
-        for lv in levels:
-            obs = getattr(ds, lv)
-            if lv == "poses":
-                full |= bool(np.any(obs.pose == p))
-            else:
-                balls |= set(obs.ball[obs.pose == p].tolist())
-        dof += _pose_dof(min(len(balls), 3), full)
+    pairs, full = set(), set()
+    for lv in levels:
+        obs = getattr(ds, lv)
+        if lv == "poses":
+            full |= set(obs.pose.tolist())
+        else:
+            pairs |= set(zip(obs.pose.tolist(), obs.ball.tolist()))
+    n_balls = {}
+    for p, _ in pairs:
+        n_balls[p] = n_balls.get(p, 0) + 1
+    dof = sum(_pose_dof(min(n_balls.get(p, 0), 3), p in full) for p in ds.pose_ids.tolist())
     if dof < len(names):
         raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
                          f"{len(names)} parameters need at least {len(names)} "
@@ -339,7 +357,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
 
     graph, state, pose_ids = build_graph(ds, model, names, options)
     held_info = []
-    redundant = _unidentifiable(graph, state)
+    lin = graph.linearise(state)  # the solve's first linearisation; identifiability from it too
+    redundant = _unidentifiable(graph, state, lin)
     if redundant:
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
@@ -348,8 +367,10 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
         graph, state, pose_ids = build_graph(ds, model, names, options)
+        lin = None
 
-    state, iterations, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+    state, iterations, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance,
+                                                       lin=lin)
     scale = {}
     if options.estimate_noise:
         for _ in range(8):
@@ -368,8 +389,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
             iterations += it2
 
     # Everything below works from one linearisation at the solution.
-    lin = graph.linearise(state)
-    cov = gtsam_covariance(graph, state, lin)
+    lin = graph.linearise(state)  # the solve's last one (remembered by the graph)
+    cov = graph.covariance(state, lin)
     final = graph.params
     identifiability = analyse_information(graph.parameter_information(state, lin), final.names)
     sv = identifiability.singular_values
@@ -417,6 +438,8 @@ def nonlinear_graph(graph: Graph, state: State):
     batched solve (each custom factor is called from C++ with a copy of all values) but is the
     reference the batched solve is tested against.
     """
+    import gtsam
+
     import factors as fx
 
     g = gtsam.NonlinearFactorGraph()

@@ -10,7 +10,6 @@ linear least squares, and a final nonlinear least-squares pass polishes all twel
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .kinematics import forward
 from .model import EULER_FIELDS, RobotModel, slot
@@ -85,6 +84,8 @@ def fit_base_and_tool(model: RobotModel, q, T_measured, slots=None, orientation_
         Rfit = np.einsum("ij,njk,kl->nil", Rb, F[:, :3, :3], Rt)
         ang = so3_log(Rfit @ np.swapaxes(M[:, :3, :3], 1, 2)) * orientation_scale
         return np.concatenate([pos.ravel(), ang.ravel()])
+
+    from scipy.optimize import least_squares
 
     polished = least_squares(residual, np.zeros(12), x_scale=np.r_[[1e-3] * 3, [1.0] * 3, [1e-3] * 3, [1.0] * 3])
     Rb, tb, Rt, pt = unpack(polished.x)

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
 import factors as fx
 from .calibrate import WEAK_PRIOR, CalibrationOptions, _sigmas
@@ -33,7 +32,7 @@ from .dataset import Dataset
 from .errors import FgcalError
 from .graph import Sigmas
 from .model import ParameterSet, RobotModel
-from .spherefit import fit_spheres_checked
+from .spherefit import chi2_quantile, fit_spheres_checked
 from .transforms import pose_matrices
 
 __all__ = ["PoseData", "pose_records", "weak_prior", "UpdateReport", "ISAM2Engine", "KalmanEngine", "make_engine"]
@@ -297,7 +296,7 @@ class KalmanEngine(_Engine):
                     break
                 x = x_new
             d2 = float(innovation @ np.linalg.solve(S, innovation))
-            if d2 > chi2.ppf(1 - INNOVATION_FALSE_ALARM, len(innovation)):
+            if d2 > chi2_quantile(1 - INNOVATION_FALSE_ALARM, len(innovation)):
                 return UpdateReport(rec.pose, False, f"innovation implausible (chi-square {d2:.3g} for "
                                                      f"{len(innovation)} measurements)")
             # Commit through filterpy's update, linearised at the iterated point.
@@ -309,7 +308,7 @@ class KalmanEngine(_Engine):
             e0, H0, R = evaluate(x0)
             S = H0 @ P0 @ H0.T + R
             d2 = float(e0 @ np.linalg.solve(S, e0))
-            if self.n_accepted >= 10 and d2 > chi2.ppf(1 - INNOVATION_FALSE_ALARM, len(e0)):
+            if self.n_accepted >= 10 and d2 > chi2_quantile(1 - INNOVATION_FALSE_ALARM, len(e0)):
                 return UpdateReport(rec.pose, False, f"innovation implausible (chi-square {d2:.3g} for "
                                                      f"{len(e0)} measurements)")
             n = len(x0)
