@@ -232,6 +232,7 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
                 continue
             if damping <= 1e-3 and 0 <= predicted <= tolerance * max(cost, 1e-300):
                 return state, it, True  # at the minimum: what is left to gain is rounding
+            lin.cache.clear()  # its normal equations are formed again if this step is rejected
             new_lin = graph.linearise(new)
             if np.isfinite(new_lin.cost) and new_lin.cost <= cost:
                 break

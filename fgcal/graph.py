@@ -26,6 +26,7 @@ from .model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
+POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
 LEVELS = ("probes", "kinematic", "centres", "poses", "joints", "prior")
 
 
@@ -139,6 +140,7 @@ class Graph:
         qdim = 6 if self.joint_vars else 0
         balls_per_pose = np.bincount(self.ball_pose, minlength=n) if nb else np.zeros(n, dtype=int)
         order = np.argsort(self.ball_pose, kind="stable")
+        self._balls_by_pose = order
         self.ball_slot = np.empty(nb, dtype=int)
         self.ball_slot[order] = np.arange(nb) - np.searchsorted(self.ball_pose[order], self.ball_pose[order])
         # Each pose's ball offsets, padded: the kinematics of a pose's balls is one evaluation.
@@ -266,13 +268,24 @@ class Graph:
             put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
                 sigma=self.sigmas.probe)
         if len(self.ball_pose):
-            # One kinematics evaluation per pose for all of its balls.
-            jac = jacobians(fx.slots_of(state.theta, self.index, self.held), q, offsets=self.pose_offsets)
-            b, k = self.ball_pose, self.ball_slot
-            e = jac.points[b, k] - state.c
-            J_c = np.broadcast_to(-np.eye(3), (len(b), 3, 3))
-            put("kinematic", b, self.row["kinematic"], e, jac.point_slots[b, k][:, :, self.index],
-                jac.point_joints[b, k], J_c, self.ball_col, sigma=self.sigmas.kinematic)
+            # One kinematics evaluation per pose for all of its balls, in chunks of poses (the
+            # chain's intermediate arrays are ~20 times the Jacobians' size).
+            x = fx.slots_of(state.theta, self.index, self.held)
+            nb = len(self.ball_pose)
+            pts, J_t, J_q = np.empty((nb, 3)), np.empty((nb, 3, P)), np.empty((nb, 3, q.shape[1]))
+            order = self._balls_by_pose
+            for lo in range(0, n, POSE_CHUNK):
+                a, z = np.searchsorted(self.ball_pose[order], [lo, lo + POSE_CHUNK])
+                sel = order[a:z]
+                jac = jacobians(x, q[lo:lo + POSE_CHUNK], offsets=self.pose_offsets[lo:lo + POSE_CHUNK])
+                b, k = self.ball_pose[sel] - lo, self.ball_slot[sel]
+                pts[sel] = jac.points[b, k]
+                J_t[sel] = jac.point_slots[b, k][:, :, self.index]
+                J_q[sel] = jac.point_joints[b, k]
+                del jac
+            J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
+            put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
+                sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
             e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held)
@@ -326,15 +339,21 @@ class Graph:
         """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
         if damping:
             A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
-            idx = np.arange(self.nz)
-            D = D.copy()
-            D[:, idx, idx] += damping * np.maximum(D[:, idx, idx], 1e-12)
-        Dinv = np.linalg.inv(D) if self.nz else D
-        BD = np.matmul(B, Dinv)
-        S = A - np.tensordot(BD, B, axes=([0, 2], [0, 2]))
-        rhs = None
-        if g_t is not None:
-            rhs = g_t - np.tensordot(BD, g_z, axes=([0, 2], [0, 1]))
+        S = A.copy()
+        rhs = None if g_t is None else g_t.copy()
+        Dinv = np.empty_like(D)
+        idx = np.arange(self.nz)
+        for lo in range(0, len(D), POSE_CHUNK):  # in chunks of poses: no temporaries of N blocks
+            c = slice(lo, lo + POSE_CHUNK)
+            Dc = D[c]
+            if damping:
+                Dc = Dc.copy()
+                Dc[:, idx, idx] += damping * np.maximum(Dc[:, idx, idx], 1e-12)
+            Dinv[c] = np.linalg.inv(Dc) if self.nz else Dc
+            BD = np.matmul(B[c], Dinv[c])
+            S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
+            if rhs is not None:
+                rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
         return S, rhs, Dinv
 
     def _reduced_at(self, lin: Linearisation):
