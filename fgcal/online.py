@@ -53,23 +53,42 @@ class PoseData:
     T: np.ndarray | None = None
 
 
-def pose_records(ds: Dataset, levels=None) -> list[PoseData]:
-    """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose)."""
+def _rows_by_pose(obs, pose_ids):
+    """Row indices of ``obs`` per pose id, in file order: one sort, not one scan per pose."""
+    if obs is None:
+        return {}
+    order = np.argsort(obs.pose, kind="stable")
+    sorted_pose = obs.pose[order]
+    lo = np.searchsorted(sorted_pose, pose_ids, side="left")
+    hi = np.searchsorted(sorted_pose, pose_ids, side="right")
+    return {int(p): order[a:z] for p, a, z in zip(pose_ids, lo, hi)}
+
+
+def pose_records(ds: Dataset, levels=None, poses=None) -> list[PoseData]:
+    """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose).
+
+    ``poses``: only these pose ids (the others are not read). Linear in the dataset's size.
+    """
     levels = ds.levels() if levels is None else list(levels)
+    ids = np.asarray(ds.pose_ids, dtype=int)
+    keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
+    ids, joints = ids[keep], ds.joints_rad[keep]
+    probes = _rows_by_pose(ds.probes, ids) if "probes" in levels else {}
+    centres = _rows_by_pose(ds.centres, ids) if "centres" in levels else {}
+    pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
     out = []
-    for pid, q in zip(ds.pose_ids, ds.joints_rad):
-        rec = PoseData(int(pid), q)
-        if "probes" in levels and ds.probes is not None:
-            sel = ds.probes.pose == pid
-            for b in dict.fromkeys(ds.probes.ball[sel].tolist()):
-                rec.probes.append((b, ds.probes.xyz[sel & (ds.probes.ball == b)]))
-        if "centres" in levels and ds.centres is not None:
-            sel = np.nonzero(ds.centres.pose == pid)[0]
-            rec.centres += [(str(ds.centres.ball[i]), ds.centres.xyz[i]) for i in sel]
-        if "poses" in levels and ds.poses is not None:
-            sel = np.nonzero(ds.poses.pose == pid)[0]
-            if len(sel):
-                rec.T = pose_matrices(ds.poses.xyz[sel[0]], ds.poses.quat[sel[0]])
+    for pid, q in zip(ids.tolist(), joints):
+        rec = PoseData(pid, q)
+        if probes:
+            rows = probes[pid]
+            balls = ds.probes.ball[rows]
+            for b in dict.fromkeys(balls.tolist()):
+                rec.probes.append((b, ds.probes.xyz[rows[balls == b]]))
+        if centres:
+            rec.centres += [(str(ds.centres.ball[i]), ds.centres.xyz[i]) for i in centres[pid]]
+        if pose_rows and len(pose_rows[pid]):
+            i = pose_rows[pid][0]
+            rec.T = pose_matrices(ds.poses.xyz[i], ds.poses.quat[i])
         out.append(rec)
     return out
 

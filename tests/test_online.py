@@ -10,7 +10,7 @@ import pytest
 from fgcal.calibrate import CalibrationOptions, calibrate
 from fgcal.dataset_io import load_dataset, save_dataset
 from fgcal.online import make_engine, pose_records
-from fgcal.online_run import OnlineRun
+from fgcal.online_run import OnlineRun, read_checkpoint
 from fgcal.simulate import SimulationSettings, simulate
 
 
@@ -72,7 +72,7 @@ def test_resume_gives_the_same_result(puma, dataset, engine, tmp_path):
     first = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
     for rec in first.pending()[:17]:
         first.feed(rec)
-    del first  # "crash"
+    first.close()  # "crash": the journal has no end-of-run mark, closing is the same as dying
     second = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
     assert second.resume() == 17
     for rec in second.pending():
@@ -95,14 +95,14 @@ def test_cli_online_follows_a_growing_dataset(puma, dataset, tmp_path):
         save_dataset(dataset.select(dataset.pose_ids[:14]), live, overwrite=True)  # six more poses arrive
         deadline = time.time() + 20
         while time.time() < deadline:
-            if ckpt.exists() and len(json.loads(ckpt.read_text())["processed"]) == 14:
+            if ckpt.exists() and len(read_checkpoint(ckpt)["entries"]) == 14:
                 break
             time.sleep(0.3)
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
-    state = json.loads(ckpt.read_text())
+    state = {"processed": read_checkpoint(ckpt)["entries"]}
     assert [p["pose"] for p in state["processed"]] == dataset.pose_ids[:14].tolist()
     assert "pose 14 (14)" in out and "accepted" in out  # plain lines when not on a terminal
     accepted = sum(p["accepted"] for p in state["processed"])
