@@ -116,7 +116,8 @@ def solve(path):
 
     theta0[base] = least_squares(base_residuals, theta0[base], jac=base_jacobian, method="trf", x_scale="jac").x
     x0 = np.concatenate([theta0, np.zeros(6 * N)])
-    sol = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac")
+    # ftol 1e-10: the default 1e-8 stops ~0.03 sigma short of the minimum at 10000 poses
+    sol = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale="jac", ftol=1e-10)
 
     # Covariance: per pose, eliminate the joint block from J^T J (Schur complement on theta).
     J = jacobian(sol.x)
