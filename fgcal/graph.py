@@ -360,7 +360,21 @@ class Graph:
         """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
         if "reduced" not in lin.cache:
             A, B, D, _, _ = self.normal_equations(lin)
-            S, _, Dinv = self.reduced(A, B, D)
+            _, _, Dinv = self.reduced(A, B, D)
+            # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
+            # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
+            n, mt, P = lin.J_theta.shape
+            S = lin.prior_J.T @ lin.prior_J
+            for lo in range(0, n, POSE_CHUNK):
+                c = slice(lo, lo + POSE_CHUNK)
+                k = len(lin.r[c])
+                M = np.zeros((k, self.m + self.nz, self.nz + P))
+                M[:, :self.m, :self.nz] = lin.J_local[c]
+                M[:, :mt, self.nz:] = lin.J_theta[c]
+                pad = ~self.local_used[c]
+                M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
+                R = np.linalg.qr(M, mode="r")[:, self.nz:, self.nz:]
+                S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
             lin.cache["reduced"] = (S, Dinv)
         return lin.cache["reduced"]
 
