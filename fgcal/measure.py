@@ -17,7 +17,7 @@ import numpy as np
 from .dataset import Dataset, PointObservations, PoseObservations
 from .errors import FgcalError
 from .posefit import check_homogeneous, nearest_rotation, paper_pose, rigid_fit
-from .spherefit import fit_sphere
+from .spherefit import fit_sphere, fit_spheres_checked
 from .transforms import matrix_to_quaternion
 
 __all__ = ["QualityRow", "Measurement", "measure_probes", "derived_dataset", "quality_csv"]
@@ -95,15 +95,23 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
     c_pose, c_ball, c_xyz, c_cov, c_line = [], [], [], [], []
     good: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
     order = np.lexsort((probes.ball, probes.pose))
-    keys = list(dict.fromkeys(zip(probes.pose[order].tolist(), probes.ball[order].tolist())))
+    rows_of: dict[tuple[int, str], list[int]] = {}  # file rows of each (pose, ball), in file order
+    for i, pose, ball in zip(order.tolist(), probes.pose[order].tolist(), probes.ball[order].tolist()):
+        rows_of.setdefault((pose, ball), []).append(i)
+    keys = list(rows_of)
+    need = 4 if free_radius else 3
+    fits = {}
+    if radius is not None:  # all balls at once (vectorised by point count), same checks
+        fittable = [k for k in keys if len(rows_of[k]) >= need]
+        fits = dict(zip(fittable, fit_spheres_checked([probes.xyz[rows_of[k]] for k in fittable], radius, sigma,
+                                                      threshold)))
     for pose, ball in keys:
-        sel = (probes.pose == pose) & (probes.ball == ball)
+        sel = np.array(rows_of[(pose, ball)])
         pts = probes.xyz[sel]
-        need = 4 if free_radius else 3
         if len(pts) < need:
             quality.append(QualityRow(pose, ball, float("nan"), f"too few probe points ({len(pts)}; need {need})"))
             continue
-        fit = fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
+        fit = fits.get((pose, ball)) or fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
         status = fit.status
         lines = probes.line[sel]
         if fit.suspect is not None and fit.ok is False and "outlier: point" in status:
@@ -119,10 +127,13 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
             c_line.append(int(probes.line[sel][0]))
             good.setdefault(pose, []).append((ball, fit.centre, fit.covariance))
 
+    n_balls: dict[int, int] = {}
+    for p, _ in keys:
+        n_balls[p] = n_balls.get(p, 0) + 1
     p_pose, p_xyz, p_quat, p_cov = [], [], [], []
     for pose in sorted(set(probes.pose.tolist())):
         balls = good.get(pose, [])
-        n_probed = len({b for p, b in keys if p == pose})
+        n_probed = n_balls[pose]
         if len(balls) < min_balls:
             quality.append(QualityRow(pose, POSE_ROW, float("nan"),
                                       f"rejected: {len(balls)} good ball(s) of {n_probed}; a pose needs {min_balls}"))
