@@ -69,3 +69,21 @@ def test_normal_equations_match_the_dense_jacobian(puma):
     np.testing.assert_allclose(S, S_dense, rtol=1e-9, atol=1e-9 * np.abs(S_dense).max())
     np.testing.assert_allclose(graph.covariance(state, lin), np.linalg.inv(S_dense), rtol=1e-6,
                                atol=1e-9 * np.abs(np.linalg.inv(S_dense)).max())
+
+
+def test_batched_sphere_fits_of_measure_match_one_by_one(puma):
+    """measure_probes fits all balls at once: the same centres, covariances and verdicts as ball by ball."""
+    from fgcal.measure import measure_probes
+    from fgcal.spherefit import fit_sphere
+
+    ds, _ = simulate(puma, np.random.default_rng(8), SimulationSettings(n_poses=15, outlier_fraction=0.05))
+    m = measure_probes(ds)
+    pr = ds.probes
+    for p, b, c, cov in zip(m.centres.pose, m.centres.ball, m.centres.xyz, m.centre_covariance):
+        fit = fit_sphere(pr.xyz[(pr.pose == p) & (pr.ball == b)], radius=ds.tooling.radius, sigma=ds.noise.cmm_sigma)
+        assert fit.ok
+        np.testing.assert_allclose(c, fit.centre, atol=1e-9)
+        np.testing.assert_allclose(cov, fit.covariance, rtol=1e-6, atol=1e-15)
+    n_keys = len(set(zip(pr.pose.tolist(), pr.ball.tolist())))
+    bad = [q for q in m.quality if q.ball != "*" and q.status != "ok"]
+    assert len(m.centres.pose) + len(bad) == n_keys and bad  # the outliers are diagnosed, none lost
