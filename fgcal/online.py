@@ -244,6 +244,7 @@ class KalmanEngine(_Engine):
         self.kf.P = np.diag(self.prior_sigma**2)
         self.kf.Q = np.zeros((P, P)) if drift is None else np.diag(np.asarray(drift, dtype=float) ** 2)
         self.max_iterations = max_iterations
+        self._ukf = None
 
     # the measurement: stacked residual e(theta) = h(theta) - z, its Jacobian, and R
     def _measurement(self, rec: PoseData):
@@ -331,12 +332,14 @@ class KalmanEngine(_Engine):
                 return UpdateReport(rec.pose, False, f"innovation implausible (chi-square {d2:.3g} for "
                                                      f"{len(e0)} measurements)")
             n = len(x0)
-            points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
-            ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
-                                        hx=lambda s: evaluate(s)[0], points=points)
-            ukf.x, ukf.P, ukf.Q = x0, P0, np.zeros((n, n))
+            if self._ukf is None:  # one filter, reused: each pose brings its own hx, R and size
+                points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
+                self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
+                                                  hx=None, points=points)
+            ukf = self._ukf
+            ukf.x, ukf.P, ukf.Q = x0.copy(), P0.copy(), np.zeros((n, n))
             ukf.predict()
-            ukf.update(np.zeros(len(e0)), R=R)
+            ukf.update(np.zeros(len(e0)), R=R, hx=lambda s: evaluate(s)[0])
             self.kf.x, self.kf.P = ukf.x.copy(), 0.5 * (ukf.P + ukf.P.T)
         self.n_accepted += 1
         return UpdateReport(rec.pose, True)

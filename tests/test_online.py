@@ -226,3 +226,16 @@ def test_stream_skips_undecodable_lines():
     recs = list(read_stream(lines, {"A": [0, 0, 0]}, warn=warnings.append))
     assert len(recs) == 1 and recs[0].probes[0][1].tolist() == [[1.0, 2.0, 3.0]]
     assert len(warnings) == 1 and "line 2 skipped: not UTF-8" in warnings[0]
+
+
+def test_ukf_reused_equals_a_fresh_filter_per_pose(puma, dataset):
+    """One UnscentedKalmanFilter for the whole run gives exactly what a new one per pose gave."""
+    records = pose_records(dataset)[:8]
+    reused, fresh = make_engine("ukf", dataset, puma), make_engine("ukf", dataset, puma)
+    for rec in records:
+        reused.update(rec)
+        fresh._ukf = None  # the old behaviour: a new filter for this pose
+        fresh.update(rec)
+    assert reused._ukf is not None
+    for a, b in zip(reused.estimate(), fresh.estimate()):
+        np.testing.assert_array_equal(a, b)
