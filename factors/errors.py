@@ -2,8 +2,10 @@
 
 Each returns the *unwhitened* error and its Jacobians with respect to its variables. The
 kinematic parameters are a vector ``theta`` (P,) in internal units (mm, rad), placed into the
-37-slot chain by ``index`` (P,) over ``held`` (37,), the values of the slots not estimated.
-Joint variables ``q`` are radians; points are mm (world).
+37-slot chain by ``index`` (P,) over ``held`` (S,), the values of the slots not estimated. Each kinematic error
+takes the robot's ``chain`` (:class:`fgcal.kinematics.Chain`; the all-revolute chain of
+``held``'s size by default). Joint variables ``q`` are the readings (rad, or mm for prismatic
+joints); points are mm (world).
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ __all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_ball_centres_er
 
 
 def slots_of(theta, index, held) -> np.ndarray:
-    """The 37-slot vector with ``theta`` at ``index`` and ``held`` elsewhere."""
+    """The slot vector with ``theta`` at ``index`` and ``held`` elsewhere."""
     x = np.array(held, dtype=float)
     x[np.asarray(index, dtype=int)] = theta
     return x
@@ -42,54 +44,57 @@ def probe_error(centre, point, radius):
     return (dist - radius)[:, None], (-diff / dist[:, None])[:, None, :]
 
 
-def ball_centre_error(theta, q, offset, centre, index, held):
+def ball_centre_error(theta, q, offset, centre, index, held, chain=None):
     """A ball centre is at the forward kinematics times the ball's tool-frame offset.
 
     Parameters
     ----------
     theta : array_like, shape (P,)
-    q : array_like, shape (M, 6)
-        Joint values (rad) of each measurement's pose.
+    q : array_like, shape (M, n)
+        Joint readings (rad, mm) of each measurement's pose.
     offset : array_like, shape (M, 3)
         The ball's centre in the tool frame (mm).
     centre : array_like, shape (M, 3)
         The ball-centre variable, or a measured centre (mm, world).
     index, held : see :func:`slots_of`.
+    chain : fgcal.kinematics.Chain, optional
+        The robot's chain; the all-revolute chain of ``held``'s size by default.
 
     Returns
     -------
     e : ndarray, shape (M, 3)
         ``FK(theta, q) offset - centre`` (mm).
     J_theta : ndarray, shape (M, 3, P)
-    J_q : ndarray, shape (M, 3, 6)
+    J_q : ndarray, shape (M, 3, n)
     (the Jacobian with respect to ``centre`` is ``-I``)
     """
     x = slots_of(theta, index, held)
     q = np.atleast_2d(q)
-    jac = jacobians(x, q, offsets=np.asarray(offset, dtype=float).reshape(-1, 1, 3))
+    jac = jacobians(x, q, offsets=np.asarray(offset, dtype=float).reshape(-1, 1, 3), chain=chain)
     e = jac.points[:, 0] - np.atleast_2d(centre)
     return e, jac.point_slots[:, 0][:, :, index], jac.point_joints[:, 0]
 
 
-def pose_ball_centres_error(theta, q, offsets, centres, index, held):
+def pose_ball_centres_error(theta, q, offsets, centres, index, held, chain=None):
     """:func:`ball_centre_error` for B balls of one pose, with one kinematics evaluation.
 
     Parameters
     ----------
-    q : array_like, shape (6,)
+    q : array_like, shape (n,)
     offsets, centres : array_like, shape (B, 3)
 
     Returns
     -------
-    e : ndarray, shape (B, 3); J_theta : (B, 3, P); J_q : (B, 3, 6)
+    e : ndarray, shape (B, 3); J_theta : (B, 3, P); J_q : (B, 3, n)
     """
     x = slots_of(theta, index, held)
-    jac = jacobians(x, np.asarray(q, dtype=float).reshape(1, 6), offsets=np.asarray(offsets, dtype=float).reshape(-1, 3))
+    jac = jacobians(x, np.asarray(q, dtype=float).reshape(1, -1), offsets=np.asarray(offsets, dtype=float).reshape(-1, 3),
+                    chain=chain)
     e = jac.points[0] - np.asarray(centres, dtype=float).reshape(-1, 3)
     return e, jac.point_slots[0][:, :, index], jac.point_joints[0]
 
 
-def pose_error(theta, q, T_measured, index, held):
+def pose_error(theta, q, T_measured, index, held, chain=None):
     """A measured tool pose against the forward kinematics.
 
     Returns
@@ -97,12 +102,12 @@ def pose_error(theta, q, T_measured, index, held):
     e : ndarray, shape (M, 6)
         ``[log(R_fk R_meas^T) (rad, world); p_fk - p_meas (mm)]``.
     J_theta : ndarray, shape (M, 6, P)
-    J_q : ndarray, shape (M, 6, 6)
+    J_q : ndarray, shape (M, 6, n)
     """
     x = slots_of(theta, index, held)
     q = np.atleast_2d(q)
     T_measured = np.asarray(T_measured, dtype=float).reshape(-1, 4, 4)
-    jac = jacobians(x, q)
+    jac = jacobians(x, q, chain=chain)
     w = so3_log(jac.T[:, :3, :3] @ np.swapaxes(T_measured[:, :3, :3], -1, -2))
     e = np.concatenate([w, jac.T[:, :3, 3] - T_measured[:, :3, 3]], axis=1)
     Jl = so3_left_jacobian_inverse(w)
@@ -114,5 +119,5 @@ def pose_error(theta, q, T_measured, index, held):
 
 
 def joint_error(q, reading):
-    """A joint variable against the controller's reading: ``q - reading`` (M, 6), Jacobian ``I``."""
+    """A joint variable against the controller's reading: ``q - reading`` (M, n), Jacobian ``I``."""
     return np.atleast_2d(q) - np.atleast_2d(reading)

@@ -1,7 +1,7 @@
 """GTSAM factors built on :mod:`factors.errors`: small builders returning ``gtsam`` factors.
 
 Variables in a ``gtsam.Values``: the parameter vector under :func:`theta_key` (a Vector of P),
-each pose's joints under :func:`joint_key` (Vector 6, rad), each ball centre under
+each pose's joints under :func:`joint_key` (Vector n, rad or mm), each ball centre under
 :func:`centre_key` (Vector 3, mm). A variable that is known (exact joint readings, a measured
 centre) is passed as a constant instead of a key.
 
@@ -78,10 +78,10 @@ def probes_factor(c_key: int, points, radius: float, sigma: float, robust=None) 
 
 def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: int | None = None,
                        q_fixed=None, c_key: int | None = None, c_measured=None, robust=None,
-                       covariance=None) -> gtsam.CustomFactor:
+                       covariance=None, chain=None) -> gtsam.CustomFactor:
     """A ball centre (variable ``c_key`` or ``c_measured``) at FK(theta, q) times ``offset``.
 
-    Joints are the variable ``q_key`` or the constant ``q_fixed`` (6,) rad. A full ``covariance``
+    Joints are the variable ``q_key`` or the constant ``q_fixed`` (n,) rad/mm; ``chain`` the robot's. A full ``covariance``
     (3, 3) mm^2, for example a sphere fit's, replaces the isotropic ``sigma``.
     """
     if (q_key is None) == (q_fixed is None) or (c_key is None) == (c_measured is None):
@@ -89,7 +89,7 @@ def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: 
     offset = np.array(offset, dtype=float).reshape(1, 3)
     index = np.array(index, dtype=int)
     held = np.array(held, dtype=float)
-    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, 6)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
     c_const = None if c_measured is None else np.array(c_measured, dtype=float).reshape(1, 3)
     keys = [t_key] + ([q_key] if q_key is not None else []) + ([c_key] if c_key is not None else [])
 
@@ -97,7 +97,7 @@ def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: 
         theta = _vector(values, t_key)
         q = q_const if q_key is None else _vector(values, q_key)[None]
         c = c_const if c_key is None else _vector(values, c_key)[None]
-        e, J_t, J_q = ball_centre_error(theta, q, offset, c, index, held)
+        e, J_t, J_q = ball_centre_error(theta, q, offset, c, index, held, chain)
         if H is not None:
             H[0] = J_t[0]
             i = 1
@@ -114,7 +114,7 @@ def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: 
 
 
 def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int, q_key: int | None = None,
-                        q_fixed=None) -> gtsam.CustomFactor:
+                        q_fixed=None, chain=None) -> gtsam.CustomFactor:
     """B measured ball centres (B, 3) of one pose in one factor (3B-dim error, one kinematics call).
 
     ``covariance`` is (3B, 3B) mm^2 (block diagonal for independent balls).
@@ -125,35 +125,35 @@ def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int
     centres = np.array(centres, dtype=float).reshape(-1, 3)
     index = np.array(index, dtype=int)
     held = np.array(held, dtype=float)
-    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(6)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(-1)
     keys = [t_key] + ([q_key] if q_key is not None else [])
 
     def error(this, values, H):
         q = q_const if q_key is None else _vector(values, q_key)
-        e, J_t, J_q = pose_ball_centres_error(_vector(values, t_key), q, offsets, centres, index, held)
+        e, J_t, J_q = pose_ball_centres_error(_vector(values, t_key), q, offsets, centres, index, held, chain)
         if H is not None:
             H[0] = J_t.reshape(-1, J_t.shape[-1])
             if q_key is not None:
-                H[1] = J_q.reshape(-1, 6)
+                H[1] = J_q.reshape(-1, J_q.shape[-1])
         return e.ravel()
 
     return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)), keys, error)
 
 
 def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, t_key: int,
-                q_key: int | None = None, q_fixed=None, robust=None) -> gtsam.CustomFactor:
+                q_key: int | None = None, q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
     """A measured tool pose (4, 4) against FK(theta, q): error ``[rotation (rad); position (mm)]``."""
     if (q_key is None) == (q_fixed is None):
         raise ValueError("give exactly one of q_key and q_fixed")
     T_measured = np.array(T_measured, dtype=float).reshape(1, 4, 4)
     index = np.array(index, dtype=int)
     held = np.array(held, dtype=float)
-    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, 6)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
     keys = [t_key] + ([q_key] if q_key is not None else [])
 
     def error(this, values, H):
         q = q_const if q_key is None else _vector(values, q_key)[None]
-        e, J_t, J_q = pose_error(_vector(values, t_key), q, T_measured, index, held)
+        e, J_t, J_q = pose_error(_vector(values, t_key), q, T_measured, index, held, chain)
         if H is not None:
             H[0] = J_t[0]
             if q_key is not None:
@@ -164,8 +164,9 @@ def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, 
 
 
 def joint_prior(q_key: int, reading, sigma: float) -> gtsam.PriorFactorVector:
-    """The joint variable ``q_key`` is the controller's reading (6,) rad give or take ``sigma`` rad."""
-    return gtsam.PriorFactorVector(q_key, np.array(reading, dtype=float), noise_model([sigma] * 6))
+    """The joint variable ``q_key`` is the controller's reading (n,) give or take ``sigma``."""
+    reading = np.array(reading, dtype=float).reshape(-1)
+    return gtsam.PriorFactorVector(q_key, reading, noise_model(np.broadcast_to(sigma, reading.shape)))
 
 
 def parameter_prior(t_key: int, mean, sigmas) -> gtsam.PriorFactorVector:

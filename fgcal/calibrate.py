@@ -3,7 +3,7 @@
 :func:`calibrate` builds the graph of a dataset (:mod:`fgcal.graph`), finds the parameters the
 data cannot identify (they are held at nominal and named), solves by Levenberg-Marquardt from
 the nominal model (the base placement is first fitted to the measurements), and computes the
-parameters' covariance with ``gtsam.Marginals``. No I/O here.
+parameters' covariance as the inverse of the solve's Schur complement. No I/O here.
 """
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from .dataset import Dataset
 from .errors import FgcalError
 from .graph import Graph, Sigmas, State
 from .identifiability import analyse_information
-from .kinematics import forward, tool_points
-from .model import EULER_FIELDS, SLOT_NAMES, RobotModel, slot, slots_to_file_units
+from .kinematics import tool_points
+from .model import EULER_FIELDS, RobotModel
 from .posefit import rigid_fit
 from .result import CalibrationResult, LevelSummary, ParameterEstimate
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
@@ -26,7 +26,7 @@ from .simulate import Deviations
 from .transforms import to_euler_zyx_trans
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
-           "gtsam_covariance"]
+           "gtsam_covariance", "identifiability_of", "to_gtsam", "gtsam_levenberg_marquardt"]
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +54,10 @@ class CalibrationOptions:
         Unmodelled error (mm) between a ball-centre variable and the forward kinematics.
     estimate_noise : bool
         Re-weight each measurement level by its estimated variance factor until it is 1.
+    engine : {"batch", "gtsam"}
+        ``batch``: fgcal's Levenberg-Marquardt with one batched Schur complement per step;
+        ``gtsam``: GTSAM's own Levenberg-Marquardt on :func:`to_gtsam` (slower: every custom
+        factor is a Python callback). The covariance is computed the same way for both.
     extra, exclude : tuple of str
         Slots to add to, or remove from, the identifiable parameters.
     """
@@ -69,16 +73,18 @@ class CalibrationOptions:
     exclude: tuple = ()
     max_iterations: int = 100
     tolerance: float = 1e-12
+    engine: str = "batch"
 
 
 def _pose_dof(n_balls: int, full_pose: bool) -> int:
     return 6 if full_pose or n_balls >= 3 else {0: 0, 1: 3, 2: 5}[n_balls]
 
 
-def _sigmas(ds: Dataset, options: CalibrationOptions, scale=None) -> Sigmas:
+def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=None) -> Sigmas:
     scale = scale or {}
     n = ds.noise
-    joint = np.radians(n.joint_sigma_deg) if options.joint_noise else 0.0
+    # A joint reading's sigma is in its file unit (deg, or mm for a prismatic joint).
+    joint = model.joints_to_internal(np.full(model.n_joints, n.joint_sigma_deg)) if options.joint_noise else 0.0
     centre = n.centre_sigma if n.centre_sigma is not None else n.cmm_sigma
     pos = n.pose_position_sigma if n.pose_position_sigma is not None else n.cmm_sigma
     rot = np.radians(n.pose_orientation_sigma) if n.pose_orientation_sigma is not None else n.cmm_sigma / 100.0
@@ -104,12 +110,12 @@ def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
 def _initial_base(model: RobotModel, held, q, world_points_by_pose):
     """Fit the base placement to measured points with the nominal chain (a rigid fit)."""
     x = held.copy()
-    base = [slot(f"base.{f}") for f in EULER_FIELDS]
+    base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
     x[base] = 0.0
     if not world_points_by_pose:
         return held
     poses = np.array(list(world_points_by_pose), dtype=int)
-    T = forward(x, q[poses])  # one kinematics evaluation for all poses
+    T = model.forward(x, q[poses])  # one kinematics evaluation for all poses
     pred = np.vstack([tool_points(T[k:k + 1], offsets)[0]
                       for k, (offsets, _) in enumerate(world_points_by_pose.values())])
     meas = np.vstack([world for _, world in world_points_by_pose.values()])
@@ -141,8 +147,8 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     if not len(pose_ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
     row = {p: i for i, p in enumerate(pose_ids)}
-    q = ds.joints_rad[ds.row_of(pose_ids)]
-    sig = _sigmas(ds, options, scale)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose_ids)])
+    sig = _sigmas(ds, model, options, scale)
     kw = {}
     world_points = {}
     init_c = None
@@ -192,7 +198,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
         # points equally well, the one near the prediction is the ball's. Balls whose points do
         # not fit a sphere start at the prediction itself.
-        T0 = forward(params.full(theta0, start), q)
+        T0 = model.forward(params.full(theta0, start), q)
         predicted = tool_points(T0[graph.ball_pose], graph.ball_offset[:, None, :])[:, 0]
         for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=3):
             first = init_c[vs]
@@ -252,6 +258,63 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
     return state, max_iterations, False
 
 
+def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None):
+    if options.engine == "batch":
+        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance, lin=lin)
+    if options.engine == "gtsam":
+        return gtsam_levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+    raise FgcalError(f"unknown engine {options.engine!r} (batch, gtsam)")
+
+
+def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
+    """GTSAM's Levenberg-Marquardt on the graph of :func:`nonlinear_graph`; ``(state, iterations, converged)``."""
+    import gtsam
+
+    import factors as fx
+
+    g, values = nonlinear_graph(graph, state)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setRelativeErrorTol(float(tolerance))
+    params.setAbsoluteErrorTol(0.0)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(g, values, params)
+    solved = optimizer.optimize()
+    out = state.copy()
+    out.theta = np.asarray(solved.atVector(fx.theta_key()), dtype=float)
+    if graph.joint_vars:
+        out.q = np.array([solved.atVector(fx.joint_key(i)) for i in range(graph.n_poses)]).reshape(state.q.shape)
+    if len(graph.ball_pose):
+        out.c = np.array([solved.atVector(fx.centre_key(j)) for j in range(len(graph.ball_pose))])
+    iterations = int(optimizer.iterations())
+    return out, iterations, iterations < max_iterations
+
+
+def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):
+    """The whole calibration problem as a ``gtsam.NonlinearFactorGraph`` and its initial ``gtsam.Values``.
+
+    Keys (see the ``factors`` package): ``factors.theta_key()`` the parameter vector (in the
+    order of the returned names, internal units mm/rad), ``factors.joint_key(i)`` pose i's joint
+    variables, ``factors.centre_key(j)`` ball-centre variable j. Add your own factors and optimise
+    with any GTSAM optimiser.
+
+    Returns
+    -------
+    graph : gtsam.NonlinearFactorGraph
+    values : gtsam.Values
+    names : list of str
+        The parameters of ``theta_key()``; parameters the data cannot identify are left out (held).
+    pose_ids : ndarray of int
+        The dataset pose id of each joint key index.
+    """
+    names = model.parameters(extra=options.extra, exclude=options.exclude).names
+    graph, state, pose_ids = build_graph(ds, model, names, options)
+    redundant = _unidentifiable(graph, state)
+    if redundant:
+        graph, state, pose_ids = build_graph(ds, model, [n for n in names if n not in redundant], options)
+    g, values = nonlinear_graph(graph, state)
+    return g, values, list(graph.params.names), pose_ids
+
+
 def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     """Covariance of theta from ``gtsam.Marginals`` on the graph linearised at ``state``.
 
@@ -268,7 +331,7 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     J_theta[:, :graph.m_theta] = lin.J_theta
     gfg = gtsam.GaussianFactorGraph()
     t_key = fx.theta_key()
-    qdim = 6 if graph.joint_vars else 0
+    qdim = graph.n_joints if graph.joint_vars else 0
     unit = {}
 
     def add(keys_blocks, b):
@@ -280,7 +343,7 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
         gfg.add(gtsam.JacobianFactor(*args, np.ascontiguousarray(b), unit[len(b)]))
 
     for i in range(graph.n_poses):
-        q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :6])] if qdim else []  # noqa: E731
+        q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
         for j, rows in graph.ball_rows[i]:
             col = graph.ball_col[j]
             add([(t_key, J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
@@ -293,7 +356,7 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     sol = gtsam.VectorValues()
     sol.insert(t_key, np.zeros(len(state.theta)))
     for i in range(graph.n_poses if qdim else 0):
-        sol.insert(fx.joint_key(i), np.zeros(6))
+        sol.insert(fx.joint_key(i), np.zeros(qdim))
     for j in range(len(graph.ball_pose)):
         sol.insert(fx.centre_key(j), np.zeros(3))
     return gtsam.Marginals(gfg, sol).marginalCovariance(t_key)
@@ -318,14 +381,50 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
         norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
         scale = np.degrees(1.0) if level == "joints" else 1.0
         sigma = {"probes": sig.probe, "kinematic": sig.kinematic, "centres": sig.centre,
-                 "joints": sig.joint * np.degrees(1.0), "prior": float("nan")}[level]
+                 "joints": _joint_sigma_file_units(graph), "prior": float("nan")}[level]
         out[level] = LevelSummary(len(e), float(np.sqrt(np.mean(norms**2)) * scale), units[level], float(sigma),
                                   vf, redundancy)
     return out
 
 
+def _joint_sigma_file_units(graph: Graph) -> float:
+    """The largest joint reading sigma in file units (deg; mm for prismatic joints)."""
+    model = graph.params.model
+    sig = np.broadcast_to(np.asarray(graph.sigmas.joint, dtype=float), (model.n_joints,))
+    return float(np.max(model.joints_to_file_units(sig)))
+
+
+def _hold_order(names) -> list[int]:
+    """Column order for blaming: the tool's angles last, so they are held first.
+
+    Position-only data see a point on the tool, not its orientation: holding the tool's angles
+    and keeping its translation keeps that point linear in the parameters wherever the solve goes
+    (holding translations instead leaves a rotation that degenerates away from the start).
+    """
+    late = [i for i, n in enumerate(names) if n in ("tool.phi", "tool.theta", "tool.psi")]
+    return [i for i in range(len(names)) if i not in late] + late
+
+
+def _identifiability(graph: Graph, state: State, lin=None):
+    names = list(graph.params.names)
+    order = _hold_order(names)
+    S = graph.parameter_information(state, lin)[np.ix_(order, order)]
+    return analyse_information(S, [names[i] for i in order])
+
+
 def _unidentifiable(graph: Graph, state: State, lin=None) -> dict[str, list[str]]:
-    return analyse_information(graph.parameter_information(state, lin), graph.params.names).redundant
+    return _identifiability(graph, state, lin).redundant
+
+
+def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):
+    """What ``ds`` can identify, from the information of the graph :func:`calibrate` would solve.
+
+    Every level the dataset has counts (probe points, centres, poses, with the joint readings'
+    noise), linearised at the nominal model with the base fitted to the data.
+    """
+    graph, state, _ = build_graph(ds, model, model.parameters(extra=options.extra, exclude=options.exclude).names,
+                                  options)
+    return _identifiability(graph, state)
 
 
 def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
@@ -363,15 +462,14 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if redundant:
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
-            held_info.append({"name": n, "value": float(slots_to_file_units(graph.held)[SLOT_NAMES.index(n)]),
+            held_info.append({"name": n, "value": float(model.slots_to_file_units(graph.held)[model.slot(n)]),
                               "reason": reason})
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
         graph, state, pose_ids = build_graph(ds, model, names, options)
         lin = None
 
-    state, iterations, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance,
-                                                       lin=lin)
+    state, iterations, converged = _solve(graph, state, options, lin)
     scale = {}
     if options.estimate_noise:
         for _ in range(8):
@@ -386,7 +484,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
             graph_new, _, _ = build_graph(ds, model, names, options, scale=scale)
             graph_new.held = graph.held
             graph = graph_new
-            state, it2, converged = levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+            state, it2, converged = _solve(graph, state, options)
             iterations += it2
 
     # Everything below works from one linearisation at the solution.
@@ -399,7 +497,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if still:
         log.warning("at the solution these parameters are not identifiable: %s", ", ".join(still))
     slots = final.full(state.theta, graph.held)
-    slots_file = slots_to_file_units(slots)
+    slots_file = model.slots_to_file_units(slots)
     est = final.to_file_units(state.theta)
     nominal = final.to_file_units(final.nominal())
     cov_file = final.covariance_to_file_units(cov)
@@ -417,15 +515,15 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         residuals["poses_position_mm"] = raw["poses"][0][:, 3:].ravel().tolist()
         residuals["poses_rotation_deg"] = np.degrees(raw["poses"][0][:, :3]).ravel().tolist()
     if "joints" in raw:
-        residuals["joints_deg"] = np.degrees(raw["joints"][0]).ravel().tolist()
-    tool_xyz = forward(slots, graph.joints(state))[:, :3, 3]
+        residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
+    tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]
     from .robot_file import model_to_dict
 
     return CalibrationResult(
         robot=model.name, n_poses=int(len(pose_ids)), robot_model=model_to_dict(model),
         parameters=[ParameterEstimate(n, u, float(a), float(b), float(s))
                     for n, u, a, b, s in zip(final.names, final.units, nominal, est, sigma)],
-        covariance=cov_file, slots={n: float(v) for n, v in zip(SLOT_NAMES, slots_file)}, held=held_info,
+        covariance=cov_file, slots={n: float(v) for n, v in zip(model.slot_names, slots_file)}, held=held_info,
         levels=levels_summary, iterations=iterations, converged=converged, cost=float(lin.cost),
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
@@ -452,7 +550,7 @@ def nonlinear_graph(graph: Graph, state: State):
     k = graph.robust_k
 
     def qargs(i):
-        return {"q_key": fx.joint_key(i)} if graph.joint_vars else {"q_fixed": graph.readings[i]}
+        return ({"q_key": fx.joint_key(i)} if graph.joint_vars else {"q_fixed": graph.readings[i]}) | {"chain": graph.chain}
 
     if graph.joint_vars:
         for i in range(graph.n_poses):

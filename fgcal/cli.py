@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -28,25 +29,43 @@ def _cmd_simulate(args) -> int:
         raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")
     if not 0 <= args.outliers < 1:
         raise FgcalError("--outliers is a fraction of probe points, from 0 to below 1")
-    model = load_model(args.robot)
+    chain = None
+    if args.chain:
+        parts = args.chain.split(",")
+        if len(parts) != 2 or not all(parts):
+            raise FgcalError(f"--chain: expected BASE,TIP (URDF link names), got {args.chain!r}")
+        chain = {"base": parts[0], "tip": parts[1]}
+    model = load_model(args.robot, chain=chain)
+    levels = args.levels
+    if args.reflector is not None:
+        from dataclasses import replace
+
+        from .model import Tooling
+
+        model = replace(model, tooling=Tooling(0.0, {"R": _floats(args.reflector, 3, "--reflector")}))
+        levels = levels or "centres"
+    robot_ref = args.robot
+    if Path(args.robot).suffix or "/" in args.robot:  # a file: name it relative to the dataset directory
+        robot_ref = os.path.relpath(Path(args.robot).resolve(), Path(args.out).resolve())
     settings = SimulationSettings(
         n_poses=args.poses, plan=args.plan,
         noise=Noise(args.cmm_sigma, args.joint_resolution, args.repeatability),
         deviations=Deviations(args.length_sigma, args.angle_sigma, args.base_length_sigma, args.base_angle_sigma),
-        n_balls=args.balls, probes_per_ball=args.probes_per_ball, outlier_fraction=args.outliers,
-        outlier_size=args.outlier_size, levels=tuple(args.levels.split(",")))
+        n_balls=args.balls if args.balls is not None else min(3, len(model.tooling.balls) if model.tooling else 3),
+        probes_per_ball=args.probes_per_ball, outlier_fraction=args.outliers,
+        outlier_size=args.outlier_size, levels=tuple((levels or "probes").split(",")))
     truth = None
     if args.truth is not None:
         from .dataset_io import load_truth
-        from .model import SLOT_NAMES, slots_from_file_units
 
         values, _ = load_truth(args.truth)
-        missing = [n for n in SLOT_NAMES if n not in values]
+        missing = [n for n in model.slot_names if n not in values]
         if missing:
             raise FgcalError(f"{args.truth}: lacks {', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}")
-        truth = slots_from_file_units(np.array([values[n] for n in SLOT_NAMES]))
-    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=args.robot, seed=args.seed,
+        truth = model.slots_from_file_units(np.array([values[n] for n in model.slot_names]))
+    ds, notes = simulate(model, np.random.default_rng(args.seed), settings, robot_ref=robot_ref, seed=args.seed,
                          truth=truth)
+    ds.chain = chain
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     save_dataset(ds, args.out, overwrite=args.force)
@@ -55,22 +74,34 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+def _floats(text: str, n: int, option: str) -> np.ndarray:
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+    except ValueError:
+        values = np.zeros(0)
+    if values.shape != (n,) or not np.all(np.isfinite(values)):
+        raise FgcalError(f"{option}: expected {n} comma-separated numbers, got {text!r}")
+    return values
+
+
 def _cmd_check(args) -> int:
+    from .calibrate import identifiability_of
     from .dataset_io import dataset_model, load_dataset
-    from .identifiability import analyse, identification_jacobian
 
     ds = load_dataset(args.dataset)
     model = dataset_model(ds)
     print(f"{args.dataset}: robot {model.name}, {ds.n_poses} poses; levels: {', '.join(ds.levels()) or 'none'}")
     for lv in ds.levels():
         print(f"  {lv}: {len(getattr(ds, lv))} rows")
-    outside = ~model.in_limits(ds.joints_rad)
+    outside = ~model.in_limits(model.joints_to_internal(ds.joints_deg))
     if outside.any():
         print(f"  warning: {outside.sum()} pose(s) outside the joint limits: {ds.pose_ids[outside].tolist()}")
-    params = model.parameters()
-    J = identification_jacobian(params, ds.joints_rad, measurement=ds.tooling.offsets())
-    result = analyse(J, params.names)
-    print("identifiability (ball centres at these poses): " + result.summary())
+    if not ds.levels():
+        print("identifiability: no measurements")
+        return 0
+    result = identifiability_of(ds, model)
+    print(f"identifiability ({', '.join(ds.levels())} at these poses, with the estimator's noise model): "
+          + result.summary())
     return 0
 
 
@@ -158,7 +189,7 @@ def _cmd_calibrate(args) -> int:
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
         extra=tuple(args.extra.split(",")) if args.extra else (),
-        exclude=tuple(args.exclude.split(",")) if args.exclude else ())
+        exclude=tuple(args.exclude.split(",")) if args.exclude else (), engine=getattr(args, "engine", "batch"))
     result = calibrate(ds, model, options)
     save_result(result, args.out)
     _print_result(result)
@@ -189,8 +220,10 @@ def _cmd_verify(args) -> int:
 
     def line(label, summary):
         p, o = summary["position_mm"], summary["orientation_deg"]
-        return (f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm; "
-                f"orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg")
+        text = f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm"
+        if o is not None:
+            text += f"; orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg"
+        return text
 
     print(f"verification on {d['n_poses']} poses ({d['reference']}):")
     print(line("nominal vs measured", d["before"]))
@@ -231,34 +264,6 @@ def _cmd_report(args) -> int:
     return 0
 
 
-def _cmd_import(args) -> int:
-    from .dataset_io import save_dataset
-    from .landgraf import read_series, series_to_datasets
-    from .yamlio import dump_yaml
-
-    if args.format != "landgraf":
-        raise FgcalError(f"unknown import format {args.format!r} (landgraf)")
-    if not 0 <= args.holdout < 1:
-        raise FgcalError("--holdout is a fraction from 0 to below 1")
-    series = read_series(args.csv)
-    for s in series.skipped:
-        print(f"skipped {args.csv}: {s}")
-    calib, held, model_dict, rms = series_to_datasets(series, str(args.csv), args.position_only, args.holdout,
-                                                      np.random.default_rng(args.seed))
-    robot = {"robot.yaml": dump_yaml(model_dict)}
-    holdout_dir = args.out.with_name(args.out.name + "-holdout")
-    if held is not None and holdout_dir.exists() and not args.force:
-        raise FgcalError(f"{holdout_dir}: already exists (use --force to replace it)")
-    save_dataset(calib, args.out, overwrite=args.force, extra_files=robot)
-    print(f"wrote {args.out}: {calib.n_poses} poses ({'positions' if args.position_only else 'full poses'}); "
-          f"{len(series.skipped)} row(s) skipped; base and tool fitted to the data (RMS {rms:.3g} mm) "
-          f"in {args.out / 'robot.yaml'}")
-    if held is not None:
-        save_dataset(held, holdout_dir, overwrite=args.force, extra_files=robot)
-        print(f"wrote {holdout_dir}: {held.n_poses} held-out poses (repeated goals kept on one side)")
-    return 0
-
-
 def _cmd_compensate(args) -> int:
     from .compensate import compensate
     from .dataset_io import JOINT_COLUMNS, read_targets, write_csv
@@ -282,7 +287,7 @@ def _cmd_compensate(args) -> int:
 def _cmd_export(args) -> int:
     from .result import load_result
     from .robot_file import save_model
-    from .urdf import to_urdf
+    from .urdf import export_urdf
     from .yamlio import atomic_write_text
 
     if args.model is None and args.urdf is None:
@@ -293,12 +298,14 @@ def _cmd_export(args) -> int:
 
     calibrated = replace(model, name=f"{model.name}-calibrated",
                          description=f"{model.name} calibrated by fgcal from {result.n_poses} poses")
+    slots = result.slot_vector(model)
     if args.model:
-        save_model(calibrated, args.model, slots=result.slot_vector())
+        save_model(calibrated, args.model, slots=slots)
         print(f"wrote {args.model} (fgcal-robot/1)")
     if args.urdf:
-        atomic_write_text(args.urdf, to_urdf(calibrated, result.slot_vector()))
-        print(f"wrote {args.urdf} (URDF)")
+        atomic_write_text(args.urdf, export_urdf(calibrated, slots))
+        kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
+        print(f"wrote {args.urdf} ({kind})")
     return 0
 
 
@@ -451,7 +458,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("simulate", help="the paper's POSE program: simulate a measured robot (writes a dataset)")
     s.add_argument("out", type=Path, help="dataset directory to write")
-    s.add_argument("--robot", default="puma560", help="built-in model name or model file (default puma560)")
+    s.add_argument("--robot", default="puma560",
+                   help="built-in model name, model file or URDF file (default puma560)")
+    s.add_argument("--chain", default=None, metavar="BASE,TIP",
+                   help="URDF link names of the chain's base and tip (when the URDF has several leaves)")
+    s.add_argument("--reflector", default=None, metavar="X,Y,Z",
+                   help="measure one tracker reflector at X,Y,Z (mm, tool frame) instead of the model's tooling "
+                        "balls (levels default to centres)")
     s.add_argument("--poses", type=int, default=None, help="number of poses (random plan; default 21)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     s.add_argument("--plan", choices=("random", "paper"), default="random",
@@ -463,10 +476,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="joints land off the readings by N(0, this) deg (default 0)")
     s.add_argument("--outliers", type=float, default=0.0, help="fraction of probe points with a gross error")
     s.add_argument("--outlier-size", type=float, default=0.5, help="size of a gross error, mm (default 0.5)")
-    s.add_argument("--balls", type=int, default=3, help="balls measured per pose (default 3)")
+    s.add_argument("--balls", type=int, default=None, help="balls measured per pose (default 3, or all the tool has if fewer)")
     s.add_argument("--probes-per-ball", type=int, default=4, help="probe points per ball (default 4)")
-    s.add_argument("--levels", default="probes",
-                   help="comma-separated files to write: probes, centres, poses (default probes)")
+    s.add_argument("--levels", default=None,
+                   help="comma-separated files to write: probes, centres, poses (default probes; centres with "
+                        "--reflector)")
     s.add_argument("--length-sigma", type=float, default=0.5, help="link length deviations, mm (default 0.5)")
     s.add_argument("--angle-sigma", type=float, default=0.05, help="link angle deviations, deg (default 0.05)")
     s.add_argument("--base-length-sigma", type=float, default=5.0, help="base placement deviation, mm (default 5)")
@@ -500,6 +514,9 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--poses", default=None, help="poses to use: odd, even, first:N, last:N or ranges like 1-21")
     k.add_argument("--levels", default=None, help="comma-separated levels to use (default: all present)")
     k.add_argument("--robust", choices=("huber", "cauchy"), default=None, help="robust loss on the measurements")
+    k.add_argument("--engine", choices=("batch", "gtsam"), default="batch",
+                   help="batch: fgcal's batched Levenberg-Marquardt (default); gtsam: GTSAM's own optimiser on the "
+                        "same factor graph (slower, same result)")
     k.add_argument("--prior", choices=("none", "weak"), default="none",
                    help="weak: 10x the typical deviation on every parameter (default none)")
     k.add_argument("--estimate-noise", action="store_true",
@@ -522,17 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", type=Path, required=True, help="output directory")
     r.set_defaults(func=_cmd_report)
 
-    i = sub.add_parser("import", help="turn another tool's measurement file into an fgcal dataset")
-    i.add_argument("format", choices=("landgraf",), help="landgraf: the UR10 laser-tracker series (Landgraf 2021)")
-    i.add_argument("csv", type=Path)
-    i.add_argument("out", type=Path)
-    i.add_argument("--position-only", action="store_true",
-                   help="keep only the probe's position (centres.csv of one reflector)")
-    i.add_argument("--holdout", type=float, default=0.0,
-                   help="fraction of the goals to write to OUT-holdout for verification (default 0)")
-    i.add_argument("--seed", type=int, default=0, help="seed of the held-out draw")
-    i.add_argument("--force", action="store_true", help="replace OUT if it exists")
-    i.set_defaults(func=_cmd_import)
+    from .cli_import import add_import_parser
+
+    add_import_parser(sub)
 
     c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
     c2.add_argument("result", type=Path)

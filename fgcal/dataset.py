@@ -125,7 +125,7 @@ class Dataset:
     provenance : dict
         Free-form: where the data came from (simulator settings, instrument, date, ...).
     pose_ids : ndarray of int, shape (N,)
-    joints_deg : ndarray, shape (N, 6)
+    joints_deg : ndarray, shape (N, n)
         Joint readings as the controller gave them (deg).
     probes, centres : PointObservations or None
     poses : PoseObservations or None
@@ -135,6 +135,8 @@ class Dataset:
         Simulated gross errors: (pose, ball, index of the probe point within that ball).
     path : Path or None
         Directory the dataset was read from.
+    chain : dict or None
+        ``{"base": LINK, "tip": LINK}``: the chain of a URDF robot with more than one leaf.
     """
 
     robot: str
@@ -149,10 +151,12 @@ class Dataset:
     truth: dict[str, float] | None = None
     truth_outliers: list = field(default_factory=list)
     path: Path | None = None
+    chain: dict | None = None
 
     def __post_init__(self):
         self.pose_ids = np.asarray(self.pose_ids, dtype=int).reshape(-1)
-        self.joints_deg = np.asarray(self.joints_deg, dtype=float).reshape(-1, 6)
+        q = np.asarray(self.joints_deg, dtype=float)
+        self.joints_deg = q if q.ndim == 2 else q.reshape(-1, 6)
         if len(self.pose_ids) != len(self.joints_deg):
             raise ValueError("pose_ids and joints_deg must have the same length")
 
@@ -161,8 +165,12 @@ class Dataset:
         return len(self.pose_ids)
 
     @property
+    def n_joints(self) -> int:
+        return self.joints_deg.shape[1]
+
+    @property
     def joints_rad(self) -> np.ndarray:
-        """Joint readings (N, 6) in radians."""
+        """Joint readings (N, n) in radians, for all-revolute arms (else ``model.joints_to_internal``)."""
         return np.radians(self.joints_deg)
 
     def row_of(self, pose_ids) -> np.ndarray:
@@ -177,7 +185,7 @@ class Dataset:
         out = Dataset(robot=self.robot, tooling=self.tooling, noise=self.noise, provenance=dict(self.provenance),
                       pose_ids=self.pose_ids[keep], joints_deg=self.joints_deg[keep], truth=self.truth,
                       truth_outliers=[o for o in self.truth_outliers if o[0] in set(self.pose_ids[keep].tolist())],
-                      path=self.path)
+                      path=self.path, chain=self.chain)
         for level in ("probes", "centres", "poses"):
             obs = getattr(self, level)
             if obs is not None:

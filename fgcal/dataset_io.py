@@ -17,7 +17,7 @@ import numpy as np
 
 from .dataset import FORMAT, Dataset, Noise, PointObservations, PoseObservations
 from .errors import DatasetError, FgcalError
-from .model import SLOT_NAMES, RobotModel, Tooling
+from .model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from .robot_file import load_model
 from .yamlio import atomic_write_text, dump_yaml, read_yaml
 
@@ -25,7 +25,15 @@ __all__ = ["load_dataset", "load_dataset_meta", "save_dataset", "dataset_model",
 
 log = logging.getLogger(__name__)
 
+_SLOT_FIELDS = set(EULER_FIELDS) | set(LINK_FIELDS)
+
 JOINT_COLUMNS = ["pose", "q1", "q2", "q3", "q4", "q5", "q6"]
+MAX_JOINTS = 64
+
+
+def joint_columns(n: int) -> list[str]:
+    """``pose, q1 .. qn``: the header of joints.csv for an ``n``-joint robot."""
+    return ["pose"] + [f"q{i}" for i in range(1, n + 1)]
 POINT_COLUMNS = ["pose", "ball", "x", "y", "z"]
 POSE_COLUMNS = ["pose", "x", "y", "z", "qw", "qx", "qy", "qz"]
 
@@ -150,6 +158,14 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
         raise DatasetError(f"{path}: format {data['format']!r} is not known (expected {FORMAT!r})")
     if not isinstance(data["robot"], str) or not data["robot"]:
         raise DatasetError(f"{path}: robot must be a model name or a model file path")
+    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance"}
+    if unknown:
+        raise DatasetError(f"{path}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+    chain = data.get("chain")
+    if chain is not None:
+        if (not isinstance(chain, dict) or set(chain) - {"base", "tip"}
+                or not all(isinstance(v, str) and v for v in chain.values())):
+            raise DatasetError(f"{path}: chain must be {{base: LINK, tip: LINK}} (URDF link names)")
 
     def num(value, what, minimum=None):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -180,7 +196,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     provenance = data["provenance"]
     if not isinstance(provenance, dict):
         provenance = {"text": str(provenance)}
-    return data["robot"], tooling, noise, provenance
+    return data["robot"], tooling, noise, provenance, chain
 
 
 def load_truth(path) -> tuple[dict, list]:
@@ -191,7 +207,7 @@ def load_truth(path) -> tuple[dict, list]:
         raise DatasetError(f"{path}: expected 'parameters: {{name: value}}'")
     truth = {}
     for name, value in data["parameters"].items():
-        if name not in SLOT_NAMES:
+        if not isinstance(name, str) or name.rpartition(".")[2] not in _SLOT_FIELDS or not name.rpartition(".")[0]:
             raise DatasetError(f"{path}: unknown parameter {name!r}")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise DatasetError(f"{path}: parameter {name} must be a finite number, got {value!r}")
@@ -209,9 +225,9 @@ def load_dataset_meta(directory) -> Dataset:
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance = _meta(directory / "dataset.yaml")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
     return Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.zeros(0, dtype=int),
-                   joints_deg=np.zeros((0, 6)), path=directory)
+                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain)
 
 
 def load_dataset(directory) -> Dataset:
@@ -225,11 +241,16 @@ def load_dataset(directory) -> Dataset:
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance = _meta(directory / "dataset.yaml")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
     joints_path = directory / "joints.csv"
-    rows = _read_table(joints_path, JOINT_COLUMNS)
+    rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)])
     if not rows:
         raise DatasetError(f"{joints_path}: no poses")
+    n_joints = sum(1 for c in rows[0][1] if c != "pose")
+    columns = joint_columns(n_joints)
+    if set(rows[0][1]) != set(columns):
+        raise DatasetError(f"{joints_path}: line 1: joint columns must be q1..qn without gaps, got "
+                           f"{','.join(c for c in rows[0][1] if c != 'pose')}")
     ids, q, seen = [], [], {}
     for line, r in rows:
         where = f"{joints_path}: line {line}"
@@ -238,10 +259,10 @@ def load_dataset(directory) -> Dataset:
             raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
         seen[pid] = line
         ids.append(pid)
-        q.append([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]])
+        q.append([_number(r[c], where, c) for c in columns[1:]])
     known = set(ids)
     ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.array(ids),
-                 joints_deg=np.array(q), path=directory)
+                 joints_deg=np.array(q), path=directory, chain=chain)
     if (directory / "probes.csv").exists():
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
@@ -288,14 +309,25 @@ def read_targets(path):
 def dataset_model(ds: Dataset) -> RobotModel:
     """The robot model a dataset names (built-in, or a file relative to the dataset directory)."""
     ref = ds.robot
-    if ds.path is not None and (ref.endswith((".yaml", ".yml")) or "/" in ref):
+    if ds.path is not None and (ref.endswith((".yaml", ".yml", ".urdf")) or "/" in ref):
         candidate = (ds.path / ref) if not Path(ref).is_absolute() else Path(ref)
-        return load_model(candidate)
-    try:
-        return load_model(ref)
-    except FgcalError as exc:
-        where = ds.path / "dataset.yaml" if ds.path else "dataset"
-        raise DatasetError(f"{where}: robot: {exc}") from None
+        model = load_model(candidate, chain=ds.chain)
+    else:
+        try:
+            model = load_model(ref, chain=ds.chain)
+        except FgcalError as exc:
+            where = ds.path / "dataset.yaml" if ds.path else "dataset"
+            raise DatasetError(f"{where}: robot: {exc}") from None
+    check_joint_count(ds, model)
+    return model
+
+
+def check_joint_count(ds: Dataset, model: RobotModel) -> None:
+    """joints.csv must hold one column per joint of the model's chain."""
+    if ds.n_poses and ds.n_joints != model.n_joints:
+        where = ds.path / "joints.csv" if ds.path else "joints"
+        raise DatasetError(f"{where}: {ds.n_joints} joint columns, but robot {model.name} has {model.n_joints} "
+                           f"joints ({', '.join(model.joint_names)})")
 
 
 def _fmt(v: float) -> str:
@@ -314,13 +346,14 @@ def _write_into(ds: Dataset, directory: Path) -> None:
     meta = {
         "format": FORMAT,
         "robot": ds.robot,
+        **({"chain": dict(ds.chain)} if ds.chain else {}),
         "tool": {"radius": float(ds.tooling.radius),
                  "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
         "noise": {k: v for k, v in vars(ds.noise).items() if v is not None},
         "provenance": ds.provenance,
     }
     atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
-    write_csv(directory / "joints.csv", JOINT_COLUMNS,
+    write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
               ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
     for level, name in (("probes", "probes.csv"), ("centres", "centres.csv")):
         obs = getattr(ds, level)

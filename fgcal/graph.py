@@ -1,6 +1,6 @@
 """The calibration problem as a factor graph over parameters, joints and ball centres.
 
-Variables: the parameter vector ``theta`` (P), each pose's joints ``q_i`` (6, rad; only when
+Variables: the parameter vector ``theta`` (P), each pose's joints ``q_i`` (n, rad or mm; only when
 the readings carry noise) and each probed ball's centre ``c_ib`` (3, mm). Factors (see the
 ``factors`` package): probe points on spheres around ``c_ib``; ``c_ib`` at the forward
 kinematics (a tight "kinematic" factor whose sigma is the unmodelled error); measured centres
@@ -44,7 +44,7 @@ class Sigmas:
 
 @dataclass
 class State:
-    """The variables: ``theta`` (P,), ``q`` (N, 6) rad, ``c`` (Nb, 3) mm."""
+    """The variables: ``theta`` (P,), ``q`` (N, n) rad/mm, ``c`` (Nb, 3) mm."""
 
     theta: np.ndarray
     q: np.ndarray
@@ -101,7 +101,7 @@ class Graph:
     params : ParameterSet
         Estimated parameters; the other slots are held at ``held``.
     held : ndarray, shape (37,)
-    readings : ndarray, shape (N, 6)
+    readings : ndarray, shape (N, n)
         Joint readings (rad).
     sigmas : Sigmas
     probes : tuple (pose_index (Mp,), ball_var (Mp,), xyz (Mp, 3)) or None
@@ -120,13 +120,15 @@ class Graph:
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
-        self.readings = np.asarray(readings, dtype=float).reshape(-1, 6)
+        self.chain = params.model.chain
+        self.n_joints = nj = params.model.n_joints
+        self.readings = np.asarray(readings, dtype=float).reshape(-1, nj)
         self.sigmas = sigmas
         self.radius = float(radius)
         self.robust = robust
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
-        self.joint_vars = sigmas.joint > 0
+        self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -136,8 +138,8 @@ class Graph:
         self.centres = centres
         self.poses = poses
 
-        # Local variable columns: [q (6, if variables)] then 3 per ball variable of the pose.
-        qdim = 6 if self.joint_vars else 0
+        # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
+        qdim = nj if self.joint_vars else 0
         balls_per_pose = np.bincount(self.ball_pose, minlength=n) if nb else np.zeros(n, dtype=int)
         order = np.argsort(self.ball_pose, kind="stable")
         self._balls_by_pose = order
@@ -179,7 +181,7 @@ class Graph:
         if probes is not None:
             self.row["probes"] = take(probes[0], 1)
         if self.joint_vars:
-            self.row["joints"] = take(np.arange(n), 6)
+            self.row["joints"] = take(np.arange(n), nj)
         self.m = int(rows.max()) if n else 0
         self.rows_per_pose = rows
 
@@ -204,7 +206,7 @@ class Graph:
         """Per pose, the rows that touch only theta and q (centres, poses, joints)."""
         n = self.n_poses
         pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("joints", 6)):
+        for level, width in (("centres", 3), ("poses", 6), ("joints", self.n_joints)):
             if level in self.row:
                 pose_of = {"centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
                            "joints": lambda: np.arange(n)}
@@ -257,7 +259,7 @@ class Graph:
             if J_t is not None:
                 Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
             if J_q is not None and self.joint_vars:
-                Jz[pose[:, None], rows_, :6] = J_q * sw[:, :, None]
+                Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
             if J_c is not None:
                 cols = c_col[:, None] + np.arange(3)
                 Jz[pose[:, None, None], rows_[:, :, None], cols[:, None, :]] = J_c * sw[:, :, None]
@@ -277,7 +279,8 @@ class Graph:
             for lo in range(0, n, POSE_CHUNK):
                 a, z = np.searchsorted(self.ball_pose[order], [lo, lo + POSE_CHUNK])
                 sel = order[a:z]
-                jac = jacobians(x, q[lo:lo + POSE_CHUNK], offsets=self.pose_offsets[lo:lo + POSE_CHUNK])
+                jac = jacobians(x, q[lo:lo + POSE_CHUNK], offsets=self.pose_offsets[lo:lo + POSE_CHUNK],
+                                chain=self.chain)
                 b, k = self.ball_pose[sel] - lo, self.ball_slot[sel]
                 pts[sel] = jac.points[b, k]
                 J_t[sel] = jac.point_slots[b, k][:, :, self.index]
@@ -288,16 +291,17 @@ class Graph:
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held)
+            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
             put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
         if self.poses is not None:
             pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held)
+            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held, self.chain)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
         if self.joint_vars:
             e = fx.joint_error(state.q, self.readings)
-            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(6), (n, 6, 6)),
+            nj = self.n_joints
+            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))
@@ -387,7 +391,7 @@ class Graph:
         new = state.copy()
         new.theta = state.theta + d_theta
         if self.joint_vars:
-            new.q = state.q + d_z[:, :6]
+            new.q = state.q + d_z[:, :self.n_joints]
         if len(self.ball_pose):
             cols = self.ball_col[:, None] + np.arange(3)
             new.c = state.c + d_z[self.ball_pose[:, None], cols]
@@ -430,7 +434,7 @@ class Graph:
         h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
         out = {}
         for level, start in self.row.items():
-            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": 6}[level]
+            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": self.n_joints}[level]
             pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
                     "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
                     "joints": lambda: np.arange(self.n_poses)}[level]()

@@ -13,10 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .kinematics import check_joints, jacobians
-from .model import ParameterSet
+from .model import ParameterSet, RobotModel
 
-__all__ = ["identification_jacobian", "Identifiability", "analyse"]
+__all__ = ["identification_jacobian", "Identifiability", "analyse", "minimal_parameters"]
 
 
 def identification_jacobian(params: ParameterSet, q, slots=None, measurement="pose",
@@ -27,9 +26,9 @@ def identification_jacobian(params: ParameterSet, q, slots=None, measurement="po
     ----------
     params : ParameterSet
         The estimated parameters (P of them).
-    q : array_like, shape (N, 6)
-        Joint readings (rad).
-    slots : array_like, shape (37,), optional
+    q : array_like, shape (N, n)
+        Joint readings (rad, mm).
+    slots : array_like, shape (S,), optional
         Where to linearise (mm, rad); the nominal by default.
     measurement : {"pose", "position"} or array_like, shape (B, 3)
         ``"pose"``: 6 rows per pose (position in mm, rotation in rad times ``orientation_scale``
@@ -43,11 +42,12 @@ def identification_jacobian(params: ParameterSet, q, slots=None, measurement="po
     ndarray, shape (M, P)
         Rows in mm per internal unit (mm or rad).
     """
-    q = check_joints(q)
+    chain = params.model.chain
+    q = chain.check_joints(q)
     x = params.model.nominal if slots is None else np.asarray(slots, dtype=float)
     idx = params.index
     if isinstance(measurement, str):
-        jac = jacobians(x, q)
+        jac = chain.jacobians(x, q)
         J = jac.pose_slots[:, :, idx]
         if measurement == "pose":
             J = J * np.array([1, 1, 1, orientation_scale, orientation_scale, orientation_scale])[None, :, None]
@@ -56,7 +56,7 @@ def identification_jacobian(params: ParameterSet, q, slots=None, measurement="po
         else:
             raise ValueError(f"measurement must be 'pose', 'position' or (B, 3) points, got {measurement!r}")
         return J.reshape(-1, len(idx))
-    jac = jacobians(x, q, offsets=measurement)
+    jac = chain.jacobians(x, q, offsets=measurement)
     return jac.point_slots[..., idx].reshape(-1, len(idx))
 
 
@@ -186,3 +186,32 @@ def analyse_information(S, names, rtol: float = 1e-6) -> Identifiability:
     rank = len(names) - len(redundant)
     cond = float(sv[0] / sv[rank - 1]) if rank == len(names) and sv[rank - 1] > 0 else float("inf")
     return Identifiability(names=names, singular_values=sv, rank=rank, condition_number=cond, redundant=redundant)
+
+
+def minimal_parameters(model: RobotModel, candidates, n_configurations: int = 64, rtol: float = 1e-8):
+    """Prune ``candidates`` (slot names, in order of preference) to an independent set.
+
+    The full-pose identification Jacobian at ``n_configurations`` joint sets spread over the
+    joint limits (a fixed seed: the answer depends on the model only) is scaled column by column;
+    a candidate whose column lies in the span of the kept ones is dropped. Slots outside
+    ``candidates`` are not checked: the rule that proposes them says why they are left out.
+
+    Returns
+    -------
+    names : tuple of str
+        The kept parameters, in ``candidates`` order.
+    dropped : dict of str to str
+        Each dropped candidate with the reason (the parameters it cannot be separated from).
+    """
+    rng = np.random.default_rng(20260101)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    # Wide (+-360 deg) limits sample the same set as +-180: keep revolute samples in one turn.
+    span = np.where(model.joint_is_angle, np.minimum(hi - lo, 2 * np.pi), hi - lo)
+    q = lo + rng.uniform(0.0, 1.0, size=(n_configurations, model.n_joints)) * span
+    params = ParameterSet(model, tuple(candidates))
+    reach = max(float(np.sum(np.abs(model.nominal[~model.slot_is_angle]))), 100.0)
+    J = identification_jacobian(params, q, measurement="pose", orientation_scale=reach)
+    found = analyse(J, params.names, rtol=rtol)
+    dropped = {n: ("cannot be separated from " + ", ".join(p) if p else "no motion of the chain moves it")
+               for n, p in found.redundant.items()}
+    return tuple(n for n in params.names if n not in found.redundant), dropped

@@ -162,7 +162,7 @@ def solve_puma(model: RobotModel, T_target, branch: Branch, slots=None) -> np.nd
 
 def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_scale: float = 100.0,
                   tol_mm: float = 1e-9) -> np.ndarray:
-    """Joint readings (6,) rad that bring any model's tool to ``T_target``, from ``q_seed``.
+    """Joint readings (n,) (rad, mm) that bring any model's tool to ``T_target``, from ``q_seed``.
 
     Bounded least squares on the pose error (position in mm, orientation in rad times
     ``orientation_scale`` mm) with the analytic joint Jacobian, within the joint limits.
@@ -179,13 +179,13 @@ def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_s
     seed = np.clip(np.asarray(q_seed, dtype=float), lo, hi)
 
     def residual(q):
-        d, delta = pose_difference(forward(x, q)[0], T_target)
+        d, delta = pose_difference(model.forward(x, q)[0], T_target)
         return np.concatenate([d, delta]) * w
 
     def jac(q):
         # residual = [p - p_t; log(R R_t^T)]: d log = J_l^-1(log) w_world
-        J = jacobians(x, q).pose_joints[0].copy()
-        _, delta = pose_difference(forward(x, q)[0], T_target)
+        J = model.chain.jacobians(x, q).pose_joints[0].copy()
+        _, delta = pose_difference(model.forward(x, q)[0], T_target)
         J[3:] = so3_left_jacobian_inverse(delta) @ J[3:]
         return J * w[:, None]
 
@@ -195,7 +195,7 @@ def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_s
                         max_nfev=200, method="trf")
     err = np.linalg.norm(sol.fun)
     if err > 1e-6:
-        at_limit = [f"q{j + 1}" for j in range(6) if min(sol.x[j] - lo[j], hi[j] - sol.x[j]) < 1e-6]
+        at_limit = [model.joint_names[j] for j in range(model.n_joints) if min(sol.x[j] - lo[j], hi[j] - sol.x[j]) < 1e-6]
         why = f"; {', '.join(at_limit)} at the joint limit" if at_limit else ""
         raise IKError(f"numerical IK did not reach the target (pose error {err:.3g} mm{why})")
     return sol.x

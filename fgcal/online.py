@@ -129,7 +129,7 @@ class _Engine:
         self.model = model
         self.params = model.parameters() if names is None else ParameterSet(model, tuple(names))
         self.held = model.nominal.copy()
-        self.sigmas: Sigmas = _sigmas(ds, options)
+        self.sigmas: Sigmas = _sigmas(ds, model, options)
         self.prior_sigma = weak_prior(self.params)
         self.n_accepted = 0
 
@@ -177,7 +177,7 @@ class ISAM2Engine(_Engine):
             graph.add(fx.parameter_prior(self.t_key, self.params.nominal(), self.prior_sigma))
             values.insert(self.t_key, self.params.nominal())
         i = rec.pose
-        joint_vars = sig.joint > 0
+        joint_vars = bool(np.all(np.asarray(sig.joint) > 0))
         qargs = {"q_key": fx.joint_key(i)} if joint_vars else {"q_fixed": rec.q}
         good = None
         if rec.probes:
@@ -262,7 +262,7 @@ class KalmanEngine(_Engine):
             parts.append(("pose", rec.T))
         if not parts:
             return None, "no measurements"
-        Rj = np.eye(6) * sig.joint**2
+        Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
 
         centre_parts = [p for k, p in parts if k == "centre"]
         offsets = np.array([p[0] for p in centre_parts]).reshape(-1, 3)

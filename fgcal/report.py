@@ -65,13 +65,18 @@ def _summary(result: CalibrationResult, verification: dict | None) -> list[tuple
         items.append((f"residuals: {level}", text))
     if verification is not None:
         for label, d in (("verification, nominal", verification["before"]), ("verification, calibrated", verification)):
-            items.append((label, f"position {d['position_mm']['rms']:.4g} mm RMS (max {d['position_mm']['max']:.4g}); "
-                                 f"orientation {d['orientation_deg']['rms']:.4g} deg RMS"))
+            items.append((label, f"position {d['position_mm']['rms']:.4g} mm RMS (max {d['position_mm']['max']:.4g})"
+                                 + _orientation_text(d)))
         if "truth" in verification:
             t = verification["truth"]
             items.append(("verification against the truth", f"position {t['position_mm']['rms']:.4g} mm RMS "
-                          f"(max {t['position_mm']['max']:.4g}); orientation {t['orientation_deg']['rms']:.4g} deg RMS"))
+                          f"(max {t['position_mm']['max']:.4g})" + _orientation_text(t)))
     return items
+
+
+def _orientation_text(summary: dict) -> str:
+    o = summary.get("orientation_deg")
+    return "" if o is None else f"; orientation {o['rms']:.4g} deg RMS"
 
 
 COLUMNS = ["name", "unit", "nominal", "estimate", "deviation", "sigma", "95% interval", "deviation/sigma", "flags"]

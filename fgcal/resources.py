@@ -1,4 +1,10 @@
-"""Where the bundled data files (robot models, sample datasets) live."""
+"""Where the bundled data files (robot models, sample datasets) live.
+
+In the repository they are the top-level ``datasets/`` folder; an installed fgcal (a wheel,
+``pip install .`` or a git URL) carries the same files as its package data ``fgcal/_data``
+(``pyproject.toml`` maps one onto the other). ``$FGCAL_DATASETS`` overrides both. Nothing is
+imported: the folder is only looked up on disk.
+"""
 from __future__ import annotations
 
 import os
@@ -6,11 +12,22 @@ from pathlib import Path
 
 __all__ = ["datasets_dir", "builtin_robot_path", "builtin_robot_names", "default_dataset_dir"]
 
+_PACKAGE = Path(__file__).resolve().parent
+
 
 def datasets_dir() -> Path:
-    """The ``datasets/`` folder of the checkout (or ``$FGCAL_DATASETS`` when set)."""
+    """The bundled data folder.
+
+    ``$FGCAL_DATASETS`` when set; else the package's ``_data`` folder of an installed fgcal; else
+    the ``datasets/`` folder beside the package in a checkout (editable installs, ``PYTHONPATH``).
+    """
     env = os.environ.get("FGCAL_DATASETS")
-    return Path(env) if env else Path(__file__).resolve().parent.parent / "datasets"
+    if env:
+        return Path(env)
+    installed = _PACKAGE / "_data"
+    if (installed / "robots").is_dir():
+        return installed
+    return _PACKAGE.parent / "datasets"
 
 
 def builtin_robot_names() -> list[str]:

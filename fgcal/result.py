@@ -109,17 +109,28 @@ class CalibrationResult:
     def sigma(self) -> np.ndarray:
         return np.array([p.sigma for p in self.parameters])
 
-    def slot_vector(self) -> np.ndarray:
-        """The calibrated 37-slot vector in internal units (mm, rad)."""
-        return slots_from_file_units(np.array([self.slots[n] for n in SLOT_NAMES]))
+    def slot_vector(self, model=None) -> np.ndarray:
+        """The calibrated slot vector (S,) in internal units (mm, rad), in ``model``'s slot order.
+
+        ``model`` is the result's own (:meth:`model`) by default.
+        """
+        names = (model or self.model()).slot_names if (model is not None or self.robot_model) else SLOT_NAMES
+        missing = [n for n in names if n not in self.slots]
+        if missing:
+            raise FgcalError(f"result of {self.robot}: no value for slot(s) {', '.join(missing[:5])} of "
+                             f"{(model.name if model is not None else self.robot)}: a result of another robot model?")
+        return slots_from_file_units(np.array([self.slots[n] for n in names]))
 
     def model(self):
         """The robot model (nominal) the result was computed with."""
         from .robot_file import load_model, model_from_dict
 
-        if self.robot_model:
-            return model_from_dict(self.robot_model, source=f"result of {self.robot}")
-        return load_model(self.robot)
+        cached = self.__dict__.get("_model")
+        if cached is None:
+            cached = (model_from_dict(self.robot_model, source=f"result of {self.robot}") if self.robot_model
+                      else load_model(self.robot))
+            self.__dict__["_model"] = cached
+        return cached
 
     def correlation(self) -> np.ndarray:
         s = np.sqrt(np.diag(self.covariance))
@@ -168,13 +179,10 @@ def load_result(path) -> CalibrationResult:
         params = [ParameterEstimate(**p) for p in d["parameters"]]
         cov = np.array(d["covariance"], dtype=float).reshape(len(params), len(params))
         slots = {k: float(v) for k, v in d["slots"].items()}
-        missing = [n for n in SLOT_NAMES if n not in slots]
-        if missing:
-            raise ValueError(f"slots lack {', '.join(missing)}")
         levels = {k: LevelSummary(**v) for k, v in d.get("levels", {}).items()}
         cond = d.get("condition_number")
         cond = float("inf") if cond == "Infinity" else (float("nan") if cond is None else float(cond))
-        return CalibrationResult(
+        result = CalibrationResult(
             robot=str(d["robot"]), n_poses=int(d["n_poses"]), parameters=params, covariance=cov, slots=slots,
             held=list(d.get("held", [])), levels=levels, iterations=int(d.get("iterations", 0)),
             converged=bool(d.get("converged", True)), cost=float(d.get("cost", 0.0)),
@@ -186,3 +194,8 @@ def load_result(path) -> CalibrationResult:
             robot_model=dict(d.get("robot_model") or {}))
     except (KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
+    try:
+        result.slot_vector()  # every slot of the result's own model has a value
+    except FgcalError as exc:
+        raise FgcalError(f"{path}: malformed result: {exc}") from None
+    return result

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import ModelError
-from .model import EULER_FIELDS, LINK_FIELDS, N_LINKS_IN_CHAIN, SLOT_NAMES, RobotModel, Tooling, slot
+from .model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
 from .resources import builtin_robot_names, builtin_robot_path
 from .transforms import euler_zyx_trans, rot, to_euler_zyx_trans
 from .yamlio import atomic_write_text, dump_yaml, read_yaml
@@ -68,13 +68,63 @@ def _link_transform(row: dict) -> np.ndarray:
     return T
 
 
+def _table_rows(links, convention: str, source: str) -> list[dict]:
+    """Link rows (rad, mm) in the paper's convention from a ``paper``, ``dh`` or ``mdh`` table.
+
+    Standard DH is the paper's convention with beta = 0. In modified DH (Craig) row i is
+    ``Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i + q_i) Tz(d_i)``; since Rx and Tx commute, row i's
+    ``a, alpha`` belong to the paper's link i-1: they are shifted by one, and the first row's go
+    into the base (returned as a leading pseudo-row ``{"a", "alpha"}``).
+    """
+    fields = LINK_FIELDS if convention == "paper" else ("theta", "d", "a", "alpha")
+    rows = []
+    for i, link in enumerate(links):
+        m = _mapping(link, fields, f"{source}: links[{i}]")
+        row = {f: _number(m.get(f, 0.0), f"{source}: links[{i}].{f}") for f in LINK_FIELDS if f in fields}
+        row.setdefault("beta", 0.0)
+        for f in ("theta", "alpha", "beta"):
+            row[f] = math.radians(row[f])
+        rows.append(row)
+    if convention != "mdh":
+        return rows
+    shifted = [{"a": rows[0]["a"], "alpha": rows[0]["alpha"]}]
+    for i, row in enumerate(rows):
+        nxt = rows[i + 1] if i + 1 < len(rows) else {"a": 0.0, "alpha": 0.0}
+        shifted.append({"theta": row["theta"], "d": row["d"], "a": nxt["a"], "alpha": nxt["alpha"], "beta": 0.0})
+    return shifted
+
+
+def _joints(data, n: int, source: str):
+    """Joint types and names from the optional ``joints`` list (revolute, ``q1..qn`` by default)."""
+    if data.get("joints") is None:
+        return (JointType.REVOLUTE,) * n, ()
+    joints = data["joints"]
+    if not isinstance(joints, list) or len(joints) != n:
+        raise ModelError(f"{source}: joints: expected a list of {n} entries (one per joint limit)")
+    types, names = [], []
+    for i, j in enumerate(joints):
+        m = _mapping(j, ("name", "type"), f"{source}: joints[{i}]")
+        kind = str(m.get("type", "revolute"))
+        if kind not in ("revolute", "prismatic"):
+            raise ModelError(f"{source}: joints[{i}].type: expected revolute or prismatic, got {kind!r}")
+        types.append(JointType(kind))
+        names.append(str(m.get("name", f"q{i + 1}")))
+    if len(set(names)) != n or any(x in ("base", "tool") for x in names):
+        raise ModelError(f"{source}: joints: names must be unique and not 'base' or 'tool'")
+    return tuple(types), tuple(names)
+
+
 def model_from_dict(data, source: str = "<model>") -> RobotModel:
     """Build a :class:`RobotModel` from a parsed model file; ``ModelError`` names ``source``."""
-    top = ("format", "name", "description", "base", "links", "tool", "joint_limits", "tooling", "volume", "paper_box")
+    top = ("format", "name", "description", "convention", "base", "links", "tool", "tool_offset", "joint_limits",
+           "joints", "coupling", "tooling", "volume", "paper_box", "inertials", "urdf")
     data = _mapping(data, top, source, required=("format", "base", "links", "tool", "joint_limits"))
     if data["format"] != FORMAT:
         raise ModelError(f"{source}: format {data['format']!r} is not known (expected {FORMAT!r})")
     name = str(data.get("name") or Path(source).stem)
+    convention = str(data.get("convention", "paper"))
+    if convention not in ("paper", "dh", "mdh"):
+        raise ModelError(f"{source}: convention: expected paper, dh or mdh, got {convention!r}")
 
     def euler(block: str) -> np.ndarray:
         m = _mapping(data[block], EULER_FIELDS, f"{source}: {block}")
@@ -82,16 +132,20 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         return np.array([math.radians(v) if i < 3 else v for i, v in enumerate(vals)])
 
     base, tool = euler("base"), euler("tool")
+    tool_offset = euler_zyx_trans(*euler("tool_offset")) if data.get("tool_offset") is not None else None
+    limits_raw = data["joint_limits"]
+    if not isinstance(limits_raw, list) or not limits_raw:
+        raise ModelError(f"{source}: joint_limits: expected one [min, max] pair per joint")
+    n = len(limits_raw)
+    types, joint_names = _joints(data, n, source)
     links = data["links"]
-    if not isinstance(links, list) or len(links) not in (5, 6):
-        raise ModelError(f"{source}: links: expected a list of 5 or 6 link rows")
-    rows = []
-    for i, link in enumerate(links):
-        m = _mapping(link, LINK_FIELDS, f"{source}: links[{i}]")
-        row = {f: _number(m.get(f, 0.0), f"{source}: links[{i}].{f}") for f in LINK_FIELDS}
-        for f in ("theta", "alpha", "beta"):
-            row[f] = math.radians(row[f])
-        rows.append(row)
+    if not isinstance(links, list) or len(links) not in (n - 1, n):
+        raise ModelError(f"{source}: links: expected a list of {n - 1} or {n} link rows for {n} joints")
+    rows = _table_rows(links, convention, source)
+    if convention == "mdh":
+        first = rows.pop(0)
+        base = to_euler_zyx_trans(euler_zyx_trans(*base) @ _link_transform({"theta": 0.0, "d": 0.0, "beta": 0.0,
+                                                                              **first}))
 
     # Link 1's theta and d act along the base z axis: fold them into the base.
     first = rows[0]
@@ -99,25 +153,17 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         A = euler_zyx_trans(*base) @ _link_transform({**first, "a": 0.0, "alpha": 0.0, "beta": 0.0})
         base = to_euler_zyx_trans(A)
         first["theta"] = first["d"] = 0.0
-    # A sixth link row sits between Rz(q6) and the tool: fold it into the tool.
-    if len(rows) == 6:
+    # A last link row sits between the last joint's motion and the tool: fold it into the tool.
+    if len(rows) == n:
         tool = to_euler_zyx_trans(_link_transform(rows.pop()) @ euler_zyx_trans(*tool))
 
-    nominal = np.zeros(len(SLOT_NAMES))
-    for i, f in enumerate(EULER_FIELDS):
-        nominal[slot(f"base.{f}")] = base[i]
-        nominal[slot(f"tool.{f}")] = tool[i]
-    for n, row in enumerate(rows[:N_LINKS_IN_CHAIN], start=1):
-        for f in LINK_FIELDS:
-            nominal[slot(f"j{n}.{f}")] = row[f]
-
-    limits_raw = data["joint_limits"]
-    if not isinstance(limits_raw, list) or len(limits_raw) != 6:
-        raise ModelError(f"{source}: joint_limits: expected 6 [min, max] pairs (deg)")
-    limits = np.radians([_vector(v, 2, f"{source}: joint_limits[{i}]") for i, v in enumerate(limits_raw)])
+    limits = np.array([_vector(v, 2, f"{source}: joint_limits[{i}]") for i, v in enumerate(limits_raw)])
+    angle = np.array([t is JointType.REVOLUTE for t in types])
+    limits[angle] = np.radians(limits[angle])
     bad = np.nonzero(limits[:, 0] >= limits[:, 1])[0]
     if bad.size:
         raise ModelError(f"{source}: joint_limits[{bad[0]}]: min must be below max")
+    joint_map, joint_offset = _coupling(data.get("coupling"), n, angle, source)
 
     tooling = None
     if data.get("tooling") is not None:
@@ -125,6 +171,8 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         balls = _mapping(t["balls"], list(t["balls"]) if isinstance(t["balls"], dict) else (), f"{source}: tooling.balls")
         tooling = Tooling(radius=_number(t["radius"], f"{source}: tooling.radius"),
                           balls={str(k): _vector(v, 3, f"{source}: tooling.balls.{k}") for k, v in balls.items()})
+        if tooling.radius < 0 or not tooling.balls:
+            raise ModelError(f"{source}: tooling: expected a radius >= 0 and at least one ball")
 
     def box(key):
         if data.get(key) is None:
@@ -135,14 +183,50 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
             raise ModelError(f"{source}: {key}: min must be below max on every axis")
         return np.array([lo, hi])
 
-    return RobotModel(name=name, nominal=nominal, joint_limits=limits, tooling=tooling, volume=box("volume"),
-                      paper_box=box("paper_box"), description=str(data.get("description", "")))
+    link_names = joint_names[:-1] if joint_names else ()
+    nominal = np.concatenate([base, np.array([[r[f] for f in LINK_FIELDS] for r in rows]).reshape(-1), tool])
+    extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
+    try:
+        return RobotModel(name=name, nominal=nominal, joint_limits=limits, tooling=tooling, volume=box("volume"),
+                          paper_box=box("paper_box"), description=str(data.get("description", "")), extra=extra,
+                          joint_types=types, link_names=link_names, joint_names=joint_names,
+                          joint_map=joint_map, joint_offset=joint_offset, tool_offset=tool_offset)
+    except ValueError as exc:
+        raise ModelError(f"{source}: {exc}") from None
 
 
-def load_model(name_or_path) -> RobotModel:
-    """Load a built-in model by name (``puma560``, ``ur10``, ``ur5``) or a model file by path."""
+def _coupling(value, n: int, angle, source: str):
+    """``coupling: {matrix: n x n, offset: n (deg/mm)}``: joint variables from readings."""
+    if value is None:
+        return None, None
+    m = _mapping(value, ("matrix", "offset"), f"{source}: coupling")
+    matrix = None
+    if m.get("matrix") is not None:
+        rows = m["matrix"]
+        if not isinstance(rows, list) or len(rows) != n:
+            raise ModelError(f"{source}: coupling.matrix: expected {n} rows of {n} numbers")
+        matrix = np.array([_vector(r, n, f"{source}: coupling.matrix[{i}]") for i, r in enumerate(rows)])
+        if abs(np.linalg.det(matrix)) < 1e-12:
+            raise ModelError(f"{source}: coupling.matrix: is singular (readings must determine the joints)")
+    offset = None
+    if m.get("offset") is not None:
+        offset = _vector(m["offset"], n, f"{source}: coupling.offset")
+        offset = np.where(angle, np.radians(offset), offset)
+    return matrix, offset
+
+
+def load_model(name_or_path, chain: dict | None = None) -> RobotModel:
+    """Load a built-in model by name (``puma560``, ``ur10``, ``ur5``), a model file or a URDF by path.
+
+    ``chain`` (``{"base": LINK, "tip": LINK}``) picks the chain of a URDF with more than one leaf.
+    """
     text = str(name_or_path)
     path = Path(text)
+    if path.suffix.lower() == ".urdf":
+        from .urdf_import import load_urdf_model
+
+        chain = chain or {}
+        return load_urdf_model(path, base=chain.get("base"), tip=chain.get("tip"))
     if not path.suffix and not path.exists():
         if text not in builtin_robot_names():
             raise ModelError(f"unknown robot model {text!r}; built-in: {', '.join(builtin_robot_names())}, "
@@ -153,20 +237,34 @@ def load_model(name_or_path) -> RobotModel:
 
 
 def model_to_dict(model: RobotModel, slots=None) -> dict:
-    """A model file dictionary for ``model``, with ``slots`` (37, mm/rad) in place of its nominal."""
+    """A model file dictionary for ``model``, with ``slots`` (S, mm/rad) in place of its nominal."""
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
+    values = model.slots_to_file_units(x)
 
     def value(name):
-        v = x[slot(name)]
-        return round(float(math.degrees(v) if name.split(".")[1] in ("phi", "theta", "psi", "alpha", "beta") else v), 12)
+        return round(float(values[model.slot(name)]), 12)
 
     out = {"format": FORMAT, "name": model.name}
     if model.description:
         out["description"] = model.description
     out["base"] = {f: value(f"base.{f}") for f in EULER_FIELDS}
-    out["links"] = [{f: value(f"j{n}.{f}") for f in LINK_FIELDS} for n in range(1, N_LINKS_IN_CHAIN + 1)]
+    out["links"] = [{f: value(f"{j}.{f}") for f in LINK_FIELDS} for j in model.link_names]
     out["tool"] = {f: value(f"tool.{f}") for f in EULER_FIELDS}
-    out["joint_limits"] = [[round(float(v), 12) for v in np.degrees(lim)] for lim in model.joint_limits]
+    if model.tool_offset is not None:
+        off = _euler_any(model.tool_offset)
+        out["tool_offset"] = {f: round(float(math.degrees(v) if i < 3 else v), 15) for i, (f, v) in
+                              enumerate(zip(EULER_FIELDS, off))}
+    out["joint_limits"] = [[round(float(v), 12) for v in lim] for lim in model.joints_to_file_units(model.joint_limits.T).T]
+    default_names = tuple(f"q{k}" for k in range(1, model.n_joints + 1))
+    if model.joint_names != default_names or not np.all(model.joint_is_angle):
+        out["joints"] = [{"name": nm, "type": t.value} for nm, t in zip(model.joint_names, model.joint_types)]
+    if model.joint_map is not None or model.joint_offset is not None:
+        c = {}
+        if model.joint_map is not None:
+            c["matrix"] = [[float(v) for v in row] for row in model.joint_map]
+        if model.joint_offset is not None:
+            c["offset"] = [float(v) for v in model.joints_to_file_units(model.joint_offset)]
+        out["coupling"] = c
     if model.tooling is not None:
         out["tooling"] = {"radius": model.tooling.radius,
                           "balls": {k: [float(c) for c in v] for k, v in model.tooling.balls.items()}}
@@ -174,6 +272,19 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
         b = getattr(model, key)
         if b is not None:
             out[key] = {"min": [float(c) for c in b[0]], "max": [float(c) for c in b[1]]}
+    out.update({k: v for k, v in model.extra.items() if k in ("inertials", "urdf")})
+    return out
+
+
+def _euler_any(T) -> np.ndarray:
+    """ZYX Euler angles and local translation of ``T``, including at pitch +-90 deg (then psi = 0)."""
+    R = T[:3, :3]
+    if abs(R[2, 0]) < 1 - 1e-12:
+        return to_euler_zyx_trans(T)
+    theta = -math.copysign(math.pi / 2, R[2, 0])
+    phi = math.atan2(-R[0, 1], R[1, 1])
+    out = np.array([phi, theta, 0.0, 0.0, 0.0, 0.0])
+    out[3:] = (euler_zyx_trans(*out)[:3, :3]).T @ T[:3, 3]
     return out
 
 

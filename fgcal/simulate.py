@@ -23,7 +23,7 @@ from .dataset import Dataset, Noise, PointObservations, PoseObservations
 from .errors import FgcalError
 from .ik import BRANCHES, solve_puma_batch
 from .kinematics import forward, tool_points
-from .model import SLOT_NAMES, RobotModel, Tooling, slots_to_file_units
+from .model import RobotModel, Tooling
 from .transforms import matrix_to_quaternion, quaternion_to_matrix
 
 __all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
@@ -63,7 +63,7 @@ class Deviations:
         """Per-parameter standard deviations (mm, rad) for the parameter ``names``."""
         out = []
         for name in names:
-            block, field = name.split(".")
+            block, field = name.rsplit(".", 1)
             is_angle = field in ("phi", "theta", "psi", "alpha", "beta")
             if block == "base":
                 out.append(np.radians(self.base_angle) if is_angle else self.base_length)
@@ -74,13 +74,13 @@ class Deviations:
 
 def draw_truth(model: RobotModel, rng: np.random.Generator, deviations: Deviations = Deviations(),
                names=None) -> np.ndarray:
-    """Slot vector (37,) of an actual robot: nominal plus Gaussian deviations of ``names``.
+    """Slot vector (S,) of an actual robot: nominal plus Gaussian deviations of ``names``.
 
     Only the identifiable parameters deviate by default, so the truth is recoverable exactly.
     """
     names = model.identifiable_names() if names is None else list(names)
     x = model.nominal.copy()
-    idx = [SLOT_NAMES.index(n) for n in names]
+    idx = [model.slot(n) for n in names]
     x[idx] += rng.normal(size=len(idx)) * deviations.sigmas(names)
     return x
 
@@ -104,10 +104,15 @@ def ball_access(T, tooling: Tooling, volume=None, margin_mm: float = 0.0, margin
     """
     offsets = tooling.offsets()
     centres = tool_points(T, offsets)
-    outward = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+    norms = np.linalg.norm(offsets, axis=1, keepdims=True)
+    # A ball on the tool axis (a reflector at the flange) faces along the tool's z axis.
+    outward = np.where(norms > 1e-9, offsets / np.maximum(norms, 1e-300), np.array([0.0, 0.0, 1.0]))
     outward_w = np.einsum("nij,bj->nbi", T[:, :3, :3], outward)
     upness = outward_w @ UP
-    ok = upness >= np.cos(np.radians(MAX_APPROACH_ANGLE_DEG - margin_deg))
+    if tooling.radius > 0:
+        ok = upness >= np.cos(np.radians(MAX_APPROACH_ANGLE_DEG - margin_deg))
+    else:  # a tracker reflector: seen wherever it is inside the tracker's volume
+        ok = np.ones(upness.shape, dtype=bool)
     if volume is not None:
         r = tooling.radius + margin_mm
         ok &= np.all((centres - r >= volume[0]) & (centres + r <= volume[1]), axis=2)
@@ -116,15 +121,20 @@ def ball_access(T, tooling: Tooling, volume=None, margin_mm: float = 0.0, margin
 
 def random_plan(model: RobotModel, slots, n_poses: int, rng: np.random.Generator, tooling: Tooling,
                 volume=None, n_balls: int = 3, max_tries: int = 200_000) -> np.ndarray:
-    """``n_poses`` random joint sets (N, 6) rad within the limits with ``n_balls`` reachable balls."""
+    """``n_poses`` random joint sets (N, n) within the limits with ``n_balls`` reachable balls.
+
+    Revolute joints with limits wider than a turn are drawn within one turn (+-180 deg).
+    """
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    wide = model.joint_is_angle & (hi - lo > 2 * np.pi)
+    lo, hi = np.where(wide, np.maximum(lo, -np.pi), lo), np.where(wide, np.minimum(hi, np.pi), hi)
     accepted = []
     tries = 0
     while len(accepted) < n_poses:
         batch = max(256, 4 * (n_poses - len(accepted)))
-        q = rng.uniform(lo, hi, size=(batch, 6))
+        q = rng.uniform(lo, hi, size=(batch, model.n_joints))
         tries += batch
-        ok, _, _ = ball_access(forward(slots, q), tooling, volume)
+        ok, _, _ = ball_access(model.forward(slots, q), tooling, volume)
         good = q[ok.sum(axis=1) >= n_balls]
         accepted.extend(good[: n_poses - len(accepted)])
         if tries >= max_tries and len(accepted) < n_poses:
@@ -264,11 +274,13 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     q_commanded = np.atleast_2d(np.asarray(q_commanded, dtype=float))
     n = len(q_commanded)
     ids = np.arange(1, n + 1) if pose_ids is None else np.asarray(pose_ids, dtype=int)
-    q_actual = q_commanded + rng.normal(size=q_commanded.shape) * np.radians(noise.repeatability)
-    reading = np.degrees(q_commanded)
+    # Repeatability and resolution are in each joint's file unit (deg, or mm for prismatic joints).
+    q_actual = q_commanded + rng.normal(size=q_commanded.shape) * model.joints_to_internal(
+        np.full(model.n_joints, noise.repeatability))
+    reading = model.joints_to_file_units(q_commanded)
     if noise.joint_resolution > 0:
         reading = np.round(reading / noise.joint_resolution) * noise.joint_resolution
-    T = forward(slots, q_actual)
+    T = model.forward(slots, q_actual)
     ok, upness, centres = ball_access(T, tooling, volume)
     names = np.array(tooling.names)
     keep, probe_rows, centre_rows, pose_rows, outliers, skipped = [], [], [], [], [], []
@@ -357,6 +369,9 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
         raise FgcalError(f"--balls must be between 1 and {len(model.tooling.balls)}")
     if s.probes_per_ball < 4 and "probes" in s.levels:
         raise FgcalError("--probes-per-ball must be at least 4 (a sphere needs 4 points)")
+    if "probes" in s.levels and model.tooling.radius <= 0:
+        raise FgcalError(f"robot model {model.name}: its tooling is a reflector (radius 0): simulate centres or "
+                         "poses, not probes")
     truth = draw_truth(model, rng, s.deviations) if truth is None else np.asarray(truth, dtype=float)
     notes = []
     if s.plan == "random":
@@ -383,7 +398,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
     provenance = {"generator": "fgcal simulate", "plan": s.plan, "seed": seed,
                   "deviations": asdict(s.deviations), "n_balls": s.n_balls, "probes_per_ball": s.probes_per_ball,
                   "outlier_fraction": s.outlier_fraction, "outlier_size_mm": s.outlier_size}
-    truth_file = {name: float(v) for name, v in zip(SLOT_NAMES, slots_to_file_units(truth))}
+    truth_file = {name: float(v) for name, v in zip(model.slot_names, model.slots_to_file_units(truth))}
     ds = Dataset(robot=robot_ref or model.name, tooling=model.tooling, noise=noise, provenance=provenance,
                  pose_ids=ids, joints_deg=joints_deg, probes=probes, centres=centres, poses=poses,
                  truth=truth_file, truth_outliers=outliers)

@@ -13,14 +13,15 @@ import numpy as np
 
 from .dataset import Dataset
 from .errors import FgcalError
-from .kinematics import forward
+from .kinematics import tool_points
 from .measure import measure_probes
-from .model import SLOT_NAMES, RobotModel, slots_from_file_units
+from .model import RobotModel
 from .posefit import rigid_fit
 from .result import CalibrationResult
 from .transforms import pose_difference
 
-__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "verify", "error_stats", "compare_poses"]
+__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
+           "compare_poses", "compare_points"]
 
 
 @dataclass
@@ -39,19 +40,27 @@ def error_stats(values) -> ErrorStats:
 
 @dataclass
 class Comparison:
-    """Errors of one model against one reference, per pose (mm, deg) and summarised."""
+    """Errors of one model against one reference, per pose (mm, deg) and summarised.
+
+    ``orientation_deg`` is None for position-only data (a reflector, one or two balls).
+    """
 
     position_mm: np.ndarray
-    orientation_deg: np.ndarray
+    orientation_deg: np.ndarray | None
 
     def summary(self) -> dict:
         return {"position_mm": vars(error_stats(self.position_mm)),
-                "orientation_deg": vars(error_stats(self.orientation_deg))}
+                "orientation_deg": None if self.orientation_deg is None else vars(error_stats(self.orientation_deg))}
 
 
 @dataclass
 class Verification:
-    """Calibrated and nominal errors against the measurements, and against the truth if known."""
+    """Calibrated and nominal errors against the measurements, and against the truth if known.
+
+    ``reference`` says what was compared: ``"measured poses"`` (full pose errors) or
+    ``"measured points"`` (ball centres or reflector positions: the error of each pose is the RMS
+    distance of its points, and there is no orientation error).
+    """
 
     pose_ids: np.ndarray
     after: Comparison
@@ -68,11 +77,17 @@ class Verification:
         if self.truth_after is not None:
             d["truth"] = self.truth_after.summary()
             d["truth"]["before"] = self.truth_before.summary()
+        n = len(self.pose_ids)
+        none = [None] * n
+
+        def values(v):
+            return none if v is None else [float(x) for x in v]
+
         d["poses"] = [
-            {"pose": int(p), "position_mm": float(a), "orientation_deg": float(o),
-             "before_position_mm": float(bp), "before_orientation_deg": float(bo)}
-            for p, a, o, bp, bo in zip(self.pose_ids, self.after.position_mm, self.after.orientation_deg,
-                                       self.before.position_mm, self.before.orientation_deg)]
+            {"pose": int(p), "position_mm": a, "orientation_deg": o, "before_position_mm": bp,
+             "before_orientation_deg": bo}
+            for p, a, o, bp, bo in zip(self.pose_ids, values(self.after.position_mm), values(self.after.orientation_deg),
+                                       values(self.before.position_mm), values(self.before.orientation_deg))]
         d["skipped"] = self.skipped
         return d
 
@@ -113,18 +128,87 @@ def compare_poses(T_model, T_ref) -> Comparison:
     return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)))
 
 
+def compare_points(T_model, offsets_by_pose, points_by_pose) -> Comparison:
+    """Point errors: per pose, the RMS distance (mm) of its measured points from the model's."""
+    err = np.array([np.sqrt(np.mean(np.sum((tool_points(T[None], o)[0] - w) ** 2, axis=1)))
+                    for T, o, w in zip(T_model, offsets_by_pose, points_by_pose)])
+    return Comparison(err, None)
+
+
+def measured_points(ds: Dataset):
+    """Measured points per pose: ``(pose_ids, offsets [(B, 3)], world [(B, 3)], skipped)``.
+
+    Ball centres from ``centres.csv``, or fitted to ``probes.csv`` (with ``fgcal measure``'s
+    quality checks) when there are no centres.
+    """
+    skipped = []
+    if ds.centres is not None:
+        centres = ds.centres
+    elif ds.probes is not None:
+        m = measure_probes(ds)
+        skipped += [f"pose {q.pose} ball {q.ball}: {q.status}" for q in m.quality if q.status != "ok"]
+        centres = m.centres
+    else:
+        raise FgcalError(f"{ds.path or 'dataset'}: no measured points to verify against")
+    ids, offs, pts = [], [], []
+    for p in ds.pose_ids:
+        sel = centres.pose == p
+        if not sel.any():
+            continue
+        ids.append(p)
+        offs.append(ds.tooling.offsets(centres.ball[sel]))
+        pts.append(centres.xyz[sel])
+    return np.array(ids, dtype=int), offs, pts, skipped
+
+
+def _full_pose_data(ds: Dataset) -> bool:
+    """Every measured pose has a full pose (poses.csv, or three or more balls)."""
+    if ds.poses is not None:
+        return True
+    obs = ds.centres if ds.centres is not None else ds.probes
+    if obs is None:
+        return False
+    balls = {}
+    for p, b in zip(obs.pose.tolist(), obs.ball.tolist()):
+        balls.setdefault(p, set()).add(b)
+    return bool(balls) and min(len(v) for v in balls.values()) >= 3
+
+
 def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
-    """Compare the calibrated and nominal models with ``ds``'s measurements (and truth)."""
-    ids, T_meas, skipped = measured_poses(ds)
+    """Compare the calibrated and nominal models with ``ds``'s measurements (and truth).
+
+    Full poses are compared where every pose has one (poses.csv, or three or more balls);
+    otherwise the measured points (ball centres, reflector positions) are.
+    """
+    slots = result.slot_vector(model)
+    truth = None
+    if ds.truth is not None:
+        missing = [n for n in model.slot_names if n not in ds.truth]
+        if missing:
+            raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
+        truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if _full_pose_data(ds):
+        ids, T_meas, skipped = measured_poses(ds)
+        reference = "measured poses"
+    else:
+        ids, offs, pts, skipped = measured_points(ds)
+        reference = "measured points"
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
-    q = ds.joints_rad[ds.row_of(ids)]
-    T_cal = forward(result.slot_vector(), q)
-    T_nom = forward(model.nominal, q)
-    out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
-    if ds.truth is not None:
-        truth = slots_from_file_units(np.array([ds.truth[n] for n in SLOT_NAMES]))
-        T_true = forward(truth, q)
-        out.truth_after = compare_poses(T_cal, T_true)
-        out.truth_before = compare_poses(T_nom, T_true)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    T_cal = model.forward(slots, q)
+    T_nom = model.forward(model.nominal, q)
+    if reference == "measured poses":
+        out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
+    else:
+        out = Verification(ids, compare_points(T_cal, offs, pts), compare_points(T_nom, offs, pts),
+                           reference=reference, skipped=skipped)
+    if truth is not None:
+        T_true = model.forward(truth, q)
+        if reference == "measured poses":
+            out.truth_after, out.truth_before = compare_poses(T_cal, T_true), compare_poses(T_nom, T_true)
+        else:  # position-only data say nothing of what they cannot see: compare the measured points
+            true_pts = [tool_points(T[None], o)[0] for T, o in zip(T_true, offs)]
+            out.truth_after = compare_points(T_cal, offs, true_pts)
+            out.truth_before = compare_points(T_nom, offs, true_pts)
     return out

@@ -57,7 +57,9 @@ def _replace_line(file, lineno, new):
 BAD_CASES = {
     "missing joints": (lambda d: (d / "joints.csv").unlink(), r"joints\.csv: file not found"),
     "missing column": (lambda d: _edit(d / "joints.csv", "pose,q1,q2,q3,q4,q5,q6", "pose,q1,q2,q3,q4,q5"),
-                       r"joints\.csv: line 1: missing column\(s\) q6"),
+                       r"joints\.csv: line 2: 7 fields, expected 6"),
+    "joint gap": (lambda d: _edit(d / "joints.csv", "pose,q1,q2,q3,q4,q5,q6", "pose,q1,q2,q3,q4,q5,q7"),
+                  r"joints\.csv: line 1: joint columns must be q1\.\.qn without gaps"),
     "unknown ball": (lambda d: _replace_line(d / "centres.csv", 3, "1,Z,1,2,3"), r"centres\.csv: line 3: unknown ball 'Z'"),
     "pose without joints": (lambda d: _replace_line(d / "probes.csv", 2, "99,A,1,2,3"),
                             r"probes\.csv: line 2: pose 99 has no joint readings"),

@@ -1,0 +1,183 @@
+"""Chains beyond the paper's 6R arm: prismatic joints, coupled joints (FANUC's J2/J3), DH and
+modified-DH tables; FK against plain matrices written here, Jacobians against differences,
+calibration of simulated data against the truth."""
+import math
+
+import numpy as np
+import pytest
+
+from fgcal.calibrate import CalibrationOptions, calibrate
+from fgcal.robot_file import model_from_dict
+from fgcal.simulate import SimulationSettings, simulate
+from fgcal.dataset import Noise
+from plain_dh import Rx, Rz, Trans, euler
+
+TOOLING = {"radius": 6.35, "balls": {"A": [60, 0, 30], "B": [0, 60, 30], "C": [-60, 0, 30], "D": [0, -90, 30]}}
+
+# A 6-axis arm whose third joint slides along its axis (a prismatic link), in the paper's rows.
+PRISMATIC = {
+    "format": "fgcal-robot/1", "name": "slider",
+    "base": {"phi": 0, "theta": 0, "psi": 0, "px": 0, "py": 0, "pz": 300},
+    "links": [{"theta": 0, "d": 0, "a": 100, "alpha": 90}, {"theta": 0, "d": 0, "a": 400, "alpha": 0},
+              {"theta": 20, "d": 50, "a": 30, "alpha": 90}, {"theta": 0, "d": 300, "a": 0, "alpha": -90},
+              {"theta": 0, "d": 0, "a": 0, "alpha": 90}],
+    "tool": {"phi": 0, "theta": 0, "psi": 0, "px": 0, "py": 0, "pz": 120},
+    "joints": [{"name": "q1"}, {"name": "q2"}, {"name": "slide", "type": "prismatic"}, {"name": "q4"},
+               {"name": "q5"}, {"name": "q6"}],
+    "joint_limits": [[-170, 170], [-60, 120], [0, 300], [-180, 180], [-110, 110], [-180, 180]],
+    "tooling": TOOLING,
+}
+
+# FANUC-style: the J3 reading is measured from the horizontal, so the J3 joint angle is J3 + J2.
+COUPLED = {
+    "format": "fgcal-robot/1", "name": "fanuc-like", "convention": "dh",
+    "base": {"phi": 0, "theta": 0, "psi": 0, "px": 0, "py": 0, "pz": 0},
+    "links": [{"theta": 0, "d": 450, "a": 150, "alpha": -90}, {"theta": -90, "d": 0, "a": 600, "alpha": 0},
+              {"theta": 0, "d": 0, "a": 200, "alpha": -90}, {"theta": 0, "d": 640, "a": 0, "alpha": 90},
+              {"theta": 0, "d": 0, "a": 0, "alpha": -90}, {"theta": 0, "d": 100, "a": 0, "alpha": 0}],
+    "tool": {"phi": 0, "theta": 0, "psi": 0, "px": 0, "py": 0, "pz": 0},
+    "joint_limits": [[-170, 170], [-90, 140], [-160, 200], [-190, 190], [-120, 120], [-360, 360]],
+    "coupling": {"matrix": [[1, 0, 0, 0, 0, 0], [0, 1, 0, 0, 0, 0], [0, 1, 1, 0, 0, 0],
+                            [0, 0, 0, 1, 0, 0], [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]]},
+    "tooling": TOOLING,
+}
+
+
+def _plain(data, q_file):
+    """FK with plain 4x4 matrices, straight from the table (prismatic: Tz(q + d); coupling applied)."""
+    types = [j.get("type", "revolute") for j in data.get("joints", [{}] * len(q_file))]
+    v = np.asarray(q_file, dtype=float)
+    if "coupling" in data:
+        v = np.array(data["coupling"]["matrix"], dtype=float) @ v
+    T = euler(data["base"])
+    rows = data["links"]
+    for i, row in enumerate(rows):
+        if types[i] == "prismatic":
+            L = Rz(math.radians(row["theta"])) @ Trans(0, 0, row["d"] + v[i])
+        else:
+            L = Rz(math.radians(row["theta"] + v[i])) @ Trans(0, 0, row["d"])
+        T = T @ L @ Trans(row["a"], 0, 0) @ Rx(math.radians(row["alpha"]))
+    if len(rows) < len(v):
+        T = T @ (Trans(0, 0, v[-1]) if types[-1] == "prismatic" else Rz(math.radians(v[-1])))
+    return T @ euler(data["tool"])
+
+
+def _joint_sets(model, n, seed):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(model.joint_limits[:, 0], model.joint_limits[:, 1], size=(n, model.n_joints))
+
+
+@pytest.mark.parametrize("data", [PRISMATIC, COUPLED], ids=["prismatic", "coupled"])
+def test_forward_kinematics_matches_plain_matrices(data):
+    model = model_from_dict(data)
+    q = _joint_sets(model, 10, 0)
+    ours = model.forward(model.nominal, q)
+    for qi, T in zip(model.joints_to_file_units(q), ours):
+        assert np.allclose(T, _plain(data, qi), atol=1e-9)
+
+
+@pytest.mark.parametrize("data", [PRISMATIC, COUPLED], ids=["prismatic", "coupled"])
+def test_jacobians_match_central_differences(data):
+    model = model_from_dict(data)
+    chain = model.chain
+    q = _joint_sets(model, 3, 1)
+    x = model.nominal
+    offsets = np.array([[60.0, 0, 30], [0, 0, 0]])
+    jac = chain.jacobians(x, q, offsets)
+    h = 1e-6
+    for j in range(model.n_joints):
+        dq = np.zeros(model.n_joints)
+        dq[j] = h
+        num = (chain.jacobians(x, q + dq, offsets).points - chain.jacobians(x, q - dq, offsets).points) / (2 * h)
+        assert np.allclose(jac.point_joints[..., j], num, atol=1e-5)
+    for s in range(len(x)):
+        dx = np.zeros(len(x))
+        dx[s] = h
+        num = (chain.jacobians(x + dx, q, offsets).points - chain.jacobians(x - dx, q, offsets).points) / (2 * h)
+        assert np.allclose(jac.point_slots[..., s], num, atol=1e-5)
+
+
+def test_prismatic_joint_parameters():
+    model = model_from_dict(PRISMATIC)
+    names = model.identifiable_names()
+    # A sliding axis has a direction but no position: fewer parameters than a revolute one (4R + 2P + 6).
+    assert len(names) == 4 * 5 + 2 + 6
+    assert "slide.d" in names  # the slider's zero offset
+    assert model.rule_exceptions  # and the rank check says which rule candidates it dropped
+
+
+def test_mdh_table_is_the_same_robot():
+    """Craig's modified DH of the PUMA 560 gives the same kinematics as its standard DH."""
+    dh = {"format": "fgcal-robot/1", "name": "puma-dh", "convention": "dh",
+          "base": {"phi": 0, "theta": 0, "psi": 0, "px": 0, "py": 0, "pz": 0},
+          "links": [{"theta": 0, "d": 0, "a": 0, "alpha": -90}, {"theta": 0, "d": 0, "a": 431.8, "alpha": 0},
+                    {"theta": 0, "d": 150.05, "a": 20.3, "alpha": -90}, {"theta": 0, "d": 431.8, "a": 0, "alpha": 90},
+                    {"theta": 0, "d": 0, "a": 0, "alpha": -90}, {"theta": 0, "d": 0, "a": 0, "alpha": 0}],
+          "tool": {"phi": 0, "theta": 0, "psi": 0, "px": 0, "py": 0, "pz": 0},
+          "joint_limits": [[-160, 160], [-45, 225], [-225, 45], [-110, 170], [-100, 100], [-266, 266]]}
+    # Row i of Craig's table: alpha_{i-1}, a_{i-1}, then theta_i, d_i.
+    mdh = dict(dh, name="puma-mdh", convention="mdh",
+               links=[{"a": 0, "alpha": 0, "theta": 0, "d": 0}, {"a": 0, "alpha": -90, "theta": 0, "d": 0},
+                      {"a": 431.8, "alpha": 0, "theta": 0, "d": 150.05},
+                      {"a": 20.3, "alpha": -90, "theta": 0, "d": 431.8}, {"a": 0, "alpha": 90, "theta": 0, "d": 0},
+                      {"a": 0, "alpha": -90, "theta": 0, "d": 0}])
+    a, b = model_from_dict(dh), model_from_dict(mdh)
+    q = _joint_sets(a, 10, 2)
+    # MDH puts the tool at joint 6's frame, standard DH at the frame after link 6: same here (a6 = d6 = 0).
+    assert np.allclose(a.forward(a.nominal, q), b.forward(b.nominal, q), atol=1e-9)
+
+
+@pytest.mark.parametrize("data", [PRISMATIC, COUPLED], ids=["prismatic", "coupled"])
+def test_calibrates_to_the_truth(data):
+    model = model_from_dict(data)
+    ds, _ = simulate(model, np.random.default_rng(3), SimulationSettings(n_poses=40, noise=Noise(0.01, 0.0)))
+    result = calibrate(ds, model, CalibrationOptions())
+    truth = np.array([ds.truth[n] for n in result.names])
+    err = result.estimate - truth
+    chi2 = err @ np.linalg.solve(result.covariance, err)
+    assert chi2 / len(err) < 2.5, chi2
+    assert result.converged
+
+
+def test_verify_position_only_reports_point_errors():
+    """A single tracker reflector: verify reports point errors and no orientation (DESIGN.md 6)."""
+    from dataclasses import replace
+
+    from fgcal.model import Tooling
+    from fgcal.robot_file import load_model
+    from fgcal.verify import verify
+
+    model = replace(load_model("ur10"), tooling=Tooling(0.0, {"R": np.array([10.0, 20.0, 80.0])}))
+    settings = SimulationSettings(n_poses=40, n_balls=1, levels=("centres",), noise=Noise(0.01, 0.0))
+    train, _ = simulate(model, np.random.default_rng(4), settings)
+    truth = model.slots_from_file_units(np.array([train.truth[n] for n in model.slot_names]))
+    test, _ = simulate(model, np.random.default_rng(5), settings, truth=truth)
+    result = calibrate(train, model, CalibrationOptions())
+    report = verify(result, test, model)
+    d = report.to_dict()
+    assert d["reference"] == "measured points" and d["orientation_deg"] is None
+    assert d["n_poses"] == test.n_poses
+    assert d["truth"]["position_mm"]["rms"] < 0.05 < d["truth"]["before"]["position_mm"]["rms"]
+    # the measured-point error is the truth error plus the instrument's noise (0.01 mm per axis)
+    assert abs(d["position_mm"]["rms"] ** 2 - d["truth"]["position_mm"]["rms"] ** 2 - 3 * 0.01**2) < 2e-4
+
+
+def test_gtsam_engine_and_export_give_the_batch_solution(puma):
+    """`--engine gtsam` (GTSAM's own optimiser on to_gtsam's graph) ends where the batch solve ends."""
+    import gtsam
+
+    import factors as fx
+    from fgcal.calibrate import to_gtsam
+
+    ds, _ = simulate(puma, np.random.default_rng(11), SimulationSettings(n_poses=8))
+    batch = calibrate(ds, puma, CalibrationOptions())
+    other = calibrate(ds, puma, CalibrationOptions(engine="gtsam"))
+    assert other.names == batch.names
+    assert np.max(np.abs(other.estimate - batch.estimate) / batch.sigma) < 1e-3
+    assert np.allclose(other.covariance, batch.covariance, rtol=1e-3, atol=0)
+    graph, values, names, pose_ids = to_gtsam(ds, puma)
+    assert names == batch.names and len(pose_ids) == ds.n_poses
+    solved = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    theta = solved.atVector(fx.theta_key())
+    est = np.where([u == "deg" for u in (p.unit for p in batch.parameters)], np.degrees(theta), theta)
+    assert np.max(np.abs(est - batch.estimate) / batch.sigma) < 1e-3
