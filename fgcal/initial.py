@@ -156,6 +156,8 @@ def fit_base_and_point(model: RobotModel, q, points, slots=None, iterations: int
     def residual(v):
         return ((Fp + Fr @ (p + v[6:9])) @ (_exp(v[0:3]) @ R_b).T + t_b + v[3:6] - P).ravel()
 
+    from scipy.optimize import least_squares
+
     v = least_squares(residual, np.zeros(9), x_scale=np.r_[[1e-3] * 3, [1.0] * 6]).x
     A_b = np.eye(4)
     A_b[:3, :3], A_b[:3, 3] = _exp(v[0:3]) @ R_b, t_b + v[3:6]
