@@ -6,11 +6,13 @@ directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as 
 * probe point on the sphere around a ball-centre variable,
 * ball centre (variable or measured) at the forward kinematics times the ball's offset,
 * measured tool pose against the forward kinematics,
+* a ballbar length from the world origin (its pivot) to a tool ball,
 * joint readings as priors on joint variables, and a prior on the parameters.
 """
-from .errors import ball_centre_error, joint_error, pose_ball_centres_error, pose_error, probe_error, slots_of
+from .errors import (ball_centre_error, distance_error, joint_error, pose_ball_centres_error, pose_error, probe_error,
+                     slots_of)
 
-_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "joint_key", "joint_prior", "noise_model",
+_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior", "noise_model",
                 "parameter_prior", "pose_factor", "probe_factor", "probes_factor", "theta_key")
 
 
@@ -23,6 +25,6 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
+__all__ = ["distance_error", "distance_factor", "ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
            "centre_key", "joint_key", "joint_prior", "noise_model", "parameter_prior", "pose_factor",
            "probe_factor", "probes_factor", "theta_key"]

@@ -14,7 +14,8 @@ import numpy as np
 from fgcal.kinematics import jacobians
 from fgcal.transforms import so3_left_jacobian_inverse, so3_log
 
-__all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_ball_centres_error", "pose_error", "joint_error"]
+__all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_ball_centres_error", "pose_error", "distance_error",
+           "joint_error"]
 
 
 def slots_of(theta, index, held) -> np.ndarray:
@@ -116,6 +117,31 @@ def pose_error(theta, q, T_measured, index, held, chain=None):
         return np.concatenate([Jl @ J[:, 3:], J[:, :3]], axis=1)
 
     return e, rows(jac.pose_slots[:, :, index]), rows(jac.pose_joints)
+
+
+def distance_error(theta, q, offset, length, index, held, chain=None):
+    """A ballbar: the tool ball at ``FK(theta, q) offset`` is ``length`` from the world origin (the pivot).
+
+    Parameters
+    ----------
+    theta, q, index, held, chain : see :func:`ball_centre_error`.
+    offset : array_like, shape (M, 3)
+        The ball's centre in the tool frame (mm).
+    length : array_like, shape (M,)
+        Measured centre-to-centre length (mm).
+
+    Returns
+    -------
+    e : ndarray, shape (M, 1)
+        ``|FK(theta, q) offset| - length`` (mm).
+    J_theta : ndarray, shape (M, 1, P)
+    J_q : ndarray, shape (M, 1, n)
+    """
+    length = np.asarray(length, dtype=float).reshape(-1)
+    p, J_t, J_q = ball_centre_error(theta, q, offset, np.zeros((len(length), 3)), index, held, chain)
+    dist = np.linalg.norm(p, axis=1)
+    u = (p / np.maximum(dist, 1e-300)[:, None])[:, None, :]  # (M, 1, 3): d|p|/dp
+    return (dist - length)[:, None], u @ J_t, u @ J_q
 
 
 def joint_error(q, reading):

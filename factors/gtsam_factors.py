@@ -12,10 +12,10 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from .errors import ball_centre_error, pose_ball_centres_error, pose_error, probe_error
+from .errors import ball_centre_error, distance_error, pose_ball_centres_error, pose_error, probe_error
 
 __all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "probes_factor", "ball_centre_factor", "ball_centres_factor",
-           "pose_factor", "joint_prior", "parameter_prior"]
+           "pose_factor", "distance_factor", "joint_prior", "parameter_prior"]
 
 
 def theta_key() -> int:
@@ -161,6 +161,30 @@ def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, 
         return e[0]
 
     return gtsam.CustomFactor(noise_model([sigma_rot] * 3 + [sigma_pos] * 3, robust), keys, error)
+
+
+def distance_factor(index, held, offset, length: float, sigma: float, *, t_key: int, q_key: int | None = None,
+                    q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
+    """A ballbar length (mm) from the world origin (the pivot) to the tool ball at ``offset`` (3,)."""
+    if (q_key is None) == (q_fixed is None):
+        raise ValueError("give exactly one of q_key and q_fixed")
+    offset = np.array(offset, dtype=float).reshape(1, 3)
+    length = np.array([float(length)])
+    index = np.array(index, dtype=int)
+    held = np.array(held, dtype=float)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
+    keys = [t_key] + ([q_key] if q_key is not None else [])
+
+    def error(this, values, H):
+        q = q_const if q_key is None else _vector(values, q_key)[None]
+        e, J_t, J_q = distance_error(_vector(values, t_key), q, offset, length, index, held, chain)
+        if H is not None:
+            H[0] = J_t[0]
+            if q_key is not None:
+                H[1] = J_q[0]
+        return e[0]
+
+    return gtsam.CustomFactor(noise_model([sigma], robust), keys, error)
 
 
 def joint_prior(q_key: int, reading, sigma: float) -> gtsam.PriorFactorVector:

@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from . import __version__
-from .dataset import Dataset
+from .dataset import LEVELS, Dataset
 from .errors import FgcalError
 from .graph import Graph, Sigmas, State
 from .identifiability import analyse_information
@@ -23,7 +23,9 @@ from .posefit import rigid_fit
 from .result import CalibrationResult, LevelSummary, ParameterEstimate
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from .simulate import Deviations
-from .transforms import to_euler_zyx_trans
+from .transforms import euler_zyx_trans, to_euler_zyx_trans
+from .gravity import model_inertials
+from .joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "gtsam_covariance", "identifiability_of", "to_gtsam", "gtsam_levenberg_marquardt"]
@@ -60,6 +62,12 @@ class CalibrationOptions:
         factor is a Python callback). The covariance is computed the same way for both.
     extra, exclude : tuple of str
         Slots to add to, or remove from, the identifiable parameters.
+    noise_scale : dict or None
+        Fixed factors on each level's declared noise (``{"poses": 12.0}``), for example the
+        ones a previous ``estimate_noise`` run found.
+    joint_errors : JointErrorSpec or None
+        A block of non-geometric joint errors (compliance, error map) estimated with the geometry
+        (:mod:`fgcal.joint_errors`); ``None``: the geometric model.
     """
 
     levels: tuple | None = None
@@ -73,6 +81,8 @@ class CalibrationOptions:
     exclude: tuple = ()
     max_iterations: int = 100
     tolerance: float = 1e-12
+    noise_scale: dict | None = None
+    joint_errors: JointErrorSpec | None = None
     engine: str = "batch"
 
 
@@ -92,7 +102,9 @@ def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=N
                   centre=max(centre, MIN_SIGMA) * scale.get("centres", 1.0),
                   pose_position=max(pos, MIN_SIGMA) * scale.get("poses", 1.0),
                   pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses", 1.0),
-                  joint=joint, kinematic=options.kinematic_sigma)
+                  joint=joint, kinematic=options.kinematic_sigma,
+                  distance=max(n.distance_sigma if n.distance_sigma is not None else n.cmm_sigma, MIN_SIGMA)
+                  * scale.get("distances", 1.0))
 
 
 def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
@@ -100,8 +112,8 @@ def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
     if options.levels is None:
         return present
     for lv in options.levels:
-        if lv not in ("probes", "centres", "poses"):
-            raise FgcalError(f"unknown level {lv!r} (probes, centres, poses)")
+        if lv not in LEVELS:
+            raise FgcalError(f"unknown level {lv!r} ({', '.join(LEVELS)})")
         if lv not in present:
             raise FgcalError(f"{ds.path or 'dataset'}: has no {lv} (it has: {', '.join(present) or 'none'})")
     return list(options.levels)
@@ -131,12 +143,34 @@ def _initial_base(model: RobotModel, held, q, world_points_by_pose):
     return out
 
 
+def _initial_pivot(model: RobotModel, held, q, offsets, length):
+    """Slots with the base moved so that the world origin is the ballbar's pivot.
+
+    ``|p_i - c|^2 = L_i^2`` with ``p_i`` the nominal ball positions is linear in ``(c, |c|^2)``;
+    the base then becomes ``Trans(-c) A_b``. Its rotation stays nominal (distances cannot see it).
+    """
+    p = tool_points(model.forward(held, q), offsets[:, None, :] if offsets.ndim == 2 else offsets)[:, 0]
+    A = np.column_stack([2 * p, -np.ones(len(p))])
+    b = np.sum(p**2, axis=1) - np.asarray(length, dtype=float) ** 2
+    if len(p) < 4 or np.linalg.matrix_rank(A) < 4:
+        return held
+    c = np.linalg.lstsq(A, b, rcond=None)[0][:3]
+    base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
+    shift = np.eye(4)
+    shift[:3, 3] = -c
+    out = np.array(held, dtype=float)
+    out[base] = to_euler_zyx_trans(shift @ euler_zyx_trans(*out[base]))
+    return out
+
+
 def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None):
     """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
 
     Only poses with at least one measurement at the chosen levels take part.
     """
     levels = _levels(ds, options)
+    block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.joint_errors)
+    names = [n for n in names if not is_block_name(n)]
     params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
     params = type(params)(model, tuple(names))
     held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
@@ -148,7 +182,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
     row = {p: i for i, p in enumerate(pose_ids)}
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose_ids)])
-    sig = _sigmas(ds, model, options, scale)
+    sig = _sigmas(ds, model, options, scale if scale is not None else options.noise_scale)
     kw = {}
     world_points = {}
     init_c = None
@@ -186,13 +220,25 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         axes = np.array([[0.0, 0, 0], [100.0, 0, 0], [0, 100.0, 0], [0, 0, 100.0]])
         for i, Ti in zip(idx, T):
             world_points[i] = (axes, axes @ Ti[:3, :3].T + Ti[:3, 3])
+    pivot_start = None
+    if "distances" in levels:
+        di = ds.distances
+        idx = np.array([row[p] for p in di.pose], dtype=int)
+        kw["distances"] = (idx, ds.tooling.offsets(di.ball), di.length)
+        pivot_start = _initial_pivot(model, held, q[idx], ds.tooling.offsets(di.ball), di.length)
     if options.prior == "weak":
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
+    start = _initial_base(model, held, q, world_points) if pivot_start is None or world_points else pivot_start
+    if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
+        block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,
+                                      model_inertials(model), block_names, model.chain)
+        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
+        params = BlockParameters(params, block)
+        kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
+        kw["joint_errors"] = block.design(q, start)
     graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
-
-    start = _initial_base(model, held, q, world_points)
     theta0 = params.take(start)
     if init_c is not None and len(graph.ball_pose):
         # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
@@ -366,7 +412,8 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
     lin = graph.linearise(state) if lin is None else lin
     red = graph.leverage_by_level(state, cov_internal, lin)
     out = {}
-    units = {"probes": "mm", "kinematic": "mm", "centres": "mm", "poses": "mm", "joints": "deg", "prior": "-"}
+    units = {"probes": "mm", "kinematic": "mm", "centres": "mm", "poses": "mm", "distances": "mm", "joints": "deg",
+             "prior": "-"}
     sig = graph.sigmas
     for level, (e, s, w) in lin.raw.items():
         n_rows, h = red.get(level, (0, 0.0))
@@ -380,7 +427,7 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
             continue
         norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
         scale = np.degrees(1.0) if level == "joints" else 1.0
-        sigma = {"probes": sig.probe, "kinematic": sig.kinematic, "centres": sig.centre,
+        sigma = {"probes": sig.probe, "kinematic": sig.kinematic, "centres": sig.centre, "distances": sig.distance,
                  "joints": _joint_sigma_file_units(graph), "prior": float("nan")}[level]
         out[level] = LevelSummary(len(e), float(np.sqrt(np.mean(norms**2)) * scale), units[level], float(sigma),
                                   vf, redundancy)
@@ -406,7 +453,7 @@ def _hold_order(names) -> list[int]:
 
 
 def _identifiability(graph: Graph, state: State, lin=None):
-    names = list(graph.params.names)
+    names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
     order = _hold_order(names)
     S = graph.parameter_information(state, lin)[np.ix_(order, order)]
     return analyse_information(S, [names[i] for i in order])
@@ -437,19 +484,23 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     """
     params = model.parameters(extra=options.extra, exclude=options.exclude)
     names = list(params.names)
+    if options.joint_errors is not None:
+        names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
     # Degrees of freedom per pose: full pose 6, two balls 5, one ball 3.
-    pairs, full = set(), set()
-    for lv in levels:
-        obs = getattr(ds, lv)
-        if lv == "poses":
-            full |= set(obs.pose.tolist())
-        else:
-            pairs |= set(zip(obs.pose.tolist(), obs.ball.tolist()))
-    n_balls = {}
-    for p, _ in pairs:
-        n_balls[p] = n_balls.get(p, 0) + 1
-    dof = sum(_pose_dof(min(n_balls.get(p, 0), 3), p in full) for p in ds.pose_ids.tolist())
+    dof = 0
+    for p in ds.pose_ids:
+        balls = set()
+        full = False
+        for lv in levels:
+            obs = getattr(ds, lv)
+            if lv == "poses":
+                full |= bool(np.any(obs.pose == p))
+            elif lv == "distances":
+                dof += int(np.sum(obs.pose == p))
+            else:
+                balls |= set(obs.ball[obs.pose == p].tolist())
+        dof += _pose_dof(min(len(balls), 3), full)
     if dof < len(names):
         raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
                          f"{len(names)} parameters need at least {len(names)} "
@@ -470,13 +521,13 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         lin = None
 
     state, iterations, converged = _solve(graph, state, options, lin)
-    scale = {}
+    scale = dict(options.noise_scale or {})
     if options.estimate_noise:
         for _ in range(8):
             lin = graph.linearise(state)
             summaries = _level_summaries(graph, state, np.linalg.inv(graph.parameter_information(state, lin)), lin)
             factors_ = {lv: s.variance_factor for lv, s in summaries.items()
-                        if lv in ("probes", "centres", "poses") and np.isfinite(s.variance_factor)}
+                        if lv in LEVELS and np.isfinite(s.variance_factor)}
             if all(abs(f - 1) < 0.01 for f in factors_.values()):
                 break
             for lv, f in factors_.items():
@@ -514,6 +565,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if "poses" in raw:
         residuals["poses_position_mm"] = raw["poses"][0][:, 3:].ravel().tolist()
         residuals["poses_rotation_deg"] = np.degrees(raw["poses"][0][:, :3]).ravel().tolist()
+    if "distances" in raw:
+        residuals["distances_mm"] = raw["distances"][0][:, 0].tolist()
     if "joints" in raw:
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]
@@ -527,7 +580,20 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         levels=levels_summary, iterations=iterations, converged=converged, cost=float(lin.cost),
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
-        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist())
+        fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist(),
+        joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
+
+
+def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
+    """What a result keeps of its joint-error block: the spec, the names, the joint region (file units)."""
+    if not isinstance(params, BlockParameters):
+        return {}
+    names = list(params.block.names)
+    return {"spec": options.joint_errors.to_dict(), "names": names,
+            "map_terms": sum(n.startswith("map.") for n in names),
+            "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],
+            "validity": "the joint error map holds only inside these joint ranges and in the set-up it was "
+                        "fitted on (tool, payload, mounting)" if any(n.startswith("map.") for n in names) else ""}
 
 
 def nonlinear_graph(graph: Graph, state: State):
@@ -541,6 +607,8 @@ def nonlinear_graph(graph: Graph, state: State):
 
     import factors as fx
 
+    if graph.K:
+        raise FgcalError("the GTSAM reference graph covers the geometric model only (no joint-error block)")
     g = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     t_key = fx.theta_key()
@@ -577,6 +645,10 @@ def nonlinear_graph(graph: Graph, state: State):
             if robust:
                 f = f.cloneWithNewNoiseModel(fx.noise_model([sig.pose_rotation] * 3 + [sig.pose_position] * 3, robust, k))
             g.add(f)
+    if graph.distances is not None:
+        for i, off, length in zip(*graph.distances):
+            f = fx.distance_factor(graph.index, graph.held, off, length, sig.distance, t_key=t_key, **qargs(i))
+            g.add(f.cloneWithNewNoiseModel(fx.noise_model([sig.distance], robust, k)) if robust else f)
     if graph.prior is not None:
         g.add(fx.parameter_prior(t_key, graph.prior[0], graph.prior[1]))
     return g, values

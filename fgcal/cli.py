@@ -14,9 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .cli_checks import (check_output_dir, check_output_file, dataset_inputs, finite_float, nonnegative_float,
+                         nonnegative_int, os_error_message, parameter_names, positive_float, positive_int)
 from .errors import FgcalError
 
 log = logging.getLogger("fgcal")
+
+MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
 
 
 def _cmd_simulate(args) -> int:
@@ -29,6 +33,10 @@ def _cmd_simulate(args) -> int:
         raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")
     if not 0 <= args.outliers < 1:
         raise FgcalError("--outliers is a fraction of probe points, from 0 to below 1")
+    if (args.poses or 0) > MAX_POSES or args.probes_per_ball > 1000:
+        raise FgcalError(f"--poses at most {MAX_POSES} and --probes-per-ball at most 1000 (a dataset that large "
+                         "would not fit in memory)")
+    check_output_dir(args.out, [args.truth, Path(args.robot)], option="OUT", must_be_new=True, force=args.force)
     chain = None
     if args.chain:
         parts = args.chain.split(",")
@@ -90,6 +98,7 @@ def _cmd_check(args) -> int:
 
     ds = load_dataset(args.dataset)
     model = dataset_model(ds)
+    _warn_units(ds, model)
     print(f"{args.dataset}: robot {model.name}, {ds.n_poses} poses; levels: {', '.join(ds.levels()) or 'none'}")
     for lv in ds.levels():
         print(f"  {lv}: {len(getattr(ds, lv))} rows")
@@ -106,13 +115,20 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_measure(args) -> int:
-    from .dataset_io import load_dataset, save_dataset
+    from .dataset_io import dataset_model, load_dataset, save_dataset
     from .measure import POSE_ROW, derived_dataset, measure_probes, quality_csv
 
-    ds = load_dataset(args.dataset)
     out = args.out or args.dataset.with_name(args.dataset.name + "-measured")
+    check_output_dir(out, [args.dataset], must_be_new=True, force=args.force)
+    if args.tolerance is not None and args.method != "paper":
+        raise FgcalError("--tolerance is for --method paper")
+    ds = load_dataset(args.dataset)
+    _warn_units(ds, dataset_model(ds))
     result = measure_probes(ds, method=args.method, free_radius=args.free_radius, threshold=args.threshold,
                             tolerance=args.tolerance)
+    if not len(result.poses):
+        first = next((f"pose {q.pose}: {q.status}" for q in result.quality if q.status != "ok"), "no probe points")
+        raise FgcalError(f"{args.dataset}: no pose could be measured ({first}); nothing written")
     derived = derived_dataset(ds, result)
     save_dataset(derived, out, overwrite=args.force, extra_files={"quality.csv": quality_csv(result.quality)})
     balls = [q for q in result.quality if q.ball != POSE_ROW]
@@ -125,7 +141,18 @@ def _cmd_measure(args) -> int:
         print(f"  pose {q.pose} {'' if q.ball == POSE_ROW else 'ball ' + q.ball + ' '}{q.status}")
     if len(bad_balls) + len(bad_poses) > args.show:
         print(f"  ... {len(bad_balls) + len(bad_poses) - args.show} more in {out / 'quality.csv'}")
+    from .sanity import unused_poses
+
+    for note in unused_poses(ds, [q.pose for q in poses], ["probes"]):
+        print(f"note: {note}")
     return 0
+
+
+def _warn_units(ds, model) -> None:
+    from .sanity import unit_warnings
+
+    for w in unit_warnings(ds, model):
+        print(f"warning: {w}", file=sys.stderr)
 
 
 def parse_pose_selection(text: str | None, available) -> np.ndarray:
@@ -135,27 +162,39 @@ def parse_pose_selection(text: str | None, available) -> np.ndarray:
         return available
     text = text.strip()
     if text in ("odd", "even"):
-        return available[available % 2 == (1 if text == "odd" else 0)]
+        chosen = available[available % 2 == (1 if text == "odd" else 0)]
+        if not len(chosen):
+            raise FgcalError(f"--poses {text}: the dataset has no {text} pose ids")
+        return chosen
     for prefix in ("first:", "last:"):
         if text.startswith(prefix):
             try:
                 n = int(text[len(prefix):])
             except ValueError:
                 raise FgcalError(f"--poses {text!r}: expected {prefix}N") from None
+            if n < 1:
+                raise FgcalError(f"--poses {text!r}: N must be at least 1")
+            if n > len(available):
+                raise FgcalError(f"--poses {text!r}: the dataset has only {len(available)} poses")
             return available[:n] if prefix == "first:" else available[-n:]
     chosen = []
     for part in text.split(","):
+        part = part.strip()
         try:
-            if "-" in part.strip()[1:]:
-                a, b = part.strip().split("-", 1) if not part.strip().startswith("-") else (part, part)
-                chosen.extend(range(int(a), int(b) + 1))
-            else:
-                chosen.append(int(part))
+            a, b = part.split("-", 1) if "-" in part[1:] and not part.startswith("-") else (part, part)
+            a, b = int(a), int(b)
         except ValueError:
             raise FgcalError(f"--poses {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
+        if b < a:
+            raise FgcalError(f"--poses: range {a}-{b} is empty (write it as {b}-{a})")
+        if b - a >= len(available):
+            raise FgcalError(f"--poses: range {a}-{b} spans more ids than the {len(available)} poses of the dataset")
+        chosen.extend(range(a, b + 1))
     missing = sorted(set(chosen) - set(available.tolist()))
     if missing:
         raise FgcalError(f"--poses: pose(s) {', '.join(map(str, missing[:10]))} not in the dataset")
+    if not chosen:
+        raise FgcalError(f"--poses {text!r}: selects no pose")
     return np.array(sorted(set(chosen)), dtype=int)
 
 
@@ -180,21 +219,77 @@ def _cmd_calibrate(args) -> int:
     from .dataset_io import dataset_model, load_dataset
     from .result import save_result
 
+    check_output_file(args.out, dataset_inputs(args.dataset))
     ds = load_dataset(args.dataset)
+    check_output_file(args.out, dataset_inputs(args.dataset, ds.robot))
     model = dataset_model(ds)
+    _warn_units(ds, model)
     ids = parse_pose_selection(args.poses, ds.pose_ids)
     if len(ids) != ds.n_poses:
         ds = ds.select(ids)
+    extra = parameter_names(model, args.extra, "--extra")
+    exclude = parameter_names(model, args.exclude, "--exclude")
     options = CalibrationOptions(
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=args.estimate_noise,
-        extra=tuple(args.extra.split(",")) if args.extra else (),
-        exclude=tuple(args.exclude.split(",")) if args.exclude else (), engine=getattr(args, "engine", "batch"))
-    result = calibrate(ds, model, options)
+        extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
+    if args.model == "geometric" and args.verification is None:
+        result = calibrate(ds, model, options)
+    else:
+        result = _compare_models(args, ds, model, options)
     save_result(result, args.out)
+    from .sanity import unused_poses
+
+    for note in unused_poses(ds, result.pose_ids, options.levels or ds.levels()):
+        print(f"note: {note}")
     _print_result(result)
+    _print_selection(result)
     print(f"wrote {args.out}")
     return 0
+
+
+def _parse_payload(text):
+    from .gravity import Payload
+
+    if not text:
+        return Payload()
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (1, 4) or v[0] < 0:
+        raise FgcalError(f"--payload: expected KG or KG,X,Y,Z (kg, mm in the tool frame), got {text!r}")
+    return Payload(v[0], tuple(v[1:]) if len(v) == 4 else (0.0, 0.0, 0.0))
+
+
+def _compare_models(args, ds, model, options):
+    """``calibrate --model``: cross-validated comparison of the models up to the one asked for."""
+    from .dataset_io import load_dataset
+    from .model_select import HARMONICS_GRID, compare_models
+
+    ver = load_dataset(args.verification) if args.verification is not None else None
+    results, _ = compare_models(ds, model, options, up_to=args.model, verification=ver, folds=args.folds,
+                                rng=np.random.default_rng(args.seed), payload=_parse_payload(args.payload),
+                                harmonics_grid=tuple(h for h in HARMONICS_GRID if h < args.max_harmonics)
+                                + (args.max_harmonics,), fold_order=args.fold_order)
+    return results[args.model]
+
+
+def _print_selection(result) -> None:
+    sel = result.joint_errors.get("selection")
+    if result.joint_errors.get("validity"):
+        ranges = ", ".join(f"q{j + 1} {lo:.1f}..{hi:.1f}" for j, (lo, hi) in
+                           enumerate(result.joint_errors["joint_ranges_deg"]))
+        print(f"  NOTE: {result.joint_errors['validity']}: {ranges} deg")
+    if not sel:
+        return
+    print(f"  {'model':15s} {'parameters':>10s} {'cross-validated':>16s} {'held-out':>10s}  ({sel['folds']} folds)")
+    for s in sel["scores"]:
+        held = f"{s['heldout_error']:.4g}" if s.get("heldout_error") is not None else "-"
+        print(f"  {s['model']:15s} {s['n_parameters']:10d} {s['cv_error']:12.4g} {s['unit']:3s} {held:>10s}")
+        for w in s.get("warnings", []):
+            print(f"    warning: {w}")
+    print(f"  recommended: {sel['reason']}")
 
 
 def _cmd_verify(args) -> int:
@@ -202,11 +297,15 @@ def _cmd_verify(args) -> int:
 
     from .dataset_io import dataset_model, load_dataset
     from .result import load_result
-    from .verify import verify
+    from .verify import check_same_robot, verify
     from .yamlio import atomic_write_text
 
+    if args.out:
+        check_output_file(args.out, [args.result, *dataset_inputs(args.dataset)])
     result = load_result(args.result)
     ds = load_dataset(args.dataset)
+    check_same_robot(result, dataset_model(ds), where=f"{args.result} against {args.dataset}")
+    _warn_units(ds, dataset_model(ds))
     ids = parse_pose_selection(args.poses, ds.pose_ids)
     if len(ids) != ds.n_poses:
         ds = ds.select(ids)
@@ -221,7 +320,7 @@ def _cmd_verify(args) -> int:
     def line(label, summary):
         p, o = summary["position_mm"], summary["orientation_deg"]
         text = f"  {label:28s} position mean {p['mean']:.4g} rms {p['rms']:.4g} max {p['max']:.4g} mm"
-        if o is not None:
+        if o is not None:  # None for position-only data
             text += f"; orientation mean {o['mean']:.4g} rms {o['rms']:.4g} max {o['max']:.4g} deg"
         return text
 
@@ -243,44 +342,110 @@ def _cmd_report(args) -> int:
     from .report import write_report
     from .result import load_result
 
+    from .yamlio import read_text_file
+
+    check_output_dir(args.out, [args.result, args.verify])
     result = load_result(args.result)
     verification = None
     if args.verify is not None:
+        text = read_text_file(args.verify, max_bytes=256 * 1024 * 1024)
         try:
-            verification = json.loads(args.verify.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise FgcalError(f"{args.verify}: file not found") from None
-        except (OSError, ValueError) as exc:
-            raise FgcalError(f"{args.verify}: not a verification file ({exc})") from None
-        if not isinstance(verification, dict) or verification.get("format") != "fgcal-verify/1":
-            raise FgcalError(f"{args.verify}: not an fgcal-verify/1 file")
+            verification = json.loads(text)
+        except ValueError as exc:
+            raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
+                             f"line {getattr(exc, 'lineno', '?')})") from None
+        from .verify import check_verification
+
+        check_verification(verification, args.verify)
+        robot = verification.get("robot")
+        if robot is not None and robot != result.model().name:
+            raise FgcalError(f"{args.verify}: a verification of a {robot} result, but {args.result} is a "
+                             f"result for {result.model().name}")
     volume = None
     try:
         volume = result.model().volume
     except FgcalError:
         log.info("robot %s not found: the pose plot has no measuring volume", result.robot)
-    path = write_report(result, args.out, verification, volume)
+    tolerance = getattr(args, "tolerance", None)
+    if tolerance is not None and not tolerance > 0:
+        raise FgcalError(f"--tolerance must be a positive length in mm, got {tolerance:g}")
+    path = write_report(result, args.out, verification, volume, tolerance=tolerance)
     print(f"wrote {path} (and report.md, figures as PNG) in {args.out}")
+    if tolerance is not None and verification is not None:
+        from .accuracy import tolerance_verdict
+        tv = tolerance_verdict(verification, tolerance)
+        print(tv.sentence())
+        return 0 if tv.passed else 1
     return 0
 
 
+def _parse_tcp(text):
+    from .compensate import tcp_matrix
+
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (3, 6) or not np.all(np.isfinite(v)):
+        raise FgcalError(f"--tcp {text!r}: give X,Y,Z or X,Y,Z,RX,RY,RZ (mm, deg) in the tool frame")
+    return tcp_matrix(v[:3], v[3:] or (0.0, 0.0, 0.0))
+
+
+def _parse_branch(text):
+    from .ik import BRANCHES
+
+    for b in BRANCHES:
+        if str(b) == text:
+            return b
+    raise FgcalError(f"--branch {text!r}: one of {', '.join(map(str, BRANCHES))}")
+
+
+PARTIAL = 3  # exit status of compensate when some targets were not reachable
+
+
 def _cmd_compensate(args) -> int:
-    from .compensate import compensate
+    from .compensate import Frame, compensate_targets
     from .dataset_io import JOINT_COLUMNS, read_targets, write_csv
     from .result import load_result
 
+    if args.out:
+        check_output_file(args.out, [args.result, args.targets])
+    tcp = _parse_tcp(args.tcp) if args.tcp else None
+    branch = _parse_branch(args.branch) if args.branch else None
     result = load_result(args.result)
     ids, T, seeds = read_targets(args.targets)
-    q, pos_err, rot_err = compensate(result.model(), result.slot_vector(), T, seeds)
-    rows = [[int(p), *map(float, np.degrees(qi))] for p, qi in zip(ids, q)]
+    model = result.model()
+    c = compensate_targets(model, result.slot_vector(model), T, seeds, frame=Frame(args.frame), tcp=tcp,
+                           branch=branch, max_change_deg=args.max_change)
+    for note in c.notes:
+        print(f"note: {note}", file=sys.stderr)
+    ok = c.reachable
+    q = np.array(c.q, dtype=float)
+    if result.joint_errors.get("names") and ok.any():  # joint-error block: command what lands on q
+        from .joint_errors import commands_for, outside_region
+
+        for message in outside_region(result, q[ok]):
+            print(f"warning: {args.targets}: {message}", file=sys.stderr)
+        q[ok] = commands_for(result, q[ok])
+    rows = [[int(p), *map(float, np.degrees(qi))] for p, qi, good in zip(ids, q, ok) if good]
     if args.out:
         write_csv(args.out, JOINT_COLUMNS, rows)
-        print(f"wrote {args.out}: {len(ids)} joint commands; calibrated model reaches every target within "
-              f"{pos_err.max():.2g} mm and {rot_err.max():.2g} deg")
+        if ok.any():
+            print(f"wrote {args.out}: {len(rows)} of {len(ids)} joint commands; the calibrated model reaches them "
+                  f"within {np.nanmax(c.position_error_mm):.2g} mm and {np.nanmax(c.orientation_error_deg):.2g} deg, "
+                  f"every joint within {np.nanmax(c.joint_change_deg):.2g} deg of its seed (same configuration)")
+        else:
+            print(f"wrote {args.out}: no target was reachable")
     else:
         print(",".join(JOINT_COLUMNS))
         for r in rows:
             print(",".join([str(r[0])] + [repr(v) for v in r[1:]]))
+    for p, why in zip(ids, c.reasons):
+        if why:
+            print(f"{args.targets}: pose {p}: not written: {why}", file=sys.stderr)
+    if not ok.all():
+        print(f"{int((~ok).sum())} of {len(ids)} targets not reachable (exit status {PARTIAL})", file=sys.stderr)
+        return PARTIAL
     return 0
 
 
@@ -290,8 +455,16 @@ def _cmd_export(args) -> int:
     from .urdf import export_urdf
     from .yamlio import atomic_write_text
 
-    if args.model is None and args.urdf is None:
-        raise FgcalError("export: give --model FILE and/or --urdf FILE")
+    if args.model is None and args.urdf is None and args.deltas is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
+    if args.model:
+        check_output_file(args.model, [args.result], option="--model")
+    if args.urdf:
+        check_output_file(args.urdf, [args.result, args.model], option="--urdf")
+        if args.model and Path(args.model).absolute() == Path(args.urdf).absolute():
+            raise FgcalError(f"--model and --urdf: both are {args.urdf}; give two files")
+    if args.deltas:
+        check_output_file(args.deltas, [args.result, args.model, args.urdf], option="--deltas")
     result = load_result(args.result)
     model = result.model()
     from dataclasses import replace
@@ -306,6 +479,30 @@ def _cmd_export(args) -> int:
         atomic_write_text(args.urdf, export_urdf(calibrated, slots))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
         print(f"wrote {args.urdf} ({kind})")
+    if args.deltas:
+        from .dataset_io import write_csv
+
+        rows = [[p.name, p.unit, p.nominal, p.estimate, p.estimate - p.nominal, p.sigma, "identified"]
+                for p in result.parameters]
+        nominal = model.slots_to_file_units(model.nominal)
+        for h in result.held:
+            unit = "deg" if model.slot_is_angle[model.slot(h["name"])] else "mm"
+            value = float(h["value"])
+            rows.append([h["name"], unit, float(nominal[model.slot(h["name"])]), value,
+                         value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
+        write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
+        print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
+    if result.joint_errors.get("names"):  # what neither format can hold goes beside them as a table
+        from .dataset_io import write_csv
+
+        table = Path(str(args.urdf or args.model or args.deltas) + ".joint_errors.csv")
+        write_csv(table, ["name", "unit", "estimate", "sigma"],
+                  [[p.name, p.unit, p.estimate, p.sigma] for p in result.parameters
+                   if p.name in set(result.joint_errors["names"])])
+        print(f"wrote {table}: the {len(result.joint_errors['names'])} joint-error parameters, which a "
+              f"{'URDF' if args.urdf else 'model file'} cannot hold (joint = reading + correction, see fgcal.joint_errors)")
+        if result.joint_errors.get("validity"):
+            print(f"note: {result.joint_errors['validity']}")
     return 0
 
 
@@ -316,6 +513,10 @@ def _cmd_online(args) -> int:
 
     if args.stdin and args.follow:
         raise FgcalError("--stdin and --follow: choose one source of new poses")
+    if args.out:
+        check_output_file(args.out, [args.checkpoint, *dataset_inputs(args.dataset)])
+    if args.plot:
+        check_output_file(args.plot, [args.out, args.checkpoint, *dataset_inputs(args.dataset)], option="--plot")
     if args.stdin:
         from .dataset_io import load_dataset_meta
 
@@ -390,7 +591,7 @@ def _cmd_study(args) -> int:
     from .study_run import run_study, study_figures, summary, write_figures
 
     trials = trials_for(args.name, trials=args.trials, poses=args.poses, seed=args.seed)
-    out = args.out or Path(f"study-{args.name}")
+    out = check_output_dir(args.out or Path(f"study-{args.name}"))
     t0 = __import__("time").perf_counter()
     rows = run_study(trials, out, workers=args.workers, scheduler=args.scheduler)
     elapsed = __import__("time").perf_counter() - t0
@@ -410,6 +611,9 @@ def _cmd_design(args) -> int:
 
     if args.poses < 5:
         raise FgcalError("--poses must be at least 5 (30 parameters, 6 equations per pose)")
+    if args.candidates > MAX_POSES:
+        raise FgcalError(f"--candidates at most {MAX_POSES}")
+    check_output_file(args.out, [Path(args.robot)])
     model = load_model(args.robot)
     if model.tooling is None:
         raise FgcalError(f"robot model {model.name} has no tooling (balls) to plan for")
@@ -436,7 +640,7 @@ def _cmd_demo(args) -> int:
     from .resources import default_dataset_dir
 
     ds_dir = default_dataset_dir()
-    out = args.out
+    out = check_output_dir(args.out, [ds_dir])
     out.mkdir(parents=True, exist_ok=True)
     print(f"fgcal demo: {ds_dir} (a simulated PUMA 560, the paper's 48-pose plan); results in {out}/")
     print("\n== check: what the poses can identify")
@@ -450,8 +654,15 @@ def _cmd_demo(args) -> int:
     return _cmd_report(argparse.Namespace(result=out / "result.json", verify=out / "verify.json", out=out / "report"))
 
 
+class _Parser(argparse.ArgumentParser):
+    """Option errors in one line (no usage block), exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
+    p = _Parser(prog="fgcal", description="Calibrate robot arm geometry as a factor graph.")
     p.add_argument("--version", action="version", version=f"fgcal {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress to standard error")
     sub = p.add_subparsers(dest="command", required=True)
@@ -465,26 +676,31 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--reflector", default=None, metavar="X,Y,Z",
                    help="measure one tracker reflector at X,Y,Z (mm, tool frame) instead of the model's tooling "
                         "balls (levels default to centres)")
-    s.add_argument("--poses", type=int, default=None, help="number of poses (random plan; default 21)")
-    s.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    s.add_argument("--poses", type=positive_int, default=None, help="number of poses (random plan; default 21)")
+    s.add_argument("--seed", type=nonnegative_int, default=0, help="random seed (default 0)")
     s.add_argument("--plan", choices=("random", "paper"), default="random",
                    help="random reachable joint sets, or the paper's 48-pose experiment")
-    s.add_argument("--cmm-sigma", type=float, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
-    s.add_argument("--joint-resolution", type=float, default=0.01,
+    s.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
+    s.add_argument("--joint-resolution", type=nonnegative_float, default=0.01,
                    help="joint readings rounded to this, deg (default 0.01; 0 = exact)")
-    s.add_argument("--repeatability", type=float, default=0.0,
+    s.add_argument("--repeatability", type=nonnegative_float, default=0.0,
                    help="joints land off the readings by N(0, this) deg (default 0)")
-    s.add_argument("--outliers", type=float, default=0.0, help="fraction of probe points with a gross error")
-    s.add_argument("--outlier-size", type=float, default=0.5, help="size of a gross error, mm (default 0.5)")
-    s.add_argument("--balls", type=int, default=None, help="balls measured per pose (default 3, or all the tool has if fewer)")
-    s.add_argument("--probes-per-ball", type=int, default=4, help="probe points per ball (default 4)")
+    s.add_argument("--outliers", type=finite_float, default=0.0, help="fraction of probe points with a gross error")
+    s.add_argument("--outlier-size", type=nonnegative_float, default=0.5, help="size of a gross error, mm (default 0.5)")
+    s.add_argument("--balls", type=positive_int, default=None,
+                   help="balls measured per pose (default 3, or all the tool has if fewer)")
+    s.add_argument("--probes-per-ball", type=positive_int, default=4, help="probe points per ball (default 4)")
     s.add_argument("--levels", default=None,
                    help="comma-separated files to write: probes, centres, poses (default probes; centres with "
                         "--reflector)")
-    s.add_argument("--length-sigma", type=float, default=0.5, help="link length deviations, mm (default 0.5)")
-    s.add_argument("--angle-sigma", type=float, default=0.05, help="link angle deviations, deg (default 0.05)")
-    s.add_argument("--base-length-sigma", type=float, default=5.0, help="base placement deviation, mm (default 5)")
-    s.add_argument("--base-angle-sigma", type=float, default=0.5, help="base angle deviation, deg (default 0.5)")
+    s.add_argument("--length-sigma", type=nonnegative_float, default=0.5,
+                   help="link length deviations, mm (default 0.5)")
+    s.add_argument("--angle-sigma", type=nonnegative_float, default=0.05,
+                   help="link angle deviations, deg (default 0.05)")
+    s.add_argument("--base-length-sigma", type=nonnegative_float, default=5.0,
+                   help="base placement deviation, mm (default 5)")
+    s.add_argument("--base-angle-sigma", type=nonnegative_float, default=0.5,
+                   help="base angle deviation, deg (default 0.5)")
     s.add_argument("--truth", type=Path, default=None,
                    help="truth.yaml of another simulated dataset: the same actual robot (a verification set)")
     s.add_argument("--force", action="store_true", help="replace OUT if it exists")
@@ -501,10 +717,10 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--method", choices=("svd", "paper"), default="svd",
                    help="least-squares rigid fit of the good balls, or the paper's T = P' P^-1 (default svd)")
     m.add_argument("--free-radius", action="store_true", help="fit each ball's radius too")
-    m.add_argument("--threshold", type=float, default=None,
+    m.add_argument("--threshold", type=positive_float, default=None,
                    help="RMS sphere-fit residual (mm) that flags a ball; default from the CMM noise")
-    m.add_argument("--tolerance", type=float, default=None, help="eqs. 19-21 tolerance for --method paper")
-    m.add_argument("--show", type=int, default=10, help="flagged rows to print (default 10)")
+    m.add_argument("--tolerance", type=positive_float, default=None, help="eqs. 19-21 tolerance for --method paper")
+    m.add_argument("--show", type=nonnegative_int, default=10, help="flagged rows to print (default 10)")
     m.add_argument("--force", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_cmd_measure)
 
@@ -524,6 +740,19 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--exact-joints", action="store_true", help="treat the joint readings as exact")
     k.add_argument("--extra", default=None, help="extra slots to estimate, e.g. j1.theta (redundancy is reported)")
     k.add_argument("--exclude", default=None, help="parameters to hold at nominal")
+    k.add_argument("--model", choices=("geometric", "compliance", "compliance+map"), default="geometric",
+                   help="beyond geometry: gravity compliance of the loaded joints, plus a per-joint error map "
+                        "(harmonics, chosen by cross-validation on these poses); the simpler models are scored too")
+    k.add_argument("--verification", type=Path, default=None,
+                   help="held-out dataset: each model's error there is reported (never used for fitting)")
+    k.add_argument("--folds", type=int, default=5, help="cross-validation folds (default 5)")
+    k.add_argument("--max-harmonics", type=int, default=30,
+                   help="largest number of map harmonics per joint tried by the cross-validation (default 30)")
+    k.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default 0)")
+    k.add_argument("--fold-order", choices=("random", "blocked"), default="random",
+                   help="folds drawn at random, or as contiguous stretches of the poses in id (time) order, which "
+                        "also scores drift over the session (default random)")
+    k.add_argument("--payload", default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
     k.set_defaults(func=_cmd_calibrate)
 
     v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")
@@ -537,6 +766,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("result", type=Path)
     r.add_argument("--verify", type=Path, default=None, help="verify.json from fgcal verify")
     r.add_argument("--out", type=Path, required=True, help="output directory")
+    r.add_argument("--tolerance", type=float, default=None, metavar="MM",
+                   help="position tolerance (mm): pass or fail at the verification poses "
+                        "(exit status 1 on fail, the report is written either way)")
     r.set_defaults(func=_cmd_report)
 
     from .cli_import import add_import_parser
@@ -546,13 +778,28 @@ def build_parser() -> argparse.ArgumentParser:
     c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
     c2.add_argument("result", type=Path)
     c2.add_argument("targets", type=Path, help="CSV: pose,x,y,z,qw,qx,qy,qz[,q1..q6 seed joints in deg]")
-    c2.add_argument("--out", type=Path, default=None, help="CSV of pose,q1..q6 (deg); standard output if omitted")
+    c2.add_argument("--out", type=Path, default=None,
+                    help="CSV of pose,q1..q6 (deg) of the reachable targets; standard output if omitted. The "
+                         "unreachable ones are named on standard error and the exit status is 3")
+    c2.add_argument("--frame", choices=("instrument", "base"), default="instrument",
+                    help="frame of the targets: the measuring instrument's (default) or the robot's base as the "
+                         "model places it (calibrated); a first link's d and theta are folded into the base, so "
+                         "for the UR10 this frame is 127.3 mm above the mounting face")
+    c2.add_argument("--tcp", default=None, metavar="X,Y,Z[,RX,RY,RZ]",
+                    help="the targets are for this TCP, given in the model's tool frame (the flange for the "
+                         "built-in robots): mm, and deg as R = Rz(RZ) Ry(RY) Rx(RX)")
+    c2.add_argument("--branch", default=None, help="configuration of targets without seed joints (PUMA-type arms), "
+                                                   "e.g. righty/up/noflip; default: the one reaching most targets")
+    c2.add_argument("--max-change", type=float, default=10.0, metavar="DEG",
+                    help="refuse a solution moving a joint further than this from its seed (default 10)")
     c2.set_defaults(func=_cmd_compensate)
 
     e = sub.add_parser("export", help="the calibrated model as a robot model file and/or URDF")
     e.add_argument("result", type=Path)
     e.add_argument("--model", type=Path, default=None, help="fgcal-robot/1 YAML file to write")
     e.add_argument("--urdf", type=Path, default=None, help="URDF file to write")
+    e.add_argument("--deltas", type=Path, default=None,
+                   help="CSV of the identified parameters: name,unit,nominal,estimate,delta,sigma (and held ones)")
     e.set_defaults(func=_cmd_export)
 
     o = sub.add_parser("online", help="incremental calibration as poses arrive (iSAM2, iterated EKF, UKF)")
@@ -567,9 +814,9 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--stdin", action="store_true",
                    help="read poses from standard input (DATASET gives robot, tool and noise); "
                         "records: joints,POSE,q1..q6 / probe,POSE,BALL,x,y,z / centre,... / pose,... / end,POSE")
-    o.add_argument("--interval", type=float, default=1.0, help="seconds between polls with --follow")
+    o.add_argument("--interval", type=positive_float, default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
-    o.add_argument("--drift", type=float, nargs=2, metavar=("MM", "DEG"), default=None,
+    o.add_argument("--drift", type=finite_float, nargs=2, metavar=("MM", "DEG"), default=None,
                    help="random-walk drift of the parameters per pose for ekf/ukf (default none)")
     o.set_defaults(func=_cmd_online)
 
@@ -577,23 +824,23 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("name", choices=("fig8-9", "fig13", "experiment", "sweep-cmm", "sweep-joint",
                                      "sweep-repeatability", "design"))
     st.add_argument("--out", type=Path, default=None, help="output directory (default study-NAME); resumes")
-    st.add_argument("--trials", type=int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
-    st.add_argument("--poses", type=int, default=None, help="observations per calibration (fig13, sweeps)")
-    st.add_argument("--seed", type=int, default=0)
-    st.add_argument("--workers", type=int, default=None, help="local processes (default: all cores)")
+    st.add_argument("--trials", type=positive_int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
+    st.add_argument("--poses", type=positive_int, default=None, help="observations per calibration (fig13, sweeps)")
+    st.add_argument("--seed", type=nonnegative_int, default=0)
+    st.add_argument("--workers", type=positive_int, default=None, help="local processes (default: all cores)")
     st.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
     st.set_defaults(func=_cmd_study)
 
     de = sub.add_parser("design", help="which poses to measure: an optimal plan from a candidate pool")
     de.add_argument("--robot", default="puma560")
-    de.add_argument("--poses", type=int, default=12)
-    de.add_argument("--candidates", type=int, default=2000, help="random reachable candidate poses (default 2000)")
+    de.add_argument("--poses", type=positive_int, default=12)
+    de.add_argument("--candidates", type=positive_int, default=2000, help="random reachable candidate poses (default 2000)")
     de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default="pred",
                     help="criterion: observability index O1-O5, or pred (predicted accuracy; default)")
-    de.add_argument("--seed", type=int, default=0)
-    de.add_argument("--cmm-sigma", type=float, default=0.01)
-    de.add_argument("--joint-resolution", type=float, default=0.01)
-    de.add_argument("--repeatability", type=float, default=0.0)
+    de.add_argument("--seed", type=nonnegative_int, default=0)
+    de.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01)
+    de.add_argument("--joint-resolution", type=nonnegative_float, default=0.01)
+    de.add_argument("--repeatability", type=nonnegative_float, default=0.0)
     de.add_argument("--out", type=Path, required=True, help="plan CSV: pose,q1..q6 (deg)")
     de.set_defaults(func=_cmd_design)
 
@@ -619,6 +866,13 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # output piped into head and the like
         sys.stderr.close()
         return 0
+    except OSError as exc:
+        print(f"fgcal: error: {os_error_message(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("fgcal: error: out of memory: the input is too large for this command on this machine",
+              file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

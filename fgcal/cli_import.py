@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli_checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
 from .errors import FgcalError
 
 __all__ = ["add_import_parser"]
@@ -52,6 +53,13 @@ def _measurements(args):
 def _cmd_import(args) -> int:
     from .importer import to_datasets
 
+    if not 0 <= args.holdout < 1:
+        raise FgcalError("--holdout is a fraction from 0 to below 1")
+    inputs = [args.file, getattr(args, "joint_log", None)]
+    check_output_dir(args.out, inputs, option="OUT", must_be_new=True, force=args.force)
+    if args.holdout > 0:
+        check_output_dir(args.out.with_name(args.out.name + "-holdout"), inputs, option="OUT-holdout",
+                         must_be_new=True, force=args.force)
     m, robot, name, settings = _measurements(args)
     for s in m.skipped:
         print(f"skipped {args.file}: {s}")
@@ -74,14 +82,14 @@ def _common(p: argparse.ArgumentParser, robot: bool = True) -> None:
     if robot:
         p.add_argument("--robot", required=True, help="built-in model name or model file of the measured robot")
     p.add_argument("--position-only", action="store_true", help="keep only the measured positions (centres.csv)")
-    p.add_argument("--holdout", type=float, default=0.0,
+    p.add_argument("--holdout", type=finite_float, default=0.0,
                    help="fraction of the rows (of the groups) to write to OUT-holdout for verification (default 0)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the held-out draw")
-    p.add_argument("--sigma", type=float, default=None,
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the held-out draw")
+    p.add_argument("--sigma", type=positive_float, default=None,
                    help="position noise per axis, mm (default: the file's std columns, else 0.02)")
-    p.add_argument("--orientation-sigma", type=float, default=None,
+    p.add_argument("--orientation-sigma", type=positive_float, default=None,
                    help="orientation noise, deg (default: the file's std columns, else 0.01)")
-    p.add_argument("--joint-resolution", type=float, default=0.0, help="joint reading resolution, deg (default 0)")
+    p.add_argument("--joint-resolution", type=nonnegative_float, default=0.0, help="joint reading resolution, deg (default 0)")
     p.add_argument("--force", action="store_true", help="replace OUT if it exists")
     p.set_defaults(func=_cmd_import)
 
@@ -120,7 +128,7 @@ def add_import_parser(sub) -> None:
     t.add_argument("--joints", required=True, help="joint columns of the log in chain order, comma-separated")
     t.add_argument("--joint-unit", choices=("deg", "rad"), default="rad", help="default rad (as ROS logs them)")
     t.add_argument("--time-column", default="time", help="time column of the joint log (default time)")
-    t.add_argument("--max-time-difference", type=float, default=0.01,
+    t.add_argument("--max-time-difference", type=positive_float, default=0.01,
                    help="largest time between a pose and its joint reading (default 0.01, timestamp units)")
     t.add_argument("--length-unit", choices=("mm", "m"), default="m", help="unit of TUM positions (default m)")
     _table_options(t)

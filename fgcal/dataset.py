@@ -14,9 +14,10 @@ import numpy as np
 from .model import Tooling
 from .transforms import pose_matrices
 
-__all__ = ["FORMAT", "Noise", "PointObservations", "PoseObservations", "Dataset"]
+__all__ = ["FORMAT", "LEVELS", "Noise", "PointObservations", "PoseObservations", "DistanceObservations", "Dataset"]
 
 FORMAT = "fgcal-dataset/1"
+LEVELS = ("probes", "centres", "poses", "distances")  # measurement levels, richest first
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,8 @@ class Noise:
     centre_sigma : float or None
         Noise of each coordinate of a ball centre (mm) when centres were fitted to probe points
         rather than measured directly; ``cmm_sigma`` applies when it is None.
+    distance_sigma : float or None
+        Noise of a ballbar length (mm); ``cmm_sigma`` applies when it is None.
     """
 
     cmm_sigma: float = 0.01
@@ -44,6 +47,7 @@ class Noise:
     pose_position_sigma: float | None = None
     pose_orientation_sigma: float | None = None
     centre_sigma: float | None = None
+    distance_sigma: float | None = None
 
     @property
     def joint_sigma_deg(self) -> float:
@@ -113,6 +117,41 @@ class PoseObservations:
 
 
 @dataclass
+class DistanceObservations:
+    """Measured distances (mm), one row each: a telescoping ballbar between a tool ball and a fixed
+    pivot whose position is unknown. The dataset's world frame has its origin at the pivot.
+
+    Attributes
+    ----------
+    pose : ndarray of int, shape (M,)
+    ball : ndarray of str, shape (M,)
+        The tool ball at the bar's moving end.
+    length : ndarray, shape (M,)
+        Centre-to-centre length of the bar (mm).
+    line : ndarray of int, shape (M,)
+    """
+
+    pose: np.ndarray
+    ball: np.ndarray
+    length: np.ndarray
+    line: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
+        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
+        self.length = np.asarray(self.length, dtype=float).reshape(-1)
+        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
+        if not (len(self.pose) == len(self.ball) == len(self.length) == len(self.line)):
+            raise ValueError("pose, ball, length and line must have the same length")
+
+    def __len__(self):
+        return len(self.pose)
+
+    def subset(self, mask) -> "DistanceObservations":
+        return DistanceObservations(self.pose[mask], self.ball[mask], self.length[mask], self.line[mask])
+
+
+@dataclass
 class Dataset:
     """Joint readings of N poses and whatever was measured at them.
 
@@ -129,6 +168,8 @@ class Dataset:
         Joint readings as the controller gave them (deg).
     probes, centres : PointObservations or None
     poses : PoseObservations or None
+    distances : DistanceObservations or None
+        Ballbar lengths (distances.csv); the world origin is the pivot.
     truth : dict of str to float or None
         True parameter values (mm, deg) of a simulated robot; all 37 slots.
     truth_outliers : list of (int, str, int)
@@ -148,6 +189,7 @@ class Dataset:
     probes: PointObservations | None = None
     centres: PointObservations | None = None
     poses: PoseObservations | None = None
+    distances: DistanceObservations | None = None
     truth: dict[str, float] | None = None
     truth_outliers: list = field(default_factory=list)
     path: Path | None = None
@@ -186,12 +228,12 @@ class Dataset:
                       pose_ids=self.pose_ids[keep], joints_deg=self.joints_deg[keep], truth=self.truth,
                       truth_outliers=[o for o in self.truth_outliers if o[0] in set(self.pose_ids[keep].tolist())],
                       path=self.path, chain=self.chain)
-        for level in ("probes", "centres", "poses"):
+        for level in LEVELS:
             obs = getattr(self, level)
             if obs is not None:
                 setattr(out, level, obs.subset(np.isin(obs.pose, self.pose_ids[keep])))
         return out
 
     def levels(self) -> list[str]:
-        """The measurement levels present: a subset of ``["probes", "centres", "poses"]``."""
-        return [lv for lv in ("probes", "centres", "poses") if getattr(self, lv) is not None]
+        """The measurement levels present: a subset of :data:`LEVELS`."""
+        return [lv for lv in LEVELS if getattr(self, lv) is not None]

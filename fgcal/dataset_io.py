@@ -9,17 +9,19 @@ from __future__ import annotations
 import csv
 import logging
 import math
+import os
 import shutil
 import tempfile
+from array import array
 from pathlib import Path
 
 import numpy as np
 
-from .dataset import FORMAT, Dataset, Noise, PointObservations, PoseObservations
+from .dataset import FORMAT, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
 from .errors import DatasetError, FgcalError
 from .model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from .robot_file import load_model
-from .yamlio import atomic_write_text, dump_yaml, read_yaml
+from .yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
 __all__ = ["load_dataset", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
 
@@ -36,15 +38,23 @@ def joint_columns(n: int) -> list[str]:
     return ["pose"] + [f"q{i}" for i in range(1, n + 1)]
 POINT_COLUMNS = ["pose", "ball", "x", "y", "z"]
 POSE_COLUMNS = ["pose", "x", "y", "z", "qw", "qx", "qy", "qz"]
+DISTANCE_COLUMNS = ["pose", "ball", "length"]
 
 
-def _number(text: str, where: str, what: str) -> float:
+# Bounds beyond which a value is a mistake, not a measurement: 1000 km, or a million degrees.
+MAX_MM = 1e9
+MAX_DEG = 1e6
+
+
+def _number(text: str, where: str, what: str, limit: float = MAX_MM) -> float:
     try:
         value = float(text)
     except (TypeError, ValueError):
-        raise DatasetError(f"{where}: {what} is not a number: {text!r}") from None
+        raise DatasetError(f"{where}: {what} is not a number: {short_repr(text)}") from None
     if not math.isfinite(value):
-        raise DatasetError(f"{where}: {what} is not finite: {text!r}")
+        raise DatasetError(f"{where}: {what} is not finite: {short_repr(text)}")
+    if abs(value) > limit:
+        raise DatasetError(f"{where}: {what} = {text} is absurdly large (beyond {limit:g}; a unit mistake?)")
     return value
 
 
@@ -52,15 +62,20 @@ def _integer(text: str, where: str, what: str) -> int:
     try:
         return int(text)
     except (TypeError, ValueError):
-        raise DatasetError(f"{where}: {what} must be an integer id, got {text!r}") from None
+        raise DatasetError(f"{where}: {what} must be an integer id, got {short_repr(text)}") from None
 
 
-def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
-    """Rows of a CSV file as (line number, dict); the header holds ``columns`` and maybe ``optional``."""
+def _table_records(path: Path, columns: list[str], optional=()):
+    """The header and the non-blank records of a CSV file, streamed: yields ``(line, header, cells)``.
+
+    The header must hold ``columns`` and may hold ``optional``; line numbers are 1-based (the
+    header is line 1). Only a regular file is opened.
+    """
+    check_regular_file(path, DatasetError)
     try:
         fh = path.open(newline="", encoding="utf-8")
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
     with fh:
         reader = csv.reader(fh)
         try:
@@ -72,49 +87,92 @@ def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
             if missing:
                 raise DatasetError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
                                    f"(expected {','.join(columns)})")
-            unknown = [h for h in header if h not in columns and h not in optional]
+            unknown = [h[:24] for h in header if h not in columns and h not in optional]
             if unknown:
-                raise DatasetError(f"{path}: line 1: unknown column(s) {', '.join(unknown)} "
+                raise DatasetError(f"{path}: line 1: unknown column(s) {', '.join(unknown[:3])}"
+                                   f"{' ...' if len(unknown) > 3 else ''} "
                                    f"(expected {','.join(list(columns) + list(optional))})")
             if len(set(header)) != len(header):
                 raise DatasetError(f"{path}: line 1: a column is repeated in the header")
-            rows = []
+            n = len(header)
             for record in reader:
-                line = reader.line_num
                 if not record or all(not c.strip() for c in record):
                     continue
-                if len(record) != len(header):
-                    raise DatasetError(f"{path}: line {line}: {len(record)} fields, expected {len(header)}")
-                rows.append((line, {h: c.strip() for h, c in zip(header, record)}))
+                if len(record) != n:
+                    raise DatasetError(f"{path}: line {reader.line_num}: {len(record)} fields, expected {n}")
+                yield reader.line_num, header, [c.strip() for c in record]
         except csv.Error as exc:
             raise DatasetError(f"{path}: line {reader.line_num}: {exc}") from None
         except UnicodeDecodeError:
-            raise DatasetError(f"{path}: not a UTF-8 text file") from None
-    return rows
+            raise DatasetError(f"{path}: line {reader.line_num + 1}: not UTF-8 text") from None
+        except OSError as exc:
+            raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
+def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
+    """Rows of a CSV file as (line number, dict); the header holds ``columns`` and maybe ``optional``."""
+    return [(line, dict(zip(header, cells))) for line, header, cells in _table_records(path, columns, optional)]
 
 
 def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> PointObservations:
-    rows = _read_table(path, POINT_COLUMNS)
-    pose, ball, xyz, lines = [], [], [], []
+    """A ``pose,ball,x,y,z`` file, streamed into compact arrays (memory linear in the rows, small constant)."""
+    names = list(balls)
+    ball_index = {b: i for i, b in enumerate(names)}
+    pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
     seen = {}
+    cols = None
+    for line, header, cells in _table_records(path, POINT_COLUMNS):
+        if cols is None:
+            cols = [header.index(c) for c in POINT_COLUMNS]
+        where = f"{path}: line {line}"
+        p_txt, b, x, y, z = (cells[i] for i in cols)
+        pid = _integer(p_txt, where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        k = ball_index.get(b)
+        if k is None:
+            raise DatasetError(f"{where}: unknown ball {short_repr(b)} (dataset.yaml tool.balls has "
+                               f"{', '.join(balls)})")
+        if unique:
+            key = (pid, k)
+            if key in seen:
+                raise DatasetError(f"{where}: duplicate centre of ball {b} at pose {pid} (first on line {seen[key]})")
+            seen[key] = line
+        pose.append(pid)
+        ball.append(k)
+        xyz.extend((_number(x, where, "x"), _number(y, where, "y"), _number(z, where, "z")))
+        lines.append(line)
+    ball_names = np.array(names, dtype=str)[np.frombuffer(ball, dtype=np.int16).astype(int)] if len(ball) \
+        else np.zeros(0, dtype=str)
+    return PointObservations(np.frombuffer(pose, dtype=np.int64).astype(int), ball_names,
+                             np.frombuffer(xyz, dtype=float).reshape(-1, 3).copy(),
+                             np.frombuffer(lines, dtype=np.int64).astype(int))
+
+
+def _distance_table(path: Path, known_poses: set, balls: dict) -> DistanceObservations:
+    """``distances.csv``: ``pose,ball,length`` (mm), one ballbar length per pose and ball."""
+    rows = _read_table(path, DISTANCE_COLUMNS)
+    pose, ball, length, lines, seen = [], [], [], [], {}
     for line, r in rows:
         where = f"{path}: line {line}"
         pid = _integer(r["pose"], where, "pose")
         if pid not in known_poses:
             raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
         if r["ball"] not in balls:
-            raise DatasetError(f"{where}: unknown ball {r['ball']!r} (dataset.yaml tool.balls has {', '.join(balls)})")
-        if unique:
-            key = (pid, r["ball"])
-            if key in seen:
-                raise DatasetError(f"{where}: duplicate centre of ball {r['ball']} at pose {pid} (first on line {seen[key]})")
-            seen[key] = line
+            raise DatasetError(f"{where}: unknown ball {short_repr(r['ball'])} (dataset.yaml tool.balls has {', '.join(balls)})")
+        key = (pid, r["ball"])
+        if key in seen:
+            raise DatasetError(f"{where}: duplicate length of ball {r['ball']} at pose {pid} (first on line {seen[key]})")
+        seen[key] = line
+        value = _number(r["length"], where, "length")
+        if value <= 0:
+            raise DatasetError(f"{where}: length must be positive (mm), got {value!r}")
         pose.append(pid)
         ball.append(r["ball"])
-        xyz.append([_number(r[c], where, c) for c in "xyz"])
+        length.append(value)
         lines.append(line)
-    return PointObservations(np.array(pose, dtype=int), np.array(ball, dtype=str),
-                             np.array(xyz, dtype=float).reshape(-1, 3), np.array(lines, dtype=int))
+    return DistanceObservations(np.array(pose, dtype=int), np.array(ball, dtype=str), np.array(length, dtype=float),
+                                np.array(lines, dtype=int))
 
 
 def _pose_row(where: str, r: dict) -> tuple[int, np.ndarray, np.ndarray]:
@@ -155,7 +213,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     if missing:
         raise DatasetError(f"{path}: missing key(s) {', '.join(missing)}")
     if data["format"] != FORMAT:
-        raise DatasetError(f"{path}: format {data['format']!r} is not known (expected {FORMAT!r})")
+        raise DatasetError(f"{path}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
     if not isinstance(data["robot"], str) or not data["robot"]:
         raise DatasetError(f"{path}: robot must be a model name or a model file path")
     unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance"}
@@ -169,9 +227,9 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
 
     def num(value, what, minimum=None):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise DatasetError(f"{path}: {what} must be a finite number, got {value!r}")
+            raise DatasetError(f"{path}: {what} must be a finite number, got {short_repr(value)}")
         if minimum is not None and value < minimum:
-            raise DatasetError(f"{path}: {what} must be >= {minimum}, got {value!r}")
+            raise DatasetError(f"{path}: {what} must be >= {minimum}, got {short_repr(value)}")
         return float(value)
 
     tool = data["tool"]
@@ -186,12 +244,12 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
 
     noise_raw = data["noise"]
     allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
-               "centre_sigma")
+               "centre_sigma", "distance_sigma")
     if not isinstance(noise_raw, dict):
         raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
     unknown = set(noise_raw) - set(allowed)
     if unknown:
-        raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+        raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(str(k)[:24] for k in unknown))}")
     noise = Noise(**{k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()})
     provenance = data["provenance"]
     if not isinstance(provenance, dict):
@@ -208,15 +266,18 @@ def load_truth(path) -> tuple[dict, list]:
     truth = {}
     for name, value in data["parameters"].items():
         if not isinstance(name, str) or name.rpartition(".")[2] not in _SLOT_FIELDS or not name.rpartition(".")[0]:
-            raise DatasetError(f"{path}: unknown parameter {name!r}")
+            raise DatasetError(f"{path}: unknown parameter {short_repr(name)}")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise DatasetError(f"{path}: parameter {name} must be a finite number, got {value!r}")
+            raise DatasetError(f"{path}: parameter {name} must be a finite number, got {short_repr(value)}")
         truth[name] = float(value)
     outliers = []
     for i, item in enumerate(data.get("outliers") or []):
         if not (isinstance(item, list) and len(item) == 3):
             raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index]")
-        outliers.append((int(item[0]), str(item[1]), int(item[2])))
+        try:
+            outliers.append((int(item[0]), str(item[1]), int(item[2])))
+        except (TypeError, ValueError):
+            raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index] (integers)") from None
     return truth, outliers
 
 
@@ -259,22 +320,25 @@ def load_dataset(directory) -> Dataset:
             raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
         seen[pid] = line
         ids.append(pid)
-        q.append([_number(r[c], where, c) for c in columns[1:]])
+        q.append([_number(r[c], where, c, MAX_DEG) for c in columns[1:]])
     known = set(ids)
     ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.array(ids),
                  joints_deg=np.array(q), path=directory, chain=chain)
-    if (directory / "probes.csv").exists():
+    if os.path.lexists(directory / "probes.csv"):
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
-    if (directory / "centres.csv").exists():
+    if os.path.lexists(directory / "centres.csv"):
         ds.centres = _point_table(directory / "centres.csv", known, tooling.balls, unique=True)
-    if (directory / "poses.csv").exists():
+    if os.path.lexists(directory / "poses.csv"):
         ds.poses = _pose_table(directory / "poses.csv", known)
-    if (directory / "truth.yaml").exists():
+    if os.path.lexists(directory / "distances.csv"):
+        ds.distances = _distance_table(directory / "distances.csv", known, tooling.balls)
+    if os.path.lexists(directory / "truth.yaml"):
         ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
-        log.warning("%s: no measurements (probes.csv, centres.csv or poses.csv); joint readings only", directory)
+        log.warning("%s: no measurements (probes.csv, centres.csv, poses.csv or distances.csv); joint readings only",
+                    directory)
     return ds
 
 
@@ -364,6 +428,10 @@ def _write_into(ds: Dataset, directory: Path) -> None:
         quat = ds.poses.quat / np.linalg.norm(ds.poses.quat, axis=1, keepdims=True)
         write_csv(directory / "poses.csv", POSE_COLUMNS,
                   ([int(p), *map(float, x), *map(float, qq)] for p, x, qq in zip(ds.poses.pose, ds.poses.xyz, quat)))
+    if ds.distances is not None:
+        d = ds.distances
+        write_csv(directory / "distances.csv", DISTANCE_COLUMNS,
+                  ([int(p), b, float(v)] for p, b, v in zip(d.pose, d.ball, d.length)))
     if ds.truth is not None:
         truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
         if ds.truth_outliers:
@@ -385,7 +453,7 @@ def save_dataset(ds: Dataset, directory, overwrite: bool = False, extra_files=No
     if directory.exists() and not overwrite:
         raise FgcalError(f"{directory}: already exists (use --force to replace it)")
     directory.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+    tmp = make_dir(directory)
     try:
         _write_into(ds, tmp)
         for name, text in (extra_files or {}).items():

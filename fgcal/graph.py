@@ -27,7 +27,7 @@ from .model import ParameterSet
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
 POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
-LEVELS = ("probes", "kinematic", "centres", "poses", "joints", "prior")
+LEVELS = ("probes", "kinematic", "centres", "poses", "distances", "joints", "prior")
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,7 @@ class Sigmas:
     pose_rotation: float
     joint: float
     kinematic: float = 1e-4
+    distance: float = 0.01
 
 
 @dataclass
@@ -111,12 +112,18 @@ class Graph:
     radius : float
     centres : tuple (pose_index (Mc,), offset (Mc, 3), xyz (Mc, 3)) or None
     poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
+    distances : tuple (pose_index (Md,), offset (Md, 3), length (Md,)) or None
+        Ballbar lengths from the world origin (the pivot) to a tool ball.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
+    joint_errors : ndarray, shape (N, n, K), optional
+        ``G`` of a joint-error block (:mod:`fgcal.joint_errors`) whose K parameters follow the
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[-K:]``.
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
-                 ball_offset=None, radius=0.0, centres=None, poses=None, prior=None, robust=None, robust_k=None):
+                 ball_offset=None, radius=0.0, centres=None, poses=None, distances=None, prior=None, robust=None,
+                 robust_k=None, joint_errors=None):
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
@@ -129,6 +136,10 @@ class Graph:
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
+        # --- joint-error block (fgcal.joint_errors): theta = [geometry (n_geo), phi (K)]
+        self.n_geo = len(self.index)
+        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
+        self.K = 0 if self.G is None else self.G.shape[2]
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -137,6 +148,7 @@ class Graph:
         self.probes = probes
         self.centres = centres
         self.poses = poses
+        self.distances = distances
 
         # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
         qdim = nj if self.joint_vars else 0
@@ -177,10 +189,14 @@ class Graph:
             self.row["centres"] = take(centres[0], 3)
         if poses is not None:
             self.row["poses"] = take(poses[0], 6)
+        if distances is not None:
+            self.row["distances"] = take(distances[0], 1)
+        if self.joint_vars and self.K:  # the joint-error block enters the joint rows
+            self.row["joints"] = take(np.arange(n), nj)
         self.m_theta = int(rows.max()) if n else 0
         if probes is not None:
             self.row["probes"] = take(probes[0], 1)
-        if self.joint_vars:
+        if self.joint_vars and not self.K:
             self.row["joints"] = take(np.arange(n), nj)
         self.m = int(rows.max()) if n else 0
         self.rows_per_pose = rows
@@ -206,9 +222,10 @@ class Graph:
         """Per pose, the rows that touch only theta and q (centres, poses, joints)."""
         n = self.n_poses
         pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("joints", self.n_joints)):
+        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", self.n_joints)):
             if level in self.row:
                 pose_of = {"centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                           "distances": lambda: self.distances[0],
                            "joints": lambda: np.arange(n)}
                 for p, start in zip(pose_of[level](), self.row[level]):
                     pose_rows[p] += list(range(int(start), int(start) + width))
@@ -220,7 +237,16 @@ class Graph:
         return State(np.asarray(theta, dtype=float).copy(), self.readings.copy(), c.copy())
 
     def joints(self, state: State) -> np.ndarray:
-        return state.q if self.joint_vars else self.readings
+        if self.joint_vars:
+            return state.q
+        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:]
+
+    def _with_block(self, pose, J_t, J_q):
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
+        if not self.K:
+            return J_t
+        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else np.einsum("nmj,njk->nmk", J_q, self.G[pose])
+        return np.concatenate([J_t, extra], axis=2)
 
     def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.
@@ -237,7 +263,8 @@ class Graph:
         return lin
 
     def _linearise(self, state: State) -> Linearisation:
-        n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, len(self.index), self.nz
+        n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K, self.nz
+        theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
         Jt = np.zeros((n, mt, P))
         Jz = np.zeros((n, m, nz))
@@ -250,7 +277,8 @@ class Graph:
             width = e.shape[1]
             ew = e / sigma
             s = np.linalg.norm(ew, axis=1)
-            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses") else None, self.robust_k)
+            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses", "distances") else None,
+                             self.robust_k)
             raw[level] = (e, s, w)
             cost += float(rho.sum())
             sw = np.sqrt(w)[:, None] / sigma
@@ -272,9 +300,9 @@ class Graph:
         if len(self.ball_pose):
             # One kinematics evaluation per pose for all of its balls, in chunks of poses (the
             # chain's intermediate arrays are ~20 times the Jacobians' size).
-            x = fx.slots_of(state.theta, self.index, self.held)
+            x = fx.slots_of(theta, self.index, self.held)
             nb = len(self.ball_pose)
-            pts, J_t, J_q = np.empty((nb, 3)), np.empty((nb, 3, P)), np.empty((nb, 3, q.shape[1]))
+            pts, J_t, J_q = np.empty((nb, 3)), np.empty((nb, 3, self.n_geo)), np.empty((nb, 3, q.shape[1]))
             order = self._balls_by_pose
             for lo in range(0, n, POSE_CHUNK):
                 a, z = np.searchsorted(self.ball_pose[order], [lo, lo + POSE_CHUNK])
@@ -286,22 +314,35 @@ class Graph:
                 J_t[sel] = jac.point_slots[b, k][:, :, self.index]
                 J_q[sel] = jac.point_joints[b, k]
                 del jac
+            J_t = self._with_block(self.ball_pose, J_t, J_q)
             J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(state.theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.ball_centre_error(theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
         if self.poses is not None:
             pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(state.theta, q[pose_i], T, self.index, self.held, self.chain)
+            e, J_t, J_q = fx.pose_error(theta, q[pose_i], T, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
             sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
             put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
+        if self.distances is not None:
+            pose_i, offset, length = self.distances
+            e, J_t, J_q = fx.distance_error(theta, q[pose_i], offset, length, self.index, self.held, self.chain)
+            J_t = self._with_block(pose_i, J_t, J_q)
+            put("distances", pose_i, self.row["distances"], e, J_t, J_q, sigma=self.sigmas.distance)
         if self.joint_vars:
-            e = fx.joint_error(state.q, self.readings)
             nj = self.n_joints
-            put("joints", np.arange(n), self.row["joints"], e, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
+            J_t = None
+            if self.K:  # the joint variable is the reading plus the block's correction
+                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:])
+                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G], axis=2)
+            else:
+                e = fx.joint_error(state.q, self.readings)
+            put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))
@@ -434,9 +475,11 @@ class Graph:
         h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
         out = {}
         for level, start in self.row.items():
-            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "joints": self.n_joints}[level]
+            width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
+                     "joints": self.n_joints}[level]
             pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
                     "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                    "distances": lambda: self.distances[0],
                     "joints": lambda: np.arange(self.n_poses)}[level]()
             rows_ = start[:, None] + np.arange(width)
             out[level] = (rows_.size, float(h[pose[:, None], rows_].sum()))

@@ -15,7 +15,7 @@ import numpy as np
 
 from .model import ParameterSet, RobotModel
 
-__all__ = ["identification_jacobian", "Identifiability", "analyse", "minimal_parameters"]
+__all__ = ["identification_jacobian", "compact_jacobian", "Identifiability", "analyse", "minimal_parameters"]
 
 
 def identification_jacobian(params: ParameterSet, q, slots=None, measurement="pose",
@@ -58,6 +58,22 @@ def identification_jacobian(params: ParameterSet, q, slots=None, measurement="po
         return J.reshape(-1, len(idx))
     jac = chain.jacobians(x, q, offsets=measurement)
     return jac.point_slots[..., idx].reshape(-1, len(idx))
+
+
+def compact_jacobian(params: ParameterSet, q, measurement="pose", chunk: int = 2000, **kw) -> np.ndarray:
+    """A (P, P) matrix with the same singular values and column relations as the stacked Jacobian.
+
+    The triangular factor R of ``J = Q R``, accumulated over chunks of ``chunk`` poses, so that
+    memory does not grow with the number of poses; :func:`analyse` gives the same answer on it.
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    R = None
+    for start in range(0, len(q), chunk):
+        J = identification_jacobian(params, q[start:start + chunk], measurement=measurement, **kw)
+        R = np.linalg.qr(J if R is None else np.vstack([R, J]), mode="r")
+    if R is None:
+        return np.zeros((0, len(params.names)))
+    return R
 
 
 @dataclass

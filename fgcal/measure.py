@@ -94,24 +94,27 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
     quality: list[QualityRow] = []
     c_pose, c_ball, c_xyz, c_cov, c_line = [], [], [], [], []
     good: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
-    order = np.lexsort((probes.ball, probes.pose))
-    rows_of: dict[tuple[int, str], list[int]] = {}  # file rows of each (pose, ball), in file order
-    for i, pose, ball in zip(order.tolist(), probes.pose[order].tolist(), probes.ball[order].tolist()):
-        rows_of.setdefault((pose, ball), []).append(i)
-    keys = list(rows_of)
+    order = np.lexsort((probes.ball, probes.pose))  # stable: a ball's points keep their file order
+    sp, sb = probes.pose[order], probes.ball[order]
+    starts = np.flatnonzero(np.r_[True, (sp[1:] != sp[:-1]) | (sb[1:] != sb[:-1])]) if len(order) else np.zeros(0, int)
+    bounds = np.r_[starts, len(order)]
+    keys = [(int(sp[i]), str(sb[i])) for i in starts]
+    n_probed_of: dict[int, int] = {}
+    for pose, _ in keys:
+        n_probed_of[pose] = n_probed_of.get(pose, 0) + 1
     need = 4 if free_radius else 3
     fits = {}
     if radius is not None:  # all balls at once (vectorised by point count), same checks
-        fittable = [k for k in keys if len(rows_of[k]) >= need]
-        fits = dict(zip(fittable, fit_spheres_checked([probes.xyz[rows_of[k]] for k in fittable], radius, sigma,
-                                                      threshold)))
-    for pose, ball in keys:
-        sel = np.array(rows_of[(pose, ball)])
+        fittable = [k for k in range(len(keys)) if bounds[k + 1] - bounds[k] >= need]
+        fits = dict(zip(fittable, fit_spheres_checked([probes.xyz[order[bounds[k]:bounds[k + 1]]] for k in fittable],
+                                                      radius, sigma, threshold)))
+    for k, (pose, ball) in enumerate(keys):
+        sel = order[bounds[k]:bounds[k + 1]]
         pts = probes.xyz[sel]
         if len(pts) < need:
             quality.append(QualityRow(pose, ball, float("nan"), f"too few probe points ({len(pts)}; need {need})"))
             continue
-        fit = fits.get((pose, ball)) or fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
+        fit = fits.get(k) or fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
         status = fit.status
         lines = probes.line[sel]
         if fit.suspect is not None and fit.ok is False and "outlier: point" in status:
@@ -127,13 +130,10 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
             c_line.append(int(probes.line[sel][0]))
             good.setdefault(pose, []).append((ball, fit.centre, fit.covariance))
 
-    n_balls: dict[int, int] = {}
-    for p, _ in keys:
-        n_balls[p] = n_balls.get(p, 0) + 1
     p_pose, p_xyz, p_quat, p_cov = [], [], [], []
     for pose in sorted(set(probes.pose.tolist())):
         balls = good.get(pose, [])
-        n_probed = n_balls[pose]
+        n_probed = n_probed_of.get(pose, 0)
         if len(balls) < min_balls:
             quality.append(QualityRow(pose, POSE_ROW, float("nan"),
                                       f"rejected: {len(balls)} good ball(s) of {n_probed}; a pose needs {min_balls}"))

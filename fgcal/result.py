@@ -15,6 +15,7 @@ from .yamlio import atomic_write_text
 __all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "CalibrationResult", "save_result", "load_result"]
 
 FORMAT = "fgcal-result/1"
+MAX_RESULT_BYTES = 1 << 30
 
 
 @dataclass
@@ -75,6 +76,11 @@ class CalibrationResult:
         Calibrated tool origin at each pose used (mm, world), for plots of where the poses were.
     robot_model : dict
         The nominal robot model (``fgcal-robot/1`` as a mapping), so a result stands on its own.
+    joint_errors : dict
+        The non-geometric joint-error block, if any (:mod:`fgcal.joint_errors`): ``spec``,
+        ``names``, ``map_terms``, ``joint_ranges_deg`` (the region a map is valid in), ``validity``
+        and, after a model comparison, ``selection`` (:mod:`fgcal.model_select`). Empty for the
+        geometric model.
     """
 
     robot: str
@@ -96,6 +102,7 @@ class CalibrationResult:
     residuals: dict[str, list[float]] = field(default_factory=dict)
     tool_xyz: list[list[float]] = field(default_factory=list)
     robot_model: dict = field(default_factory=dict)
+    joint_errors: dict = field(default_factory=dict)
 
     @property
     def names(self) -> list[str]:
@@ -141,7 +148,8 @@ class CalibrationResult:
              "parameters": [asdict(p) for p in self.parameters],
              "covariance": np.asarray(self.covariance).tolist()}
         for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
-                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model"):
+                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model",
+                    "joint_errors"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         return d
@@ -166,19 +174,26 @@ def save_result(result: CalibrationResult, path) -> None:
 
 def load_result(path) -> CalibrationResult:
     """Read and check a result file; a malformed one raises ``FgcalError`` naming the file."""
+    from .yamlio import read_text_file
+
     path = Path(path)
+    text = read_text_file(path, FgcalError, max_bytes=MAX_RESULT_BYTES)
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FgcalError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FgcalError(f"{path}: not a JSON result file ({exc})") from None
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FgcalError(f"{path}: not a JSON result file ({exc.msg}, line {exc.lineno})") from None
+    except RecursionError:
+        raise FgcalError(f"{path}: not a result file (JSON nested too deep)") from None
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise FgcalError(f"{path}: format {d.get('format') if isinstance(d, dict) else None!r} is not {FORMAT!r}")
     try:
         params = [ParameterEstimate(**p) for p in d["parameters"]]
         cov = np.array(d["covariance"], dtype=float).reshape(len(params), len(params))
         slots = {k: float(v) for k, v in d["slots"].items()}
+        bad = [k for k, v in slots.items() if not math.isfinite(v)]
+        bad += [p.name for p in params if not (isinstance(p.estimate, (int, float)) and math.isfinite(p.estimate))]
+        if bad:
+            raise ValueError(f"{', '.join(map(str, bad[:3]))}: not a finite number")
         levels = {k: LevelSummary(**v) for k, v in d.get("levels", {}).items()}
         cond = d.get("condition_number")
         cond = float("inf") if cond == "Infinity" else (float("nan") if cond is None else float(cond))
@@ -191,8 +206,8 @@ def load_result(path) -> CalibrationResult:
             dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")),
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
             tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
-            robot_model=dict(d.get("robot_model") or {}))
-    except (KeyError, TypeError, ValueError) as exc:
+            robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}))
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     try:
         result.slot_vector()  # every slot of the result's own model has a value

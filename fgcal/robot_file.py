@@ -29,7 +29,7 @@ from .errors import ModelError
 from .model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
 from .resources import builtin_robot_names, builtin_robot_path
 from .transforms import euler_zyx_trans, rot, to_euler_zyx_trans
-from .yamlio import atomic_write_text, dump_yaml, read_yaml
+from .yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
 __all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT"]
 
@@ -38,22 +38,24 @@ FORMAT = "fgcal-robot/1"
 
 def _number(value, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ModelError(f"{where}: expected a finite number, got {value!r}")
+        raise ModelError(f"{where}: expected a finite number, got {short_repr(value)}")
     return float(value)
 
 
 def _vector(value, n: int, where: str) -> np.ndarray:
     if not isinstance(value, (list, tuple)) or len(value) != n:
-        raise ModelError(f"{where}: expected a list of {n} numbers, got {value!r}")
+        raise ModelError(f"{where}: expected a list of {n} numbers, got {short_repr(value)}")
     return np.array([_number(v, f"{where}[{i}]") for i, v in enumerate(value)])
 
 
 def _mapping(value, allowed, where: str, required=()) -> dict:
     if not isinstance(value, dict):
-        raise ModelError(f"{where}: expected a mapping, got {value!r}")
+        raise ModelError(f"{where}: expected a mapping, got {short_repr(value)}")
     unknown = set(value) - set(allowed)
     if unknown:
-        raise ModelError(f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))}; allowed: {', '.join(allowed)}")
+        names = sorted(str(k)[:24] for k in unknown)
+        raise ModelError(f"{where}: unknown key(s) {', '.join(names[:3])}{' ...' if len(names) > 3 else ''}; "
+                         f"allowed: {', '.join(allowed)}")
     missing = [k for k in required if k not in value]
     if missing:
         raise ModelError(f"{where}: missing key(s) {', '.join(missing)}")
@@ -118,9 +120,11 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     """Build a :class:`RobotModel` from a parsed model file; ``ModelError`` names ``source``."""
     top = ("format", "name", "description", "convention", "base", "links", "tool", "tool_offset", "joint_limits",
            "joints", "coupling", "tooling", "volume", "paper_box", "inertials", "urdf")
+    if isinstance(data, dict) and "format" not in data:
+        raise ModelError(f"{source}: not an {FORMAT} model file (no format key)")
     data = _mapping(data, top, source, required=("format", "base", "links", "tool", "joint_limits"))
     if data["format"] != FORMAT:
-        raise ModelError(f"{source}: format {data['format']!r} is not known (expected {FORMAT!r})")
+        raise ModelError(f"{source}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
     name = str(data.get("name") or Path(source).stem)
     convention = str(data.get("convention", "paper"))
     if convention not in ("paper", "dh", "mdh"):
@@ -154,7 +158,9 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         base = to_euler_zyx_trans(A)
         first["theta"] = first["d"] = 0.0
     # A last link row sits between the last joint's motion and the tool: fold it into the tool.
+    last_row = None
     if len(rows) == n:
+        last_row = _link_transform(rows[-1])
         tool = to_euler_zyx_trans(_link_transform(rows.pop()) @ euler_zyx_trans(*tool))
 
     limits = np.array([_vector(v, 2, f"{source}: joint_limits[{i}]") for i, v in enumerate(limits_raw)])
@@ -186,6 +192,10 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     link_names = joint_names[:-1] if joint_names else ()
     nominal = np.concatenate([base, np.array([[r[f] for f in LINK_FIELDS] for r in rows]).reshape(-1), tool])
     extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
+    if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.gravity)
+        from .gravity import inertials_from_dict, inertials_to_dict
+
+        extra["inertials"] = inertials_to_dict(inertials_from_dict(extra["inertials"], n, source, last_row))
     try:
         return RobotModel(name=name, nominal=nominal, joint_limits=limits, tooling=tooling, volume=box("volume"),
                           paper_box=box("paper_box"), description=str(data.get("description", "")), extra=extra,
@@ -227,10 +237,10 @@ def load_model(name_or_path, chain: dict | None = None) -> RobotModel:
 
         chain = chain or {}
         return load_urdf_model(path, base=chain.get("base"), tip=chain.get("tip"))
-    if not path.suffix and not path.exists():
+    if path.suffix.lower() not in (".yaml", ".yml"):
         if text not in builtin_robot_names():
-            raise ModelError(f"unknown robot model {text!r}; built-in: {', '.join(builtin_robot_names())}, "
-                             "or give the path of a model file")
+            raise ModelError(f"unknown robot model {short_repr(text, 40)}; built-in: {', '.join(builtin_robot_names())}"
+                             ", or the path of a model file (.yaml, .yml or .urdf)")
         path = builtin_robot_path(text)
     data = read_yaml(path, error=ModelError)
     return model_from_dict(data, source=str(path))

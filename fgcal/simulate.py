@@ -19,12 +19,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .dataset import Dataset, Noise, PointObservations, PoseObservations
+from .dataset import LEVELS, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
 from .errors import FgcalError
 from .ik import BRANCHES, solve_puma_batch
 from .kinematics import forward, tool_points
 from .model import RobotModel, Tooling
-from .transforms import matrix_to_quaternion, quaternion_to_matrix
+from .transforms import euler_zyx_trans, matrix_to_quaternion, quaternion_to_matrix, to_euler_zyx_trans
 
 __all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
 
@@ -256,9 +256,10 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     q_commanded : array_like, shape (N, 6)
         Joint sets the robot is sent to (rad). The arm lands at ``q + N(0, repeatability)``;
         the controller reports ``q`` rounded to ``joint_resolution``.
-    levels : sequence of {"probes", "centres", "poses"}
+    levels : sequence of {"probes", "centres", "poses", "distances"}
         What to write. Centres carry ``cmm_sigma`` per coordinate; poses carry
-        ``pose_position_sigma`` (mm) and ``pose_orientation_sigma`` (deg) of ``noise``.
+        ``pose_position_sigma`` (mm) and ``pose_orientation_sigma`` (deg) of ``noise``; distances
+        (a ballbar from the world origin to each ball) ``distance_sigma`` (or ``cmm_sigma``).
     outlier_fraction : float
         Fraction of probe points displaced by ``outlier_size`` mm along the surface normal.
 
@@ -266,7 +267,7 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     -------
     pose_ids : ndarray of int, shape (N',)
     joints_deg : ndarray, shape (N', 6)
-    probes, centres, poses : observations or None
+    probes, centres, poses, distances : observations or None
     outliers : list of (pose, ball, probe index)
     skipped : list of str
         Poses dropped because fewer than ``n_balls`` balls were reachable on the actual robot.
@@ -284,6 +285,7 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     ok, upness, centres = ball_access(T, tooling, volume)
     names = np.array(tooling.names)
     keep, probe_rows, centre_rows, pose_rows, outliers, skipped = [], [], [], [], [], []
+    distance_rows = []
     for i in range(n):
         visible = np.nonzero(ok[i])[0]
         if len(visible) < n_balls:
@@ -305,6 +307,9 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
                     probe_rows.append((ids[i], names[b], pts[k]))
             if "centres" in levels:
                 centre_rows.append((ids[i], names[b], c + rng.normal(size=3) * noise.cmm_sigma))
+            if "distances" in levels:  # a ballbar from the world origin (its pivot) to the ball
+                sd = noise.distance_sigma if noise.distance_sigma is not None else noise.cmm_sigma
+                distance_rows.append((ids[i], names[b], float(np.linalg.norm(c)) + rng.normal() * sd))
         if "poses" in levels:
             sp = noise.pose_position_sigma or 0.0
             so = np.radians(noise.pose_orientation_sigma or 0.0)
@@ -324,7 +329,27 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
         poses = PoseObservations([r[0] for r in pose_rows], np.array([r[1] for r in pose_rows]),
                                  np.array([r[2] for r in pose_rows]))
     keep = np.array(keep, dtype=int)
-    return ids[keep], reading[keep], probes, centres_obs, poses, outliers, skipped
+    distances = None
+    if "distances" in levels and distance_rows:
+        distances = DistanceObservations([r[0] for r in distance_rows], [r[1] for r in distance_rows],
+                                         [r[2] for r in distance_rows])
+    return ids[keep], reading[keep], probes, centres_obs, poses, distances, outliers, skipped
+
+
+def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarray:
+    """``slots`` with the world moved so that its origin is a ballbar pivot amid the balls' positions.
+
+    The pivot sits 300 mm below the mean of the balls' centres at the planned joints, so that the
+    bar's length varies over the poses.
+    """
+    centres = tool_points(model.forward(slots, q), tooling.offsets()).reshape(-1, 3)
+    pivot = centres.mean(axis=0) - np.array([0.0, 0.0, 300.0])
+    base = [model.slot(f"base.{f}") for f in ("phi", "theta", "psi", "px", "py", "pz")]
+    shift = np.eye(4)
+    shift[:3, 3] = -pivot
+    out = np.array(slots, dtype=float)
+    out[base] = to_euler_zyx_trans(shift @ euler_zyx_trans(*out[base]))
+    return out
 
 
 def _small_rotation(v) -> np.ndarray:
@@ -355,16 +380,16 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
              robot_ref: str | None = None, seed=None, truth=None):
     """Simulate a calibration experiment; returns ``(dataset, notes)``.
 
-    ``truth`` (37,) mm/rad reuses an actual robot (for a verification set of the same robot, as
-    the paper ran POSE twice); a new one is drawn otherwise. ``notes`` lists what was skipped
+    ``truth`` (S,) mm/rad reuses an actual robot (for a verification set of the same robot, as
+    the paper ran POSE twice; a ballbar keeps that truth's pivot); a new one is drawn otherwise. ``notes`` lists what was skipped
     (poses the CMM could not reach) so callers can say so.
     """
     s = settings
     if model.tooling is None:
         raise FgcalError(f"robot model {model.name} has no tooling (balls) to measure")
     for lv in s.levels:
-        if lv not in ("probes", "centres", "poses"):
-            raise FgcalError(f"unknown measurement level {lv!r} (probes, centres, poses)")
+        if lv not in LEVELS:
+            raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(LEVELS)})")
     if s.n_balls < 1 or s.n_balls > len(model.tooling.balls):
         raise FgcalError(f"--balls must be between 1 and {len(model.tooling.balls)}")
     if s.probes_per_ball < 4 and "probes" in s.levels:
@@ -372,13 +397,16 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
     if "probes" in s.levels and model.tooling.radius <= 0:
         raise FgcalError(f"robot model {model.name}: its tooling is a reflector (radius 0): simulate centres or "
                          "poses, not probes")
+    new_robot = truth is None
     truth = draw_truth(model, rng, s.deviations) if truth is None else np.asarray(truth, dtype=float)
     notes = []
     if s.plan == "random":
         n = 21 if s.n_poses is None else s.n_poses
         if n < 1:
             raise FgcalError("--poses must be at least 1")
-        q = random_plan(model, truth, n, rng, model.tooling, model.volume, s.n_balls)
+        # A given ballbar truth has the pivot's frame for a world: the instrument volume means nothing there.
+        plan_volume = None if ("distances" in s.levels and not new_robot) else model.volume
+        q = random_plan(model, truth, n, rng, model.tooling, plan_volume, s.n_balls)
     elif s.plan == "paper":
         q, labels, skipped = paper_plan(model, rng, model.tooling, model.volume, n_balls=s.n_balls)
         notes += [f"paper plan: skipped {m}" for m in skipped]
@@ -391,8 +419,13 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
         # A pose from balls ~120 mm apart: position as a point, orientation ~ sigma / 100 mm.
         noise = Noise(noise.cmm_sigma, noise.joint_resolution, noise.repeatability,
                       noise.cmm_sigma, float(np.degrees(noise.cmm_sigma / 100.0)))
-    ids, joints_deg, probes, centres, poses, outliers, skipped = measure(
-        model, truth, q, rng, model.tooling, noise, model.volume, s.n_balls, s.probes_per_ball,
+    volume = model.volume
+    if "distances" in s.levels:  # the world is the pivot's frame; the plan already kept the volume
+        if new_robot:  # a given truth keeps its pivot (a verification set of the same set-up)
+            truth = _pivot_at_origin(model, truth, q, model.tooling)
+        volume = None
+    ids, joints_deg, probes, centres, poses, distances, outliers, skipped = measure(
+        model, truth, q, rng, model.tooling, noise, volume, s.n_balls, s.probes_per_ball,
         s.outlier_fraction, s.outlier_size, s.levels)
     notes += [f"skipped {m}" for m in skipped]
     provenance = {"generator": "fgcal simulate", "plan": s.plan, "seed": seed,
@@ -400,6 +433,6 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
                   "outlier_fraction": s.outlier_fraction, "outlier_size_mm": s.outlier_size}
     truth_file = {name: float(v) for name, v in zip(model.slot_names, model.slots_to_file_units(truth))}
     ds = Dataset(robot=robot_ref or model.name, tooling=model.tooling, noise=noise, provenance=provenance,
-                 pose_ids=ids, joints_deg=joints_deg, probes=probes, centres=centres, poses=poses,
+                 pose_ids=ids, joints_deg=joints_deg, probes=probes, centres=centres, poses=poses, distances=distances,
                  truth=truth_file, truth_outliers=outliers)
     return ds, notes

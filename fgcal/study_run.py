@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import logging
+import math
 import os
 import sys
 import time
@@ -29,11 +30,17 @@ log = logging.getLogger(__name__)
 
 def read_rows(path) -> list[dict]:
     """Rows of a ``trials.csv`` (numbers as floats); an empty list when it does not exist."""
+    from .yamlio import read_text_file
+
     path = Path(path)
-    if not path.exists():
+    if not os.path.lexists(path):
         return []
-    with path.open(newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    try:
+        rows = list(csv.DictReader(io.StringIO(read_text_file(path, FgcalError), newline="")))
+    except csv.Error as exc:
+        raise FgcalError(f"{path}: not a trials.csv of fgcal ({exc})") from None
+    if rows and not {"study", "trial"} <= set(rows[0]):
+        raise FgcalError(f"{path}: not a trials.csv of fgcal (no study and trial columns)")
     out = []
     for r in rows:
         d = dict(r)
@@ -46,8 +53,11 @@ def read_rows(path) -> list[dict]:
             try:
                 d[k] = float(d[k]) if d.get(k) not in (None, "") else float("nan")
             except ValueError:
-                raise FgcalError(f"{path}: column {k} is not a number: {d[k]!r}") from None
-        d["trial"] = int(d["trial"])
+                raise FgcalError(f"{path}: column {k} is not a number: {str(d[k])[:20]!r}") from None
+        try:
+            d["trial"] = int(d["trial"])
+        except (TypeError, ValueError):
+            raise FgcalError(f"{path}: column trial is not an integer: {str(d['trial'])[:20]!r}") from None
         out.append(d)
     return out
 
@@ -89,6 +99,38 @@ class Progress:
         self.stream.flush()
 
 
+SETTINGS = ("seed", "n_poses", "plan", "robot", "design", "cmm_sigma", "joint_resolution", "repeatability")
+
+
+def _show(v) -> str:
+    return f"{v:g}" if isinstance(v, (int, float)) else str(v)[:20]
+
+
+def _check_settings(csv_path: Path, rows: list[dict], trials: list[Trial]) -> None:
+    """Refuse to resume when a finished trial was run with other settings than this run's."""
+    by_key = {(t.study, t.trial): t for t in trials}
+    for r in rows:
+        t = by_key.get((r["study"], r["trial"]))
+        if t is None:
+            continue
+        diff = []
+        for k in SETTINGS:
+            mine, theirs = getattr(t, k), r.get(k)
+            if isinstance(mine, str):
+                same = str(theirs if theirs is not None else "") == mine
+            else:
+                try:
+                    same = math.isclose(float(theirs), float(mine), rel_tol=1e-9, abs_tol=1e-12)
+                except (TypeError, ValueError):
+                    same = False
+            if not same:
+                diff.append(f"{k} {_show(theirs)} there, {_show(mine)} now")
+        if diff:
+            raise FgcalError(f"{csv_path}: trial {r['trial']} of study {r['study']} was run with other settings "
+                             f"({'; '.join(diff[:3])}); refusing to resume: give another --out or remove "
+                             f"{csv_path.parent}")
+
+
 def run_study(trials: list[Trial], out_dir, workers: int | None = None, scheduler: str | None = None,
               progress: bool = True, runner=run_trial) -> list[dict]:
     """Run the trials not yet in ``out_dir/trials.csv``; returns all rows (old and new).
@@ -99,7 +141,13 @@ def run_study(trials: list[Trial], out_dir, workers: int | None = None, schedule
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / "trials.csv"
-    rows = read_rows(csv_path)
+    all_rows = read_rows(csv_path)
+    _check_settings(csv_path, all_rows, trials)
+    wanted = {(t.study, t.trial) for t in trials}
+    rows = [r for r in all_rows if (r["study"], r["trial"]) in wanted]
+    if len(rows) < len(all_rows):
+        log.warning("%s: %d trial(s) of other runs kept in the file but left out of this summary", csv_path,
+                    len(all_rows) - len(rows))
     done = {(r["study"], r["trial"]) for r in rows}
     todo = [t for t in trials if (t.study, t.trial) not in done]
     if done:
@@ -108,7 +156,8 @@ def run_study(trials: list[Trial], out_dir, workers: int | None = None, schedule
 
     def finished(row):
         rows.append(row)
-        _write_rows(csv_path, rows)
+        all_rows.append(row)
+        _write_rows(csv_path, all_rows)
         if bar:
             bar.step()
 

@@ -12,7 +12,8 @@ import numpy as np
 from .calibrate import WEAK_PRIOR
 from .result import CalibrationResult
 
-__all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations"]
+__all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations",
+           "joint_error_verdict"]
 
 # Deviations beyond these (the weak prior: ten times the typical ones) are not a manufacturing
 # error: a sign of a wrong nominal model, a unit mix-up, or a parameter the data barely constrain.
@@ -59,8 +60,8 @@ def parameter_table(result: CalibrationResult, correlation_limit: float = CORREL
         others = [(names[j], rho[i, j]) for j in range(len(names)) if j != i and abs(rho[i, j]) > correlation_limit]
         for other, r in sorted(others, key=lambda o: -abs(o[1])):
             flags.append(f"strongly correlated with {other} ({r:+.3f})")
-        limit = PLAUSIBLE["base" if p.name.startswith("base.") else "other"][p.unit]
-        if abs(dev) > limit:
+        limit = PLAUSIBLE["base" if p.name.startswith("base.") else "other"].get(p.unit)  # None: joint-error block
+        if limit is not None and abs(dev) > limit:
             flags.append(f"deviation larger than a plausible manufacturing error (> {limit:g} {p.unit})")
         rows.append(ParameterRow(p.name, p.unit, p.nominal, p.estimate, dev, p.sigma,
                                  (p.estimate - Z95 * p.sigma, p.estimate + Z95 * p.sigma),
@@ -70,6 +71,27 @@ def parameter_table(result: CalibrationResult, correlation_limit: float = CORREL
         rows.append(ParameterRow(h["name"], unit, h["value"], h["value"], 0.0, None, None, None,
                                  [f"not identifiable, held at nominal: {h['reason']}"]))
     return rows
+
+
+def joint_error_verdict(result: CalibrationResult) -> list[str]:
+    """What the report says of a joint-error block and of the model comparison, if any."""
+    info = result.joint_errors or {}
+    out = []
+    sel = info.get("selection")
+    if sel:
+        rows = "; ".join(f"{s['model']} {s['cv_error']:.3g}" + (f" / {s['heldout_error']:.3g}" if s.get("heldout_error")
+                                                                  is not None else "") for s in sel["scores"])
+        held = " / held-out" if any(s.get("heldout_error") is not None for s in sel["scores"]) else ""
+        unit = sel["scores"][0]["unit"] if sel["scores"] else ""
+        out.append(f"Models compared by {sel['folds']}-fold cross-validation on the training poses (mean position "
+                   f"error, {unit}, cross-validated{held}): {rows}. Recommended: {sel['reason']}.")
+        for s in sel["scores"]:
+            out += [f"Warning: {w}" for w in s.get("warnings", [])]
+    if info.get("validity"):
+        ranges = ", ".join(f"q{j + 1} {lo:.1f}..{hi:.1f}" for j, (lo, hi) in enumerate(info["joint_ranges_deg"]))
+        out.append(f"This result carries a joint error map of {info['map_terms']} terms: {info['validity']} "
+                   f"({ranges} deg). compensate and verify warn for joints outside.")
+    return out
 
 
 def verdict(result: CalibrationResult, verification: dict | None = None) -> list[str]:
@@ -84,7 +106,8 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
     if pairs:
         shown = ", ".join(f"{a} and {b} ({r:+.3f})" for a, b, r in pairs[:5])
         out.append(f"The data barely separate {len(pairs)} pair(s) of parameters: {shown}"
-                   f"{' ...' if len(pairs) > 5 else ''}. Their sum or difference is known better than each.")
+                   f"{f' and {len(pairs) - 5} more' if len(pairs) > 5 else ''}. Their sum or difference is known better "
+                   "than each.")
     for level, s in result.levels.items():
         if level in ("kinematic", "prior", "joints") or not np.isfinite(s.variance_factor):
             continue
@@ -109,6 +132,7 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
     if implausible:
         out.append("Deviations larger than a plausible manufacturing error: " + ", ".join(implausible)
                    + ". Check the nominal model and the units.")
+    out += joint_error_verdict(result)
     if verification is not None:
         after, before = verification["position_mm"], verification["before"]["position_mm"]
         out.append(f"At {verification['n_poses']} verification poses the position error went from "

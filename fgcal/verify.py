@@ -7,12 +7,14 @@ No I/O here.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .dataset import Dataset
 from .errors import FgcalError
+from .joint_errors import corrected_joints, outside_region
 from .kinematics import tool_points
 from .measure import measure_probes
 from .model import RobotModel
@@ -20,8 +22,10 @@ from .posefit import rigid_fit
 from .result import CalibrationResult
 from .transforms import pose_difference
 
+log = logging.getLogger(__name__)
+
 __all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
-           "compare_poses", "compare_points"]
+           "compare_poses", "compare_points", "check_same_robot", "check_verification"]
 
 
 @dataclass
@@ -47,6 +51,7 @@ class Comparison:
 
     position_mm: np.ndarray
     orientation_deg: np.ndarray | None
+    error_xyz_mm: np.ndarray | None = None  # (K, 3) reference - model (mean over a pose's points), world frame
 
     def summary(self) -> dict:
         return {"position_mm": vars(error_stats(self.position_mm)),
@@ -69,9 +74,14 @@ class Verification:
     truth_before: Comparison | None = None
     reference: str = "measured poses"
     skipped: list[str] = field(default_factory=list)
+    robot: str | None = None
+    xyz_mm: np.ndarray | None = None  # (K, 3) measured tool positions (mean of a pose's points), world frame
+    joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
 
     def to_dict(self) -> dict:
         d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
+        if self.robot is not None:
+            d["robot"] = self.robot
         d.update(self.after.summary())
         d["before"] = self.before.summary()
         if self.truth_after is not None:
@@ -88,6 +98,16 @@ class Verification:
              "before_orientation_deg": bo}
             for p, a, o, bp, bo in zip(self.pose_ids, values(self.after.position_mm), values(self.after.orientation_deg),
                                        values(self.before.position_mm), values(self.before.orientation_deg))]
+        for k, pose in enumerate(d["poses"]):  # additions of fgcal-verify/1 (readers may ignore them)
+            if self.xyz_mm is not None:
+                pose["xyz_mm"] = [float(v) for v in self.xyz_mm[k]]
+            if self.after.error_xyz_mm is not None and self.before.error_xyz_mm is not None:
+                pose["error_xyz_mm"] = [float(v) for v in self.after.error_xyz_mm[k]]
+                pose["before_error_xyz_mm"] = [float(v) for v in self.before.error_xyz_mm[k]]
+            if self.joints_deg is not None:
+                pose["joints_deg"] = [float(v) for v in self.joints_deg[k]]
+            if self.truth_after is not None:
+                pose["truth_position_mm"] = float(self.truth_after.position_mm[k])
         d["skipped"] = self.skipped
         return d
 
@@ -123,16 +143,71 @@ def measured_poses(ds: Dataset):
     raise FgcalError(f"{ds.path or 'dataset'}: no measurements to verify against")
 
 
+def check_same_robot(result: CalibrationResult, model: RobotModel, where="dataset",
+                     length_tol_mm: float = 1.0, angle_tol_deg: float = 0.5) -> None:
+    """Raise ``FgcalError`` unless ``result`` was computed for a robot with ``model``'s link geometry.
+
+    Base and tool may differ (they are refitted per set-up); the joints' nominal geometry (the
+    ``j*`` slots) must agree within the tolerances.
+    """
+    mine = result.model()
+    a, b = np.asarray(mine.nominal, dtype=float), np.asarray(model.nominal, dtype=float)
+    names = list(model.slot_names)
+    if a.shape != b.shape or list(mine.slot_names) != names:
+        raise FgcalError(f"{where}: robot {model.name} ({model.n_joints} joints, {len(b)} geometric slots) is not "
+                         f"the robot of the result ({mine.name}, {mine.n_joints} joints, {len(a)} slots)")
+    angle = np.asarray(model.slot_is_angle, dtype=bool)
+    link = np.array([not n.startswith(("base.", "tool.")) for n in names])
+    tol = np.where(angle, np.radians(angle_tol_deg), length_tol_mm)
+    off = link & (np.abs(a - b) > tol)
+    if off.any():
+        i = int(np.argmax(np.where(off, np.abs(a - b) / tol, 0)))
+        scale, unit = (np.degrees(1.0), "deg") if angle[i] else (1.0, "mm")
+        raise FgcalError(f"{where}: robot {model.name} is not the robot of the result ({mine.name}): "
+                         f"{names[i]} is {b[i] * scale:.6g} {unit} here and {a[i] * scale:.6g} {unit} in the result")
+
+
+def check_verification(d, where="verification") -> dict:
+    """Raise ``FgcalError`` unless ``d`` has the shape of an ``fgcal-verify/1`` mapping; returns it."""
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    def summary(s, label):
+        for key in ("position_mm", "orientation_deg"):
+            part = s.get(key) if isinstance(s, dict) else None
+            if key == "orientation_deg" and part is None:  # position-only data
+                continue
+            if not isinstance(part, dict) or not all(number(part.get(k)) for k in ("mean", "rms", "max")):
+                raise FgcalError(f"{where}: {label}{key} must hold numbers mean, rms and max")
+
+    if not isinstance(d, dict) or d.get("format") != "fgcal-verify/1":
+        raise FgcalError(f"{where}: not an fgcal-verify/1 file")
+    summary(d, "")
+    summary(d.get("before"), "before.")
+    if "truth" in d:
+        summary(d["truth"], "truth.")
+        summary(d["truth"].get("before"), "truth.before.")
+    poses = d.get("poses", [])
+    keys = ("position_mm", "orientation_deg", "before_position_mm", "before_orientation_deg")
+    if not isinstance(poses, list):
+        raise FgcalError(f"{where}: poses must be a list")
+    for i, p in enumerate(poses):
+        if not isinstance(p, dict) or not all(number(p.get(k)) or (k.endswith("orientation_deg") and p.get(k) is None)
+                                              for k in ("pose", *keys)):
+            raise FgcalError(f"{where}: poses[{i}] must hold numbers pose, {', '.join(keys)}")
+    return d
+
+
 def compare_poses(T_model, T_ref) -> Comparison:
     d, delta = pose_difference(T_ref, T_model)
-    return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)))
+    return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)), d)
 
 
 def compare_points(T_model, offsets_by_pose, points_by_pose) -> Comparison:
     """Point errors: per pose, the RMS distance (mm) of its measured points from the model's."""
-    err = np.array([np.sqrt(np.mean(np.sum((tool_points(T[None], o)[0] - w) ** 2, axis=1)))
-                    for T, o, w in zip(T_model, offsets_by_pose, points_by_pose)])
-    return Comparison(err, None)
+    d = [w - tool_points(T[None], o)[0] for T, o, w in zip(T_model, offsets_by_pose, points_by_pose)]
+    err = np.array([np.sqrt(np.mean(np.sum(e**2, axis=1))) for e in d])
+    return Comparison(err, None, np.array([e.mean(axis=0) for e in d]).reshape(-1, 3))
 
 
 def measured_points(ds: Dataset):
@@ -187,22 +262,34 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         if missing:
             raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
         truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if ds.distances is not None and not ({"probes", "centres", "poses"} & set(ds.levels())):
+        return _verify_distances(ds, model, slots, truth)
     if _full_pose_data(ds):
         ids, T_meas, skipped = measured_poses(ds)
         reference = "measured poses"
     else:
         ids, offs, pts, skipped = measured_points(ds)
         reference = "measured points"
+    named = {s.split(":", 1)[0].split(" ball ")[0] for s in skipped}
+    have = set(np.asarray(ids).tolist())
+    skipped += [f"pose {p}: no measurement of this pose" for p in ds.pose_ids.tolist()
+                if p not in have and f"pose {p}" not in named]
     if not len(ids):
         raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
-    T_cal = model.forward(slots, q)
+    for message in outside_region(result, q):
+        log.warning("%s: %s", ds.path or "dataset", message)
+    T_cal = model.forward(slots, corrected_joints(result, q, model))  # joint-error block, if any
     T_nom = model.forward(model.nominal, q)
     if reference == "measured poses":
-        out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped)
+        out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped,
+                           xyz_mm=T_meas[:, :3, 3])
     else:
         out = Verification(ids, compare_points(T_cal, offs, pts), compare_points(T_nom, offs, pts),
-                           reference=reference, skipped=skipped)
+                           reference=reference, skipped=skipped,
+                           xyz_mm=np.array([w.mean(axis=0) for w in pts]).reshape(-1, 3))
+    out.robot = result.model().name
+    out.joints_deg = np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float)
     if truth is not None:
         T_true = model.forward(truth, q)
         if reference == "measured poses":
@@ -211,4 +298,27 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
             true_pts = [tool_points(T[None], o)[0] for T, o in zip(T_true, offs)]
             out.truth_after = compare_points(T_cal, offs, true_pts)
             out.truth_before = compare_points(T_nom, offs, true_pts)
+    return out
+
+
+def _verify_distances(ds: Dataset, model: RobotModel, slots, truth) -> Verification:
+    """Ballbar data: per pose, the RMS over its balls of ``|model ball - pivot| - measured length`` (mm)."""
+    d = ds.distances
+    ids = np.array([p for p in ds.pose_ids if np.any(d.pose == p)], dtype=int)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    rows = [np.nonzero(d.pose == p)[0] for p in ids]
+    offs = [ds.tooling.offsets(d.ball[r]) for r in rows]
+
+    def errors(x, reference_lengths):
+        T = model.forward(x, q)
+        return Comparison(np.array([np.sqrt(np.mean((np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) - L) ** 2))
+                                    for Ti, o, L in zip(T, offs, reference_lengths)]), None)
+
+    measured = [d.length[r] for r in rows]
+    out = Verification(ids, errors(slots, measured), errors(model.nominal, measured), reference="measured distances",
+                       robot=model.name, joints_deg=np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float))
+    if truth is not None:
+        T_true = model.forward(truth, q)
+        true_lengths = [np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) for Ti, o in zip(T_true, offs)]
+        out.truth_after, out.truth_before = errors(slots, true_lengths), errors(model.nominal, true_lengths)
     return out

@@ -181,3 +181,51 @@ def test_gtsam_engine_and_export_give_the_batch_solution(puma):
     theta = solved.atVector(fx.theta_key())
     est = np.where([u == "deg" for u in (p.unit for p in batch.parameters)], np.degrees(theta), theta)
     assert np.max(np.abs(est - batch.estimate) / batch.sigma) < 1e-3
+
+
+def test_ballbar_only_dataset_calibrates_with_its_pivot(puma, tmp_path):
+    """A telescoping ballbar from an unknown pivot to one tool ball: the world origin is the pivot, so
+    the base's translation is the pivot (estimated); what distances cannot see (the base's rotation about
+    the pivot, the tool's orientation) is held and named."""
+    from fgcal.dataset_io import load_dataset, save_dataset
+    from fgcal.verify import verify
+
+    settings = SimulationSettings(n_poses=60, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.0))
+    train, _ = simulate(puma, np.random.default_rng(21), settings)
+    save_dataset(train, tmp_path / "bar")
+    train = load_dataset(tmp_path / "bar")  # distances.csv round trip
+    assert train.levels() == ["distances"] and len(train.distances) == train.n_poses
+    result = calibrate(train, puma, CalibrationOptions())
+    held = {h["name"] for h in result.held}
+    assert {"base.phi", "base.theta", "base.psi"} <= held
+    assert not held & {"base.px", "base.py", "base.pz"}  # the pivot is estimated
+    truth = np.array([train.truth[n] for n in result.names])
+    z = (result.estimate - truth) / result.sigma
+    assert np.sqrt(np.mean(z**2)) < 2.0, z
+    truth_slots = puma.slots_from_file_units(np.array([train.truth[n] for n in puma.slot_names]))
+    test, _ = simulate(puma, np.random.default_rng(22), settings, truth=truth_slots)
+    d = verify(result, test, puma).to_dict()
+    assert d["reference"] == "measured distances" and d["orientation_deg"] is None
+    assert d["truth"]["position_mm"]["rms"] < 0.02 < d["before"]["position_mm"]["rms"]
+
+
+def test_export_writes_the_identified_deltas(puma, tmp_path):
+    import csv
+    import subprocess
+    import sys
+
+    from fgcal.result import save_result
+
+    ds, _ = simulate(puma, np.random.default_rng(12), SimulationSettings(n_poses=10))
+    result = calibrate(ds, puma, CalibrationOptions(exclude=("j2.beta",)))
+    save_result(result, tmp_path / "r.json")
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "export", str(tmp_path / "r.json"), "--deltas",
+                          str(tmp_path / "d.csv")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    with open(tmp_path / "d.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["name"] for r in rows[:len(result.parameters)]] == result.names
+    for r, p in zip(rows, result.parameters):
+        assert float(r["delta"]) == pytest.approx(p.estimate - p.nominal, abs=1e-12)
+        assert float(r["sigma"]) == pytest.approx(p.sigma)
+    assert len(rows) == len(result.parameters) + len(result.held)

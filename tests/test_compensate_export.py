@@ -65,11 +65,14 @@ def test_urdf_reproduces_the_calibrated_kinematics(puma, calibrated):
 
 def _inside(puma, n, seed):
     """Well-conditioned joint sets: near a singularity (elbow straight, wrist centre on the shoulder
-    axis, q5 = 0) a target of the nominal robot may be out of the calibrated robot's reach."""
+    axis, q5 = 0) or a joint limit, a target of the nominal robot may be out of the calibrated robot's reach."""
     from fgcal.kinematics import jacobians
     q = random_joints(puma, 20 * n, seed=seed)
     J = jacobians(puma.nominal, q).pose_joints * np.array([1, 1, 1, 100, 100, 100.0])[None, :, None]
     ok = np.linalg.svd(J, compute_uv=False)[:, -1] > 50.0
+    # and 5 deg inside the joint limits: the commanded configuration may not reach beyond them
+    margin = np.radians(5.0)
+    ok &= np.all((q > puma.joint_limits[:, 0] + margin) & (q < puma.joint_limits[:, 1] - margin), axis=1)
     return q[ok][:n]
 
 
@@ -77,7 +80,8 @@ def test_compensation_brings_the_real_robot_closer(puma, calibrated):
     result, truth = calibrated
     q_nominal = _inside(puma, 8, seed=97)
     targets = forward(puma.nominal, q_nominal)  # where the user wants the tool
-    q, pos, rot = compensate(puma, result.slot_vector(), targets)
+    # seeded by the commanded joints: without them, targets of mixed configurations are solved in one branch
+    q, pos, rot = compensate(puma, result.slot_vector(), targets, seeds=q_nominal)
     assert pos.max() < 1e-6 and rot.max() < 1e-6
     before, _ = pose_difference(forward(truth, q_nominal), targets)
     after, _ = pose_difference(forward(truth, q), targets)

@@ -119,3 +119,29 @@ def test_robust_noise_models():
     assert isinstance(factors.noise_model([1.0], "cauchy"), gtsam.noiseModel.Robust)
     with pytest.raises(ValueError, match="unknown robust"):
         factors.noise_model([1.0], "tukey-ish")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("robot", ["puma", "prismatic"])
+def test_distance_factor(puma, seed, robot):
+    """A ballbar length: both blocks (parameters, joint variables), on the PUMA and on a chain with a
+    prismatic joint and a coupling."""
+    from fgcal.robot_file import model_from_dict
+    from test_chains import PRISMATIC
+
+    model = puma if robot == "puma" else model_from_dict(dict(PRISMATIC, coupling={
+        "matrix": [[1, 0, 0, 0, 0, 0], [0.5, 1, 0, 0, 0, 0], [0, 0, 1, 0, 0, 0], [0, 0, 0, 1, 0, 0],
+                   [0, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 1]]}))
+    rng = np.random.default_rng(seed)
+    params = model.parameters()
+    held = model.nominal + np.where(model.slot_is_angle, np.radians(0.3), 1.0) * rng.normal(size=len(model.nominal))
+    theta = params.take(held)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    q = rng.uniform(lo, hi)
+    offset = np.array([60.0, 0.0, 30.0])
+    f = factors.distance_factor(params.index, held, offset, 800.0, 0.01, t_key=factors.theta_key(),
+                                q_key=factors.joint_key(0), chain=model.chain)
+    v = gtsam.Values()
+    v.insert(factors.theta_key(), theta)
+    v.insert(factors.joint_key(0), q)
+    _check(f, v)

@@ -1,0 +1,96 @@
+"""Held-out accuracy of the models beyond geometry on the real UR10 (Landgraf et al. 2021).
+
+For each split of the series, the training poses choose and fit every model (geometric,
+compliance, compliance+map; the map's size and prior by 5-fold cross-validation on the training
+poses only) and the held-out poses measure it: mean and RMS position error (mm), the
+cross-validated error, the chosen map, the compliances, and the fit time relative to the
+geometric fit of the same split.
+
+Splits: random 30% of the commanded goals held out (seeds 0 and 1, as the real-data tests), and
+in time order (the first 70% of the rows train, the rest test: is the map stable over a session?
+cross-validated with random and with blocked folds, contiguous stretches of the session;
+there the importer's starting base and tool are fitted to all rows, the calibration refits them).
+Run: ``python bench/bench_models.py [--series PATH] [--seeds 0 1] [--no-time-split]``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense solves: threads only contend
+
+import numpy as np  # noqa: E402
+
+
+def default_series() -> Path | None:
+    for p in Path(__file__).resolve().parents:
+        f = p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
+        if f.exists():
+            return f
+    return None
+
+
+def run_split(calib, held, model_dict, label, fold_order="random"):
+    from fgcal.calibrate import CalibrationOptions
+    from fgcal.model_select import compare_models
+    from fgcal.robot_file import model_from_dict
+    from fgcal.verify import verify
+
+    model = model_from_dict(model_dict)
+    t0 = time.perf_counter()
+    results, sel = compare_models(calib, model, CalibrationOptions(estimate_noise=True, robust="huber"),
+                                  verification=held, rng=np.random.default_rng(0), fold_order=fold_order)
+    elapsed = time.perf_counter() - t0
+    print(f"\n{label}, {fold_order} folds: {calib.n_poses} training poses, {held.n_poses} held out; "
+          f"comparison {elapsed:.1f} s")
+    print(f"  {'model':15s} {'params':>6s} {'CV mean':>8s} {'held-out mean':>13s} {'RMS':>7s} {'gain':>6s}  details")
+    geo = None
+    for s in sel.scores:
+        v = verify(results[s.model], held, model).after.position_mm
+        geo = v.mean() if geo is None else geo
+        comp = {p.name: p for p in results[s.model].parameters if p.name.endswith(".compliance")}
+        details = ", ".join(f"{n} {p.estimate:.2f}+/-{p.sigma:.2f} urad/Nm" for n, p in comp.items())
+        if s.spec.get("harmonics"):
+            details += f", map {s.spec['harmonics']} harmonics, prior {s.spec['map_sigma_urad']:.0f} urad"
+        print(f"  {s.model:15s} {s.n_parameters:6d} {s.cv_error:8.4f} {v.mean():13.4f} {np.sqrt(np.mean(v**2)):7.4f} "
+              f"{1 - v.mean() / geo:6.1%}  {details}")
+    print(f"  recommended: {sel.reason}")
+    return {s.model: s.heldout_error for s in sel.scores}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--series", type=Path, default=default_series())
+    ap.add_argument("--seeds", type=int, nargs="*", default=[0, 1])
+    ap.add_argument("--no-time-split", action="store_true")
+    args = ap.parse_args()
+    if args.series is None or not args.series.exists():
+        print("real data not found (../shared/data/landgraf-ur10/Series_B); give --series PATH")
+        return 0
+    from fgcal.landgraf import read_series, series_to_datasets
+
+    series = read_series(args.series)
+    print(f"{args.series}: {len(series.line)} rows")
+    for seed in args.seeds:
+        calib, held, model_dict, _ = series_to_datasets(series, str(args.series), holdout=0.3,
+                                                        rng=np.random.default_rng(seed))
+        run_split(calib, held, model_dict, f"random 30% of goals held out (seed {seed})")
+    if not args.no_time_split:
+        calib, _, model_dict, _ = series_to_datasets(series, str(args.series))
+        ids = np.sort(calib.pose_ids)  # pose id = line in the file: time order
+        cut = ids[int(0.7 * len(ids))]
+        groups = dict(zip(series.line, series.groups()))
+        train_groups = {groups[p] for p in ids if p < cut}
+        # a goal repeated across the cut stays on the training side
+        test_ids = np.array([p for p in ids if p >= cut and groups[p] not in train_groups])
+        train_ids = np.array([p for p in ids if p not in set(test_ids.tolist())])
+        for order in ("random", "blocked"):
+            run_split(calib.select(train_ids), calib.select(test_ids), model_dict,
+                      "time order: first 70% train, the rest held out", order)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
