@@ -1,53 +1,70 @@
-"""Per-pose update latency of the online engines on a simulated PUMA 560 (3 balls x 4 points).
+"""Online calibration through the CLI: the whole step per pose, first poses against last, and the
+total CPU against one batch calibration of the same poses.
 
-Run: ``python bench/bench_online.py [--poses 1000] [--ukf-poses 200]``. Prints the median and
-90th percentile of the time to take one pose (sphere fits, checks and the engine's update) over
-the last 100 poses, and how far the final estimate is from the batch solve of the same poses.
+``fgcal online DATASET --engine E --out R`` runs in a fresh process (single-threaded BLAS) on a
+simulated PUMA 560 (3 balls x 4 probe points per pose); it prints one line per pose (not a
+terminal), and the time between lines is the whole step: sphere fits, the engine's update, the
+estimate, the checkpoint's journal record (fsync) and the display. Its total CPU (user + sys,
+``os.wait4``) is compared with ``fgcal calibrate`` of the same dataset. Goals (issue 16): the step
+flat from the first to the last poses; total CPU at most 1.5x the batch's (EKF), 3x (iSAM2).
+Run: ``python bench/bench_online.py [--poses 1000] [--engines ekf isam2]``.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
+HERE = Path(__file__).resolve().parent
+SINGLE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+
+
+def run(cmd):
+    """``(CPU seconds, peak MB, times at which each output line arrived)`` of ``cmd``."""
+    env = dict(os.environ, **SINGLE_THREAD)
+    env["PYTHONPATH"] = os.pathsep.join([str(HERE.parent)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
+    stamps = []
+    for line in proc.stdout:
+        if line.startswith(b"pose "):
+            stamps.append(time.perf_counter())
+    _, status, usage = os.wait4(proc.pid, 0)
+    if os.waitstatus_to_exitcode(status):
+        raise RuntimeError(f"{' '.join(cmd)} failed")
+    return usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, np.array(stamps)
+
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--poses", type=int, default=1000)
-    ap.add_argument("--ukf-poses", type=int, default=200)
-    ap.add_argument("--repeat", type=int, default=2, help="runs per engine; the best median is kept")
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--poses", type=int, nargs="+", default=[1000])
+    ap.add_argument("--engines", nargs="+", default=["ekf", "isam2"])
     args = ap.parse_args()
-    from fgcal import SimulationSettings, load_model, simulate
-    from fgcal.calibrate import CalibrationOptions, calibrate
-    from fgcal.online import make_engine, pose_records
+    from fgcal import SimulationSettings, load_model, save_dataset, simulate
 
     model = load_model("puma560")
     rows = []
-    for engine, n in (("isam2", args.poses), ("ekf", args.poses), ("ukf", args.ukf_poses)):
-        ds, _ = simulate(model, np.random.default_rng(n), SimulationSettings(n_poses=n))
-        best = None
-        for _ in range(args.repeat):
-            e = make_engine(engine, ds, model)
-            lat, accepted = [], []
-            for rec in pose_records(ds):
-                t0 = time.perf_counter()
-                if e.update(rec).accepted:
-                    accepted.append(rec.pose)
-                lat.append(time.perf_counter() - t0)
-            if best is None or np.median(lat[-100:]) < np.median(best[1][-100:]):
-                best = (e, lat, accepted)
-        e, lat, accepted = best
-        e.finish()
-        theta, cov = e.estimate()
-        batch = calibrate(ds.select(accepted), model, CalibrationOptions(prior="weak"))
-        z = np.abs((e.params.to_file_units(theta) - batch.estimate) / batch.sigma).max()
-        sig = np.sqrt(np.diag(e.params.covariance_to_file_units(cov))) / batch.sigma
-        last = np.array(lat[-100:]) * 1000
-        rows.append((engine, n, np.median(last), np.percentile(last, 90), z, sig.min(), sig.max()))
-    print(f"{'engine':>6} {'poses':>6} {'median ms':>10} {'p90 ms':>8} {'max |diff|/sigma':>17} {'sigma ratio':>14}")
-    for engine, n, med, p90, z, lo, hi in rows:
-        print(f"{engine:>6} {n:6d} {med:10.2f} {p90:8.2f} {z:17.4f} {lo:6.3f}-{hi:6.3f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in args.poses:
+            ds, _ = simulate(model, np.random.default_rng(n), SimulationSettings(n_poses=n))
+            path = Path(tmp) / f"d{n}"
+            save_dataset(ds, path)
+            cli = [sys.executable, "-m", "fgcal.cli"]
+            batch, _, _ = run(cli + ["calibrate", str(path), "--out", str(Path(tmp) / f"b{n}.json")])
+            for engine in args.engines:
+                cpu, mb, t = run(cli + ["online", str(path), "--engine", engine, "--out",
+                                        str(Path(tmp) / f"{engine}{n}.json")])
+                step = np.diff(t) * 1000
+                rows.append((engine, n, np.median(step[:100]), np.median(step[-100:]), cpu, batch, mb))
+    print(f"{'engine':>6} {'poses':>6} {'first 100 ms':>12} {'last 100 ms':>11} {'CPU s':>7} {'batch s':>7} "
+          f"{'ratio':>6} {'peak MB':>7}")
+    for engine, n, first, last, cpu, batch, mb in rows:
+        print(f"{engine:>6} {n:6d} {first:12.2f} {last:11.2f} {cpu:7.2f} {batch:7.2f} {cpu / batch:6.2f} {mb:7.0f}")
 
 
 if __name__ == "__main__":

@@ -1,8 +1,9 @@
 """All benchmarks in one run, side by side: ``python bench/run_all.py``.
 
-1. batch solve time and peak memory at 21, 200 and 1000 poses against the two-stage baselines
-   (``bench_batch.py``);
-2. online per-pose latency at 1000 poses (``bench_online.py``);
+1. batch CPU and peak memory at 21, 1000 and 10000 poses against a scipy joint solve
+   (``bench_batch.py``, ``scipy_reference.py``);
+2. online: the whole CLI step per pose and total CPU against one batch calibration, 1000 poses
+   (``bench_online.py``);
 3. study throughput on 1 and 2 local processes and a Dask LocalCluster (``bench_study.py``).
 """
 import platform

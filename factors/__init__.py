@@ -11,8 +11,19 @@ directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as 
 """
 from .errors import (ball_centre_error, distance_error, joint_error, pose_ball_centres_error, pose_error, probe_error,
                      slots_of)
-from .gtsam_factors import (ball_centre_factor, ball_centres_factor, centre_key, distance_factor, joint_key, joint_prior,
-                            noise_model, parameter_prior, pose_factor, probe_factor, probes_factor, theta_key)
+
+_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior", "noise_model",
+                "parameter_prior", "pose_factor", "probe_factor", "probes_factor", "theta_key")
+
+
+def __getattr__(name):
+    # The GTSAM wrappers load gtsam (~1 s): only when one of them is first used.
+    if name in _GTSAM_NAMES:
+        from . import gtsam_factors
+
+        return getattr(gtsam_factors, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = ["distance_error", "distance_factor", "ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
            "centre_key", "joint_key", "joint_prior", "noise_model", "parameter_prior", "pose_factor",

@@ -3,14 +3,13 @@
 :func:`calibrate` builds the graph of a dataset (:mod:`fgcal.graph`), finds the parameters the
 data cannot identify (they are held at nominal and named), solves by Levenberg-Marquardt from
 the nominal model (the base placement is first fitted to the measurements), and computes the
-parameters' covariance with ``gtsam.Marginals``. No I/O here.
+parameters' covariance as the inverse of the solve's Schur complement. No I/O here.
 """
 from __future__ import annotations
 
 import logging
 from dataclasses import asdict, dataclass
 
-import gtsam
 import numpy as np
 
 from . import __version__
@@ -137,13 +136,13 @@ def _initial_base(model: RobotModel, held, q, world_points_by_pose):
     x = held.copy()
     base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
     x[base] = 0.0
-    pred, meas = [], []
-    for i, (offsets, world) in world_points_by_pose.items():
-        pred.append(tool_points(model.forward(x, q[i]), offsets)[0])
-        meas.append(world)
-    if not pred:
+    if not world_points_by_pose:
         return held
-    pred, meas = np.vstack(pred), np.vstack(meas)
+    poses = np.array(list(world_points_by_pose), dtype=int)
+    T = model.forward(x, q[poses])  # one kinematics evaluation for all poses
+    pred = np.vstack([tool_points(T[k:k + 1], offsets)[0]
+                      for k, (offsets, _) in enumerate(world_points_by_pose.values())])
+    meas = np.vstack([world for _, world in world_points_by_pose.values()])
     if len(pred) < 3 or np.linalg.matrix_rank(pred - pred.mean(0), tol=1e-6) < 2:
         return held
     fit = rigid_fit(pred, meas, sigma=1.0)
@@ -273,9 +272,19 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     return graph, state, pose_ids
 
 
-def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
-    """Minimise the graph's cost; returns ``(state, iterations, converged)``."""
-    lin = graph.linearise(state)
+# Relative change of the cost below which two costs are the same up to rounding: the residuals
+# are differences of coordinates of ~1e3 mm computed to ~1e-13 mm, whitened by sigmas of ~1e-2.
+COST_ROUNDING = 1e-10
+
+
+def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None):
+    """Minimise the graph's cost; returns ``(state, iterations, converged)``.
+
+    ``lin``: the linearisation at ``state`` when the caller has it. The solve stops when a step
+    (or the Gauss-Newton model's prediction of it) changes the cost by no more than
+    ``tolerance`` relative, or by no more than rounding: such a step is not tried again damped.
+    """
+    lin = graph.linearise(state) if lin is None else lin
     cost = lin.cost
     damping = 1e-4
     for it in range(1, max_iterations + 1):
@@ -285,9 +294,14 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
             except np.linalg.LinAlgError:
                 damping *= 10
                 continue
+            if damping <= 1e-3 and 0 <= predicted <= tolerance * max(cost, 1e-300):
+                return state, it, True  # at the minimum: what is left to gain is rounding
+            lin.cache.clear()  # its normal equations are formed again if this step is rejected
             new_lin = graph.linearise(new)
             if np.isfinite(new_lin.cost) and new_lin.cost <= cost:
                 break
+            if np.isfinite(new_lin.cost) and new_lin.cost - cost <= COST_ROUNDING * cost and predicted <= COST_ROUNDING * cost:
+                return state, it, True  # the change is rounding, not a worse point
             damping *= 10
         else:
             log.warning("Levenberg-Marquardt: no step reduces the cost (damping %.3g)", damping)
@@ -302,9 +316,9 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
     return state, max_iterations, False
 
 
-def _solve(graph: Graph, state: State, options: CalibrationOptions):
+def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None):
     if options.engine == "batch":
-        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance, lin=lin)
     if options.engine == "gtsam":
         return gtsam_levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
     raise FgcalError(f"unknown engine {options.engine!r} (batch, gtsam)")
@@ -312,6 +326,8 @@ def _solve(graph: Graph, state: State, options: CalibrationOptions):
 
 def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
     """GTSAM's Levenberg-Marquardt on the graph of :func:`nonlinear_graph`; ``(state, iterations, converged)``."""
+    import gtsam
+
     import factors as fx
 
     g, values = nonlinear_graph(graph, state)
@@ -360,12 +376,17 @@ def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = Calib
 def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     """Covariance of theta from ``gtsam.Marginals`` on the graph linearised at ``state``.
 
-    The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
+    A cross-check of :meth:`Graph.covariance` (the inverse of the solve's Schur complement),
+    which :func:`calibrate` uses. The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
     over (theta, q_i, c_ib); per pose, its centre, pose and joint rows over (theta, q_i).
     """
+    import gtsam
+
     import factors as fx
 
     lin = graph.linearise(state) if lin is None else lin
+    J_theta = np.zeros((graph.n_poses, graph.m, len(state.theta)))
+    J_theta[:, :graph.m_theta] = lin.J_theta
     gfg = gtsam.GaussianFactorGraph()
     t_key = fx.theta_key()
     qdim = graph.n_joints if graph.joint_vars else 0
@@ -383,11 +404,11 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
         q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
         for j, rows in graph.ball_rows[i]:
             col = graph.ball_col[j]
-            add([(t_key, lin.J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
+            add([(t_key, J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
                 -lin.r[i, rows])
         rows = graph.pose_rows[i]
         if len(rows):
-            add([(t_key, lin.J_theta[i, rows])] + q_block(rows), -lin.r[i, rows])
+            add([(t_key, J_theta[i, rows])] + q_block(rows), -lin.r[i, rows])
     if len(lin.prior_r):
         add([(t_key, lin.prior_J)], -lin.prior_r)
     sol = gtsam.VectorValues()
@@ -445,15 +466,15 @@ def _hold_order(names) -> list[int]:
     return [i for i in range(len(names)) if i not in late] + late
 
 
-def _identifiability(graph: Graph, state: State):
+def _identifiability(graph: Graph, state: State, lin=None):
     names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
     order = _hold_order(names)
-    S = graph.parameter_information(state)[np.ix_(order, order)]
+    S = graph.parameter_information(state, lin)[np.ix_(order, order)]
     return analyse_information(S, [names[i] for i in order])
 
 
-def _unidentifiable(graph: Graph, state: State) -> dict[str, list[str]]:
-    return _identifiability(graph, state).redundant
+def _unidentifiable(graph: Graph, state: State, lin=None) -> dict[str, list[str]]:
+    return _identifiability(graph, state, lin).redundant
 
 
 def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):
@@ -468,19 +489,16 @@ def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptio
 
 
 def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
-    """``gtsam_covariance``, or the scaled inverse of the Schur complement where GTSAM's elimination
-    declares a nearly singular (but positive definite) system indeterminate."""
-    try:
-        return gtsam_covariance(graph, state, lin)
-    except RuntimeError as exc:
-        S = graph.parameter_information(state, lin)
-        d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-        ev = np.linalg.eigvalsh(S / np.outer(d, d))
-        if ev[0] <= 1e-12 * ev[-1]:
-            raise FgcalError(f"the {graph.n_poses} poses cannot determine the {len(state.theta)} parameters "
-                             "(singular information): measure more poses") from None
-        log.info("GTSAM: %s; covariance from the scaled Schur complement instead", str(exc).strip().split("\n")[0])
-        return scaled_inverse(S)
+    """The parameters' covariance, computed in one place: the inverse of the Schur complement the
+    solve forms (:meth:`Graph.covariance`; ``gtsam.Marginals`` agrees, see the tests). A singular
+    information ends in one line instead of a meaningless inverse."""
+    S = graph.parameter_information(state, lin)
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    ev = np.linalg.eigvalsh(S / np.outer(d, d))
+    if ev[0] <= 1e-12 * ev[-1]:
+        raise FgcalError(f"the {graph.n_poses} poses cannot determine the {len(state.theta)} parameters "
+                         "(singular information): measure more poses")
+    return graph.covariance(state, lin)
 
 
 def _at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
@@ -563,6 +581,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
         graph, state, pose_ids = build_graph(ds, model, names, options)
+        lin = None
 
     state, iterations, converged = _solve(graph, state, options)
     declared = graph.sigmas
@@ -592,7 +611,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
 
     # Everything below works from one linearisation at the solution.
-    lin = graph.linearise(state)
+    lin = graph.linearise(state)  # the solve's last one (remembered by the graph)
     cov = _covariance(graph, state, lin)
     final = graph.params
     identifiability = analyse_information(graph.parameter_information(state, lin), final.names)
@@ -672,6 +691,8 @@ def nonlinear_graph(graph: Graph, state: State):
     batched solve (each custom factor is called from C++ with a copy of all values) but is the
     reference the batched solve is tested against.
     """
+    import gtsam
+
     import factors as fx
 
     if graph.K:

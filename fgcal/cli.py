@@ -556,9 +556,9 @@ def _cmd_online(args) -> int:
     else:
         ds = load_dataset(args.dataset)
     model = dataset_model(ds)
-    checkpoint = args.checkpoint or Path(f"fgcal-online-{args.engine}.checkpoint.json")
-    if args.restart and checkpoint.exists():
-        checkpoint.unlink()
+    from .online_run import default_checkpoint
+
+    checkpoint = args.checkpoint or default_checkpoint(args.dataset, args.engine, args.out)
     if args.drift and args.engine == "isam2":
         raise FgcalError("--drift is for the filters (ekf, ukf): iSAM2 keeps the parameters constant")
     engine_kw = {}
@@ -568,7 +568,7 @@ def _cmd_online(args) -> int:
             raise FgcalError("--drift takes two non-negative numbers: mm and deg per pose")
         params = model.parameters()
         engine_kw["drift"] = np.where(params.is_angle, np.radians(angle), length)
-    run = OnlineRun(ds, model, args.engine, checkpoint, engine_kw=engine_kw)
+    run = OnlineRun(ds, model, args.engine, checkpoint, engine_kw=engine_kw, restart=args.restart)
     restored = run.resume()
     if restored:
         print(f"resumed from {checkpoint}: {restored} pose(s) already processed")
@@ -577,7 +577,7 @@ def _cmd_online(args) -> int:
         if args.stdin:
             from .online_run import read_stream
 
-            for rec in read_stream(sys.stdin, ds.tooling.balls):
+            for rec in read_stream(sys.stdin.buffer, ds.tooling.balls):
                 display.show(run.feed(rec, streamed=True))
         elif args.follow:
             print(f"following {args.dataset} (Ctrl-C to stop); checkpoint {checkpoint}")
@@ -894,7 +894,8 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--engine", choices=("isam2", "ekf", "ukf"), default="isam2")
     o.add_argument("--out", type=Path, default=None, help="result file (fgcal-result/1) at the end")
     o.add_argument("--checkpoint", type=Path, default=None,
-                   help="state after every pose (default fgcal-online-ENGINE.checkpoint.json here)")
+                   help="state after every pose (default OUT.ENGINE.checkpoint with --out, else "
+                        "fgcal-online-DATASET-DIGEST-ENGINE.checkpoint here)")
     o.add_argument("--restart", action="store_true", help="ignore an existing checkpoint and start over")
     o.add_argument("--follow", action="store_true", help="keep reading poses appended to the dataset")
     o.add_argument("--stdin", action="store_true",

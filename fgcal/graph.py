@@ -16,14 +16,17 @@ linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
-import factors as fx
+import factors.errors as fx
+from .kinematics import jacobians
 from .model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
+POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
 LEVELS = ("probes", "kinematic", "centres", "poses", "distances", "joints", "prior")
 
 
@@ -59,7 +62,8 @@ class Linearisation:
     Attributes
     ----------
     r : ndarray, shape (N, m)
-    J_theta : ndarray, shape (N, m, P)
+    J_theta : ndarray, shape (N, m_theta, P)
+        The first ``m_theta`` rows of each pose (the others do not depend on theta).
     J_local : ndarray, shape (N, m, nz)
     prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
     cost : float
@@ -75,6 +79,7 @@ class Linearisation:
     prior_J: np.ndarray
     cost: float
     raw: dict = field(default_factory=dict)
+    cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
 
 
 def _robust(s, kind, k):
@@ -149,33 +154,36 @@ class Graph:
         # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
         qdim = nj if self.joint_vars else 0
         balls_per_pose = np.bincount(self.ball_pose, minlength=n) if nb else np.zeros(n, dtype=int)
-        self.ball_slot = np.zeros(nb, dtype=int)
-        counter = np.zeros(n, dtype=int)
-        for j, p in enumerate(self.ball_pose):
-            self.ball_slot[j] = counter[p]
-            counter[p] += 1
+        order = np.argsort(self.ball_pose, kind="stable")
+        self._balls_by_pose = order
+        self.ball_slot = np.empty(nb, dtype=int)
+        self.ball_slot[order] = np.arange(nb) - np.searchsorted(self.ball_pose[order], self.ball_pose[order])
+        # Each pose's ball offsets, padded: the kinematics of a pose's balls is one evaluation.
+        self.pose_offsets = np.zeros((n, int(balls_per_pose.max()) if nb else 0, 3))
+        self.pose_offsets[self.ball_pose, self.ball_slot] = self.ball_offset
         self.ball_col = qdim + 3 * self.ball_slot
         self.nz = qdim + 3 * (int(balls_per_pose.max()) if nb else 0)
         self.local_used = np.zeros((n, self.nz), dtype=bool)
         self.local_used[:, :qdim] = True
-        for p, s in zip(self.ball_pose, self.ball_slot):
-            self.local_used[p, qdim + 3 * s:qdim + 3 * s + 3] = True
+        self.local_used[self.ball_pose[:, None], self.ball_col[:, None] + np.arange(3)] = True
 
-        # Rows per pose, in this order: probes, kinematic, centres, poses, joints.
+        # Rows per pose, in this order: kinematic, centres, poses (the rows that depend on theta,
+        # so that J_theta holds only the first ``m_theta`` rows of each pose), probes, joints.
         rows = np.zeros(n, dtype=int)
 
         def take(pose_index, width):
             pose_index = np.asarray(pose_index, dtype=int)
-            start = np.zeros(len(pose_index), dtype=int)
-            for k, p in enumerate(pose_index):
-                start[k] = rows[p]
-                rows[p] += width
+            # Rows already taken by earlier measurements of the same pose, in input order.
+            order = np.argsort(pose_index, kind="stable")
+            sorted_p = pose_index[order]
+            first = np.searchsorted(sorted_p, sorted_p)
+            start = np.empty(len(pose_index), dtype=int)
+            start[order] = rows[sorted_p] + width * (np.arange(len(sorted_p)) - first)
+            rows[:] += width * np.bincount(pose_index, minlength=n)
             return start
 
         self.row = {}
         self.level_rows = {}
-        if probes is not None:
-            self.row["probes"] = take(probes[0], 1)
         if nb:
             self.row["kinematic"] = take(self.ball_pose, 3)
         if centres is not None:
@@ -184,13 +192,21 @@ class Graph:
             self.row["poses"] = take(poses[0], 6)
         if distances is not None:
             self.row["distances"] = take(distances[0], 1)
-        if self.joint_vars:
+        if self.joint_vars and self.K:  # the joint-error block enters the joint rows
+            self.row["joints"] = take(np.arange(n), nj)
+        self.m_theta = int(rows.max()) if n else 0
+        if probes is not None:
+            self.row["probes"] = take(probes[0], 1)
+        if self.joint_vars and not self.K:
             self.row["joints"] = take(np.arange(n), nj)
         self.m = int(rows.max()) if n else 0
         self.rows_per_pose = rows
-        # Row lists per pose, for GTSAM factors: each ball's probe and kinematic rows, and the
-        # rows that touch only theta and q (centres, poses, joints).
-        self.ball_rows = [[] for _ in range(n)]
+
+    @cached_property
+    def ball_rows(self) -> list:
+        """Per pose, each ball's ``(ball variable, its probe and kinematic rows)`` (for GTSAM factors)."""
+        n, nb, probes = self.n_poses, len(self.ball_pose), self.probes
+        ball_rows = [[] for _ in range(n)]
         per_ball = {j: [] for j in range(nb)}
         if probes is not None:
             for j, start in zip(probes[1], self.row["probes"]):
@@ -199,15 +215,22 @@ class Graph:
             for j, start in enumerate(self.row["kinematic"]):
                 per_ball[j] += [int(start), int(start) + 1, int(start) + 2]
         for j, rws in per_ball.items():
-            self.ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
-        self.pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", nj)):
+            ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
+        return ball_rows
+
+    @cached_property
+    def pose_rows(self) -> list:
+        """Per pose, the rows that touch only theta and q (centres, poses, joints)."""
+        n = self.n_poses
+        pose_rows = [[] for _ in range(n)]
+        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", self.n_joints)):
             if level in self.row:
-                pose_of = {"centres": lambda: centres[0], "poses": lambda: poses[0], "distances": lambda: distances[0],
+                pose_of = {"centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
+                           "distances": lambda: self.distances[0],
                            "joints": lambda: np.arange(n)}
                 for p, start in zip(pose_of[level](), self.row[level]):
-                    self.pose_rows[p] += list(range(int(start), int(start) + width))
-        self.pose_rows = [np.array(r, dtype=int) for r in self.pose_rows]
+                    pose_rows[p] += list(range(int(start), int(start) + width))
+        return [np.array(r, dtype=int) for r in pose_rows]
 
     # ------------------------------------------------------------------ evaluation
     def initial_state(self, theta, centres_guess=None) -> State:
@@ -227,11 +250,26 @@ class Graph:
         return np.concatenate([J_t, extra], axis=2)
 
     def linearise(self, state: State) -> Linearisation:
-        """Whitened residuals and Jacobians at ``state``; robust weights from the state itself."""
-        n, m, P, nz = self.n_poses, self.m, self.n_geo + self.K, self.nz
+        """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.
+
+        The last linearisation is remembered: asking again at the same state (and held values,
+        noise and excluded measurements) returns it, with the normal equations already formed on it.
+        """
+        weights = (repr(self.sigmas), tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items())))
+        key = (state.theta, state.q, state.c, self.held)
+        last = getattr(self, "_last", None)
+        if (last is not None and last[2] == weights
+                and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
+            return last[1]
+        lin = self._linearise(state)
+        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights)
+        return lin
+
+    def _linearise(self, state: State) -> Linearisation:
+        n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K, self.nz
         theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
-        Jt = np.zeros((n, m, P))
+        Jt = np.zeros((n, mt, P))
         Jz = np.zeros((n, m, nz))
         q = self.joints(state)
         cost = 0.0
@@ -255,7 +293,7 @@ class Graph:
             if J_t is not None:
                 Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
             if J_q is not None and self.joint_vars:
-                Jz[pose[:, None, None], rows_[:, :, None], np.arange(self.n_joints)[None, None, :]] = J_q * sw[:, :, None]
+                Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
             if J_c is not None:
                 cols = c_col[:, None] + np.arange(3)
                 Jz[pose[:, None, None], rows_[:, :, None], cols[:, None, :]] = J_c * sw[:, :, None]
@@ -266,11 +304,25 @@ class Graph:
             put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
                 sigma=self.sigmas.probe)
         if len(self.ball_pose):
-            e, J_t, J_q = fx.ball_centre_error(theta, q[self.ball_pose], self.ball_offset, state.c,
-                                               self.index, self.held, self.chain)
+            # One kinematics evaluation per pose for all of its balls, in chunks of poses (the
+            # chain's intermediate arrays are ~20 times the Jacobians' size).
+            x = fx.slots_of(theta, self.index, self.held)
+            nb = len(self.ball_pose)
+            pts, J_t, J_q = np.empty((nb, 3)), np.empty((nb, 3, self.n_geo)), np.empty((nb, 3, q.shape[1]))
+            order = self._balls_by_pose
+            for lo in range(0, n, POSE_CHUNK):
+                a, z = np.searchsorted(self.ball_pose[order], [lo, lo + POSE_CHUNK])
+                sel = order[a:z]
+                jac = jacobians(x, q[lo:lo + POSE_CHUNK], offsets=self.pose_offsets[lo:lo + POSE_CHUNK],
+                                chain=self.chain)
+                b, k = self.ball_pose[sel] - lo, self.ball_slot[sel]
+                pts[sel] = jac.points[b, k]
+                J_t[sel] = jac.point_slots[b, k][:, :, self.index]
+                J_q[sel] = jac.point_joints[b, k]
+                del jac
             J_t = self._with_block(self.ball_pose, J_t, J_q)
-            J_c = np.broadcast_to(-np.eye(3), (len(self.ball_pose), 3, 3))
-            put("kinematic", self.ball_pose, self.row["kinematic"], e, J_t, J_q, J_c, self.ball_col,
+            J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
+            put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
         if self.centres is not None:
             pose_i, offset, xyz = self.centres
@@ -313,40 +365,76 @@ class Graph:
 
     # ------------------------------------------------------------------ solving
     def normal_equations(self, lin: Linearisation):
-        # matmul (BLAS) rather than einsum: the parameter block can make P several hundred
-        P = lin.J_theta.shape[2]
+        """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
+
+        Formed once per linearisation (kept on ``lin``) by BLAS products over the per-pose blocks.
+        """
+        if "normal" in lin.cache:
+            return lin.cache["normal"]
+        n, mt, P = lin.J_theta.shape
         Jt2 = lin.J_theta.reshape(-1, P)
         A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
-        B = lin.J_theta.transpose(0, 2, 1) @ lin.J_local
-        D = lin.J_local.transpose(0, 2, 1) @ lin.J_local
-        g_t = Jt2.T @ lin.r.reshape(-1) + lin.prior_J.T @ lin.prior_r
-        g_z = np.einsum("nmz,nm->nz", lin.J_local, lin.r)
+        g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
+        JzT = lin.J_local.transpose(0, 2, 1)
+        B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
+        D = np.matmul(JzT, lin.J_local)
+        g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
         # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
-        D[~self.local_used] = 0.0
         pad = ~self.local_used
+        D[pad] = 0.0
         D[:, np.arange(self.nz), np.arange(self.nz)] += pad
-        return A, B, D, g_t, g_z
+        lin.cache["normal"] = (A, B, D, g_t, g_z)
+        return lin.cache["normal"]
 
     def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0):
         """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
         if damping:
             A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
-            dd = np.maximum(np.diagonal(D, axis1=1, axis2=2), 1e-12)
-            D = D + damping * np.einsum("nz,zy->nzy", dd, np.eye(self.nz))
-        Dinv = np.linalg.inv(D) if self.nz else D
-        BD = B @ Dinv
-        P = A.shape[0]
-        S = A - BD.transpose(1, 0, 2).reshape(P, -1) @ B.transpose(1, 0, 2).reshape(P, -1).T if self.nz else A
-        rhs = None
-        if g_t is not None:
-            rhs = g_t - np.einsum("npz,nz->p", BD, g_z)
+        S = A.copy()
+        rhs = None if g_t is None else g_t.copy()
+        Dinv = np.empty_like(D)
+        idx = np.arange(self.nz)
+        for lo in range(0, len(D), POSE_CHUNK):  # in chunks of poses: no temporaries of N blocks
+            c = slice(lo, lo + POSE_CHUNK)
+            Dc = D[c]
+            if damping:
+                Dc = Dc.copy()
+                Dc[:, idx, idx] += damping * np.maximum(Dc[:, idx, idx], 1e-12)
+            Dinv[c] = np.linalg.inv(Dc) if self.nz else Dc
+            BD = np.matmul(B[c], Dinv[c])
+            S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
+            if rhs is not None:
+                rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
         return S, rhs, Dinv
 
+    def _reduced_at(self, lin: Linearisation):
+        """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
+        if "reduced" not in lin.cache:
+            A, B, D, _, _ = self.normal_equations(lin)
+            _, _, Dinv = self.reduced(A, B, D)
+            # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
+            # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
+            n, mt, P = lin.J_theta.shape
+            S = lin.prior_J.T @ lin.prior_J
+            for lo in range(0, n, POSE_CHUNK):
+                c = slice(lo, lo + POSE_CHUNK)
+                k = len(lin.r[c])
+                M = np.zeros((k, self.m + self.nz, self.nz + P))
+                M[:, :self.m, :self.nz] = lin.J_local[c]
+                M[:, :mt, self.nz:] = lin.J_theta[c]
+                pad = ~self.local_used[c]
+                M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
+                R = np.linalg.qr(M, mode="r")[:, self.nz:, self.nz:]
+                S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
+            lin.cache["reduced"] = (S, Dinv)
+        return lin.cache["reduced"]
+
     def step(self, state: State, lin: Linearisation, damping: float):
+        """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
         A, B, D, g_t, g_z = self.normal_equations(lin)
         S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping)
         d_theta = -np.linalg.solve(S, rhs)
-        d_z = -np.einsum("nzy,ny->nz", Dinv, g_z + np.einsum("npz,p->nz", B, d_theta))
+        d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
         new = state.copy()
         new.theta = state.theta + d_theta
         if self.joint_vars:
@@ -354,7 +442,12 @@ class Graph:
         if len(self.ball_pose):
             cols = self.ball_col[:, None] + np.arange(3)
             new.c = state.c + d_z[self.ball_pose[:, None], cols]
-        return new, d_theta, -float(rhs @ d_theta)
+        # The Gauss-Newton model's decrease: -g.d - d.H.d / 2 over all variables (H undamped).
+        g_dot = g_t @ d_theta + np.einsum("nz,nz->", g_z, d_z)
+        Hd_t = A @ d_theta + np.einsum("npz,nz->p", B, d_z)
+        Hd_z = np.matmul(d_theta, B) + np.matmul(D, d_z[:, :, None])[:, :, 0]
+        dHd = d_theta @ Hd_t + np.einsum("nz,nz->", d_z, Hd_z)
+        return new, d_theta, float(-g_dot - 0.5 * dHd)
 
     def parameter_information(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
         """The (P, P) information of theta with the per-pose variables marginalised out.
@@ -362,9 +455,15 @@ class Graph:
         ``lin``: the linearisation at ``state`` when the caller has it already.
         """
         lin = self.linearise(state) if lin is None else lin
-        A, B, D, _, _ = self.normal_equations(lin)
-        S, _, _ = self.reduced(A, B, D)
-        return S
+        return self._reduced_at(lin)[0]
+
+    def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
+        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""
+        lin = self.linearise(state) if lin is None else lin
+        if "covariance" not in lin.cache:
+            S = self._reduced_at(lin)[0]
+            lin.cache["covariance"] = np.linalg.inv(0.5 * (S + S.T))
+        return lin.cache["covariance"]
 
     def factor_rows(self, level: str):
         """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
@@ -382,15 +481,19 @@ class Graph:
         shows in its residual.
         """
         lin = self.linearise(state) if lin is None else lin
-        A, B, D, _, _ = self.normal_equations(lin)
-        _, _, Dinv = self.reduced(A, B, D)
+        _, B, _, _, _ = self.normal_equations(lin)
+        _, Dinv = self._reduced_at(lin)
         St = covariance  # (P, P) = S^-1
-        E = -np.einsum("nzy,npy->nzp", Dinv, B)  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = E @ St
-        Szz = Dinv + np.einsum("nzp,nyp->nzy", Szt, E)
+        E = -np.matmul(Dinv, B.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
+        Szt = E @ St  # (N, nz, P)
+        Szz = Dinv + np.matmul(Szt, E.transpose(0, 2, 1))
         Jt, Jz = lin.J_theta, lin.J_local
-        return (np.sum((Jt @ St) * Jt, axis=2) + 2 * np.sum((Jt @ Szt.transpose(0, 2, 1)) * Jz, axis=2)
-                + np.sum((Jz @ Szz) * Jz, axis=2))
+        mt = Jt.shape[1]
+        # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt rows
+        # of a pose depend on theta.
+        h = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
+        h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
+        return h
 
     def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
         """Redundancy of each factor level: rows (excluded ones not counted) and the sum of their leverage."""

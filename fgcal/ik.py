@@ -13,7 +13,6 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .errors import FgcalError
 from .kinematics import forward, jacobians
@@ -189,6 +188,8 @@ def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_s
         _, delta = pose_difference(model.forward(x, q)[0], T_target)
         J[3:] = so3_left_jacobian_inverse(delta) @ J[3:]
         return J * w[:, None]
+
+    from scipy.optimize import least_squares
 
     sol = least_squares(residual, seed, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
                         max_nfev=200, method="trf")

@@ -13,7 +13,6 @@ No I/O here.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from .model import EULER_FIELDS, RobotModel
 from .posefit import nearest_rotation
@@ -95,6 +94,8 @@ def fit_base_and_tool(model: RobotModel, q, T_measured, slots=None, orientation_
         ang = so3_log(Rfit @ np.swapaxes(M[:, :3, :3], 1, 2)) * orientation_scale
         return np.concatenate([pos.ravel(), ang.ravel()])
 
+    from scipy.optimize import least_squares
+
     polished = least_squares(residual, np.zeros(12), x_scale=np.r_[[1e-3] * 3, [1.0] * 3, [1e-3] * 3, [1.0] * 3])
     Rb, tb, Rt, pt = unpack(polished.x)
     A_b = np.eye(4)
@@ -154,6 +155,8 @@ def fit_base_and_point(model: RobotModel, q, points, slots=None, iterations: int
 
     def residual(v):
         return ((Fp + Fr @ (p + v[6:9])) @ (_exp(v[0:3]) @ R_b).T + t_b + v[3:6] - P).ravel()
+
+    from scipy.optimize import least_squares
 
     v = least_squares(residual, np.zeros(9), x_scale=np.r_[[1e-3] * 3, [1.0] * 6]).x
     A_b = np.eye(4)

@@ -17,7 +17,7 @@ import numpy as np
 from .dataset import Dataset, PointObservations, PoseObservations
 from .errors import FgcalError
 from .posefit import check_homogeneous, nearest_rotation, paper_pose, rigid_fit
-from .spherefit import fit_sphere
+from .spherefit import fit_sphere, fit_spheres_checked
 from .transforms import matrix_to_quaternion
 
 __all__ = ["QualityRow", "Measurement", "measure_probes", "derived_dataset", "quality_csv"]
@@ -102,14 +102,19 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
     n_probed_of: dict[int, int] = {}
     for pose, _ in keys:
         n_probed_of[pose] = n_probed_of.get(pose, 0) + 1
+    need = 4 if free_radius else 3
+    fits = {}
+    if radius is not None:  # all balls at once (vectorised by point count), same checks
+        fittable = [k for k in range(len(keys)) if bounds[k + 1] - bounds[k] >= need]
+        fits = dict(zip(fittable, fit_spheres_checked([probes.xyz[order[bounds[k]:bounds[k + 1]]] for k in fittable],
+                                                      radius, sigma, threshold)))
     for k, (pose, ball) in enumerate(keys):
         sel = order[bounds[k]:bounds[k + 1]]
         pts = probes.xyz[sel]
-        need = 4 if free_radius else 3
         if len(pts) < need:
             quality.append(QualityRow(pose, ball, float("nan"), f"too few probe points ({len(pts)}; need {need})"))
             continue
-        fit = fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
+        fit = fits.get(k) or fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
         status = fit.status
         lines = probes.line[sel]
         if fit.suspect is not None and fit.ok is False and "outlier: point" in status:

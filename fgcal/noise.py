@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from enum import Enum
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 __all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "MIN_REDUNDANCY", "OUTLIER_ALPHA",
            "components", "update_sigmas", "find_outliers", "fit_test", "scaled_inverse"]
@@ -30,7 +30,7 @@ __all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "M
 log = logging.getLogger(__name__)
 
 MIN_REDUNDANCY = 5.0  # below this a variance factor is too uncertain (its relative sigma sqrt(2/r) > 0.6)
-OUTLIER_ALPHA = 2 * stats.norm.sf(4.0)  # a single-coordinate residual beyond 4 sigma (6.3e-5) ...
+OUTLIER_ALPHA = float(special.erfc(4.0 / np.sqrt(2.0)))  # a single-coordinate residual beyond 4 sigma (6.3e-5) ...
 FAMILY_ALPHA = 0.01  # ... or below 1% false alarms over a level's measurements, whichever is stricter
 MAX_OUTLIER_FRACTION = 0.05  # more than this in a level is a heavy-tailed distribution, not gross errors
 SCALE_LIMITS = (1e-2, 1e3)  # an estimated sigma stays within these multiples of the declared one
@@ -183,10 +183,10 @@ def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.n
         excluded = graph.excluded.get(level, np.zeros(len(pose), dtype=bool))
         if np.sum(~excluded) < 10:
             continue
-        scale = np.median(t[~excluded]) / stats.chi2.median(width)  # robust variance factor
+        scale = np.median(t[~excluded]) / float(special.chdtri(width, 0.5))  # robust variance factor
         if not scale > 0:
             continue
-        ratio = t / scale / stats.chi2.isf(min(alpha, FAMILY_ALPHA / len(pose)), width)
+        ratio = t / scale / special.chdtri(width, min(alpha, FAMILY_ALPHA / len(pose)))
         ratio[excluded] = 0.0
         if np.sum(excluded) + np.sum(ratio > 1) > MAX_OUTLIER_FRACTION * len(pose):
             log.info("%s: %d residuals beyond the outlier limit: heavy tails, none excluded", level,
@@ -209,7 +209,7 @@ def name_outliers(graph, lin, h, ds, pose_ids) -> list[Outlier]:
             continue
         pose, t, width, _ = _factor_statistics(graph, lin, h, level)
         kept = ~mask
-        scale = np.median(t[kept]) / stats.chi2.median(width) if kept.any() else 1.0
+        scale = np.median(t[kept]) / float(special.chdtri(width, 0.5)) if kept.any() else 1.0
         e = lin.raw[level][0]
         obs = getattr(ds, level)
         for k in np.nonzero(mask)[0]:
@@ -224,7 +224,7 @@ def fit_test(ssq: float, redundancy: float) -> float:
     """Two-sided p-value of ``ssq`` (sum of squared whitened residuals) against chi-square(redundancy)."""
     if redundancy <= 0:
         return float("nan")
-    return float(min(1.0, 2 * min(stats.chi2.cdf(ssq, redundancy), stats.chi2.sf(ssq, redundancy))))
+    return float(min(1.0, 2 * min(special.chdtr(redundancy, ssq), special.chdtrc(redundancy, ssq))))
 
 
 def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNoise]:

@@ -25,7 +25,6 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
 import factors as fx
 from .calibrate import WEAK_PRIOR, CalibrationOptions, _sigmas
@@ -34,7 +33,7 @@ from .errors import FgcalError
 from .graph import Sigmas
 from .model import ParameterSet, RobotModel
 from .dataset import PointObservations, PoseObservations
-from .spherefit import best_of_candidates, fit_spheres_batch, fit_spheres_checked, mirror_through_points
+from .spherefit import best_of_candidates, chi2_quantile, fit_spheres_batch, fit_spheres_checked, mirror_through_points
 from .transforms import matrix_to_quaternion, pose_matrices
 
 __all__ = ["PoseData", "pose_records", "records_dataset", "weak_prior", "UpdateReport", "NoiseTracker",
@@ -43,7 +42,7 @@ __all__ = ["PoseData", "pose_records", "records_dataset", "weak_prior", "UpdateR
 log = logging.getLogger(__name__)
 
 INNOVATION_FALSE_ALARM = 1e-6
-MIRROR_CHI2 = float(chi2.ppf(1 - INNOVATION_FALSE_ALARM, 1))  # a mirror image this close in fit is a candidate
+MIRROR_CHI2 = chi2_quantile(1 - INNOVATION_FALSE_ALARM, 1)  # a mirror image this close in fit is a candidate
 
 
 @dataclass
@@ -57,23 +56,42 @@ class PoseData:
     T: np.ndarray | None = None
 
 
-def pose_records(ds: Dataset, levels=None) -> list[PoseData]:
-    """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose)."""
+def _rows_by_pose(obs, pose_ids):
+    """Row indices of ``obs`` per pose id, in file order: one sort, not one scan per pose."""
+    if obs is None:
+        return {}
+    order = np.argsort(obs.pose, kind="stable")
+    sorted_pose = obs.pose[order]
+    lo = np.searchsorted(sorted_pose, pose_ids, side="left")
+    hi = np.searchsorted(sorted_pose, pose_ids, side="right")
+    return {int(p): order[a:z] for p, a, z in zip(pose_ids, lo, hi)}
+
+
+def pose_records(ds: Dataset, levels=None, poses=None) -> list[PoseData]:
+    """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose).
+
+    ``poses``: only these pose ids (the others are not read). Linear in the dataset's size.
+    """
     levels = ds.levels() if levels is None else list(levels)
+    ids = np.asarray(ds.pose_ids, dtype=int)
+    keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
+    ids, joints = ids[keep], ds.joints_rad[keep]
+    probes = _rows_by_pose(ds.probes, ids) if "probes" in levels else {}
+    centres = _rows_by_pose(ds.centres, ids) if "centres" in levels else {}
+    pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
     out = []
-    for pid, q in zip(ds.pose_ids, ds.joints_rad):
-        rec = PoseData(int(pid), q)
-        if "probes" in levels and ds.probes is not None:
-            sel = ds.probes.pose == pid
-            for b in dict.fromkeys(ds.probes.ball[sel].tolist()):
-                rec.probes.append((b, ds.probes.xyz[sel & (ds.probes.ball == b)]))
-        if "centres" in levels and ds.centres is not None:
-            sel = np.nonzero(ds.centres.pose == pid)[0]
-            rec.centres += [(str(ds.centres.ball[i]), ds.centres.xyz[i]) for i in sel]
-        if "poses" in levels and ds.poses is not None:
-            sel = np.nonzero(ds.poses.pose == pid)[0]
-            if len(sel):
-                rec.T = pose_matrices(ds.poses.xyz[sel[0]], ds.poses.quat[sel[0]])
+    for pid, q in zip(ids.tolist(), joints):
+        rec = PoseData(pid, q)
+        if probes:
+            rows = probes[pid]
+            balls = ds.probes.ball[rows]
+            for b in dict.fromkeys(balls.tolist()):
+                rec.probes.append((b, ds.probes.xyz[rows[balls == b]]))
+        if centres:
+            rec.centres += [(str(ds.centres.ball[i]), ds.centres.xyz[i]) for i in centres[pid]]
+        if pose_rows and len(pose_rows[pid]):
+            i = pose_rows[pid][0]
+            rec.T = pose_matrices(ds.poses.xyz[i], ds.poses.quat[i])
         out.append(rec)
     return out
 
@@ -207,7 +225,7 @@ class NoiseTracker:
     def implausible(v, S) -> str | None:
         """The gate: a rejection reason when ``v' S^-1 v`` is beyond the chi-square limit."""
         d2 = float(v @ np.linalg.solve(S, v))
-        if d2 > chi2.ppf(1 - INNOVATION_FALSE_ALARM, len(v)):
+        if d2 > chi2_quantile(1 - INNOVATION_FALSE_ALARM, len(v)):
             return f"innovation implausible (chi-square {d2:.3g} for {len(v)} measurements)"
         return None
 
@@ -511,6 +529,7 @@ class KalmanEngine(_Engine):
         self.kf.P = np.diag(self.prior_sigma**2)
         self.kf.Q = np.zeros((P, P)) if drift is None else np.diag(np.asarray(drift, dtype=float) ** 2)
         self.max_iterations = max_iterations
+        self._ukf = None
 
     def _current(self) -> np.ndarray:
         return self.kf.x
@@ -547,12 +566,14 @@ class KalmanEngine(_Engine):
 
             R = R0
             n = len(x0)
-            points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
-            ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
-                                        hx=lambda s: evaluate(s)[0], points=points)
-            ukf.x, ukf.P, ukf.Q = x0, P0, np.zeros((n, n))
+            if self._ukf is None:  # one filter, reused: each pose brings its own hx, R and size
+                points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
+                self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
+                                                  hx=None, points=points)
+            ukf = self._ukf
+            ukf.x, ukf.P, ukf.Q = x0.copy(), P0.copy(), np.zeros((n, n))
             ukf.predict()
-            ukf.update(np.zeros(len(e0)), R=f * R)
+            ukf.update(np.zeros(len(e0)), R=f * R, hx=lambda s: evaluate(s)[0])
             self.kf.x, self.kf.P = ukf.x.copy(), 0.5 * (ukf.P + ukf.P.T)
         return self._accepted(used)
 

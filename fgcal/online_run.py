@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -27,7 +28,7 @@ from .result import CalibrationResult, ParameterEstimate
 from .robot_file import model_to_dict
 from .yamlio import atomic_write_text
 
-__all__ = ["OnlineRun", "CHECKPOINT_FORMAT", "read_stream", "STREAM_FORMAT"]
+__all__ = ["OnlineRun", "CHECKPOINT_FORMAT", "read_stream", "STREAM_FORMAT", "read_checkpoint", "default_checkpoint"]
 
 STREAM_FORMAT = """\
 One record a line, comma-separated (lines starting with # and blank lines are ignored):
@@ -62,6 +63,12 @@ def read_stream(lines, balls, warn=None):
     current: PoseData | None = None
     widths = {"joints": 8, "probe": 6, "centre": 6, "pose": 9, "end": 2}
     for n, raw in enumerate(lines, start=1):
+        if isinstance(raw, bytes):
+            try:
+                raw = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                warn(f"stdin: line {n} skipped: not UTF-8 text (byte {raw[exc.start]:#04x} at column {exc.start + 1})")
+                continue
         line = raw.strip()
         if not line or line.startswith("#"):
             continue
@@ -106,12 +113,52 @@ def read_stream(lines, balls, warn=None):
         yield current
 
 log = logging.getLogger(__name__)
-CHECKPOINT_FORMAT = "fgcal-online-checkpoint/1"
+CHECKPOINT_FORMAT = "fgcal-online-checkpoint/2"
+SNAPSHOT_EVERY = 100  # poses between snapshots of a filter's state (the journal has every pose)
+INPUT_NAMES = ("dataset.yaml", "truth.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv")
+
+
+def default_checkpoint(dataset, engine: str, out=None) -> Path:
+    """The checkpoint of a run: next to its output when there is one, else in the current folder,
+    named after the dataset (and a digest of its full path) and the engine."""
+    import hashlib
+
+    ds = Path(dataset).resolve()
+    if out is not None:
+        return Path(f"{out}.{engine}.checkpoint")
+    digest = hashlib.sha1(str(ds).encode()).hexdigest()[:8]
+    return Path(f"fgcal-online-{ds.name}-{digest}-{engine}.checkpoint")
+
+
+def read_checkpoint(path) -> dict:
+    """The header and the journal entries of a checkpoint: ``{"header", "entries"}`` (a torn last
+    line, from a crash in mid-write, is left out)."""
+    lines = Path(path).read_bytes().split(b"\n")
+    entries = []
+    for k, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            entries.append(json.loads(line))
+        except ValueError:
+            if k >= len(lines) - 2:  # the last line, cut short: the pose was not committed
+                break
+            raise FgcalError(f"{path}: line {k + 1} of the checkpoint is not readable; use --restart") from None
+    if not entries or not str(entries[0].get("format", "")).startswith("fgcal-online-checkpoint/"):
+        raise FgcalError(f"{path}: not an fgcal online checkpoint")
+    return {"header": entries[0], "entries": entries[1:]}
 
 
 @dataclass
 class OnlineRun:
     """One engine fed with a dataset's poses in order, with a checkpoint file.
+
+    The checkpoint is an append-only journal (one JSON line per pose, flushed to disk with
+    ``fsync`` before the next pose is taken: constant time per pose) under an exclusive lock,
+    plus, for the filters, a snapshot of the state every :data:`SNAPSHOT_EVERY` poses
+    (``CHECKPOINT.snapshot``, written atomically). Resuming restores the snapshot and replays the
+    poses journalled after it (iSAM2, whose graph cannot be stored, replays all accepted poses):
+    the result is the uninterrupted run's.
 
     Attributes
     ----------
@@ -128,60 +175,129 @@ class OnlineRun:
     history: list[dict] = field(default_factory=list)
     engine_kw: dict = field(default_factory=dict)
     streamed: dict = field(default_factory=dict)  # pose -> PoseData received from a stream
+    restart: bool = False
+    last_estimate: tuple | None = None  # (theta, covariance) after the last accepted pose
 
     def __post_init__(self):
         self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options, **self.engine_kw)
+        self._fd = None
+        if self.checkpoint is not None:
+            self.checkpoint = Path(self.checkpoint)
+            self._open()
 
     # ------------------------------------------------------------- checkpoints
-    def _state(self) -> dict:
-        d = {"format": CHECKPOINT_FORMAT, "engine": self.engine_kind,
-             "dataset": str(Path(self.ds.path).resolve()) if self.ds.path else None,
-             "processed": self.processed, "history": self.history,
-             "streamed": [_record_to_json(r) for r in self.streamed.values()]}
+    @property
+    def snapshot_path(self) -> Path:
+        return Path(f"{self.checkpoint}.snapshot")
+
+    def _dataset_key(self):
+        return str(Path(self.ds.path).resolve()) if self.ds.path else None
+
+    def _open(self) -> None:
+        import fcntl
+
+        ck = self.checkpoint
+        if self.ds.path is not None:
+            folder = Path(self.ds.path).resolve()
+            target = ck.resolve()
+            if target.parent == folder and (target.name in INPUT_NAMES or target.suffix in (".csv", ".yaml")):
+                raise FgcalError(f"{ck}: is an input file of the dataset; choose another --checkpoint")
+        if ck.exists() and ck.stat().st_size:
+            with open(ck, "rb") as fh:
+                head = fh.readline()
+            if b"fgcal-online-checkpoint/" not in head:
+                raise FgcalError(f"{ck}: exists and is not an fgcal online checkpoint; it is not overwritten")
+        try:
+            self._fd = os.open(ck, os.O_RDWR | os.O_CREAT | os.O_APPEND, 0o666)
+        except OSError as exc:
+            raise FgcalError(f"{ck}: cannot open the checkpoint ({exc.strerror})") from None
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(self._fd)
+            self._fd = None
+            raise FgcalError(f"{ck}: in use by another fgcal online session") from None
+        if self.restart:
+            os.ftruncate(self._fd, 0)
+            self.snapshot_path.unlink(missing_ok=True)
+        if os.fstat(self._fd).st_size == 0:
+            self._append({"format": CHECKPOINT_FORMAT, "engine": self.engine_kind, "dataset": self._dataset_key()})
+
+    def close(self) -> None:
+        """Release the checkpoint (its lock); the state stays on disk for a resume."""
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def __del__(self):
+        self.close()
+
+    def _append(self, record: dict) -> None:
+        os.write(self._fd, (json.dumps(record) + "\n").encode("utf-8"))
+        os.fsync(self._fd)
+
+    def _snapshot(self) -> None:
         if hasattr(self.engine, "state"):
-            d["state"] = self.engine.state()
-        return d
+            atomic_write_text(self.snapshot_path, json.dumps({"n": len(self.processed), "state": self.engine.state(),
+                                                              "n_accepted": self.engine.n_accepted}) + "\n")
 
     def save(self) -> None:
-        if self.checkpoint is not None:
-            atomic_write_text(self.checkpoint, json.dumps(self._state()) + "\n")
+        """Journal the last pose (and every :data:`SNAPSHOT_EVERY` poses a snapshot of the state)."""
+        if self._fd is None:
+            return
+        entry = dict(self.processed[-1])
+        if entry["accepted"]:
+            entry["history"] = self.history[-1]
+        if entry["pose"] in self.streamed:
+            entry["record"] = _record_to_json(self.streamed[entry["pose"]])
+        self._append(entry)
+        if len(self.processed) % SNAPSHOT_EVERY == 0:
+            self._snapshot()
 
     def resume(self) -> int:
         """Restore from the checkpoint if there is one; returns the number of poses restored."""
-        if self.checkpoint is None or not self.checkpoint.exists():
+        if self._fd is None:
             return 0
-        try:
-            d = json.loads(self.checkpoint.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise FgcalError(f"{self.checkpoint}: unreadable checkpoint ({exc}); remove it or use --restart") from None
-        if d.get("format") != CHECKPOINT_FORMAT or d.get("engine") != self.engine_kind:
+        d = read_checkpoint(self.checkpoint)
+        head = d["header"]
+        if head.get("format") != CHECKPOINT_FORMAT or head.get("engine") != self.engine_kind:
             raise FgcalError(f"{self.checkpoint}: a checkpoint of another engine or format "
-                             f"({d.get('engine')!r}); remove it or use --restart")
-        here = str(Path(self.ds.path).resolve()) if self.ds.path else None
-        if d.get("dataset") != here:
-            raise FgcalError(f"{self.checkpoint}: written for {d.get('dataset')}, not {here}; use --restart")
-        self.streamed = {int(r["pose"]): _record_from_json(r) for r in d.get("streamed", [])}
-        records = {r.pose: r for r in pose_records(self.ds)}
+                             f"({head.get('engine')!r}, {head.get('format')!r}); remove it or use --restart")
+        here = self._dataset_key()
+        if head.get("dataset") != here:
+            raise FgcalError(f"{self.checkpoint}: written for {head.get('dataset')}, not {here}; use --restart")
+        entries = d["entries"]
+        if not entries:
+            return 0
+        self.streamed = {int(e["pose"]): _record_from_json(e["record"]) for e in entries if "record" in e}
+        wanted = {e["pose"] for e in entries}
+        records = {r.pose: r for r in pose_records(self.ds, poses=wanted)}
         records.update(self.streamed)
-        missing = [p["pose"] for p in d["processed"] if p["pose"] not in records]
+        missing = [e["pose"] for e in entries if e["pose"] not in records]
         if missing:
             raise FgcalError(f"{self.checkpoint}: pose(s) {missing[:5]} are no longer in the dataset; use --restart")
-        if "state" in d and hasattr(self.engine, "restore"):
-            self.engine.restore(d["state"], sum(p["accepted"] for p in d["processed"]))
-        else:  # iSAM2: replay the accepted poses, in order
-            for p in d["processed"]:
-                if p["accepted"]:
-                    report = self.engine.update(records[p["pose"]])
-                    if not report.accepted:
-                        raise FgcalError(f"{self.checkpoint}: replaying pose {p['pose']} failed ({report.reason})")
-        self.processed = list(d["processed"])
-        self.history = list(d.get("history", []))
+        start = 0
+        if hasattr(self.engine, "restore") and self.snapshot_path.exists():
+            snap = json.loads(self.snapshot_path.read_text(encoding="utf-8"))
+            if snap["n"] <= len(entries):
+                self.engine.restore(snap["state"], snap["n_accepted"])
+                start = snap["n"]
+        for e in entries[start:]:  # replay what the snapshot does not hold, in order
+            if e["accepted"]:
+                report = self.engine.update(records[e["pose"]])
+                if not report.accepted:
+                    raise FgcalError(f"{self.checkpoint}: replaying pose {e['pose']} failed ({report.reason})")
+        self.processed = [{k: e[k] for k in ("pose", "accepted", "reason")} for e in entries]
+        self.history = [e["history"] for e in entries if e["accepted"]]
+        if self.engine.n_accepted:
+            self.last_estimate = self.engine.estimate()
         return len(self.processed)
 
     # ------------------------------------------------------------- feeding
     def pending(self, ds: Dataset | None = None):
         done = {p["pose"] for p in self.processed}
-        return [r for r in pose_records(ds or self.ds) if r.pose not in done]
+        ds = ds or self.ds
+        return pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in done])
 
     def feed(self, rec, streamed: bool = False) -> dict:
         if streamed:
@@ -192,13 +308,19 @@ class OnlineRun:
         entry = {"pose": rec.pose, "accepted": report.accepted, "reason": report.reason}
         self.processed.append(entry)
         if report.accepted:
-            theta, cov = self.engine.estimate()
+            theta, cov = self.last_estimate = self.engine.estimate()
             params = self.engine.params
             self.history.append({"pose": rec.pose, "n": self.engine.n_accepted,
                                  "estimate": params.to_file_units(theta).tolist(),
                                  "sigma": np.sqrt(np.diag(params.covariance_to_file_units(cov))).tolist()})
         self.save()
         return entry
+
+    def estimate(self):
+        """``(theta, covariance)`` now (kept from the last accepted pose: no second evaluation)."""
+        if self.last_estimate is None:
+            self.last_estimate = self.engine.estimate()
+        return self.last_estimate
 
     def result(self) -> CalibrationResult:
         self.engine.finish()
@@ -234,7 +356,7 @@ class Display:
     def show(self, entry: dict, total: int | None = None) -> None:
         run = self.run
         params = run.engine.params
-        theta, cov = run.engine.estimate()
+        theta, cov = run.estimate()
         est = params.to_file_units(theta)
         sig = np.sqrt(np.diag(params.covariance_to_file_units(cov)))
         prior = params.to_file_units(run.engine.prior_sigma)
@@ -269,18 +391,24 @@ def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: floa
     path = Path(run.ds.path)
     last_change = time.monotonic()
     last_sig = None
+    last_error = loaded_sig = None
     while stop is None or not stop():
         sig = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(path.glob("*.csv")))
         if sig != last_sig:
             last_sig, last_change = sig, time.monotonic()
-        try:
-            ds = load_dataset(path)
-        except DatasetError as exc:
-            log.info("waiting: %s", exc)
-            time.sleep(interval)
-            continue
-        run.ds = ds
-        run.engine.ds = ds
+        if sig != loaded_sig:  # read the files again only when they have changed
+            try:
+                ds = load_dataset(path)
+            except DatasetError as exc:
+                if str(exc) != last_error:  # said once (without -v), not at every poll
+                    print(f"waiting: {exc}", file=sys.stderr, flush=True)
+                    last_error = str(exc)
+                time.sleep(interval)
+                continue
+            loaded_sig, last_error = sig, None
+            run.ds = ds
+            run.engine.ds = ds
+        ds = run.ds
         pending = run.pending(ds)
         settled = time.monotonic() - last_change >= settle
         for rec in pending:

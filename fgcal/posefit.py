@@ -16,9 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
-from .spherefit import FALSE_ALARM, MIN_THRESHOLD_MM
+from .spherefit import FALSE_ALARM, MIN_THRESHOLD_MM, chi2_quantile
 
 __all__ = ["paper_pose", "homogeneity_errors", "check_homogeneous", "RigidFit", "rigid_fit", "nearest_rotation"]
 
@@ -138,15 +137,18 @@ def rigid_fit(tool_points, world_points, sigma: float = 0.01, threshold: float |
     resid = W - fitted
     rms = float(np.sqrt(np.mean(np.sum(resid**2, axis=1))))
     # d(R b + t) = -[R b]x w + v
-    J = np.zeros((3 * len(P), 6))
-    for i, b in enumerate(P @ R.T):
-        J[3 * i:3 * i + 3, :3] = -np.array([[0, -b[2], b[1]], [b[2], 0, -b[0]], [-b[1], b[0], 0]])
-        J[3 * i:3 * i + 3, 3:] = np.eye(3)
+    b = P @ R.T
+    J = np.zeros((len(P), 3, 6))
+    zero = np.zeros(len(P))
+    J[:, :, :3] = -np.stack([np.stack([zero, -b[:, 2], b[:, 1]], 1), np.stack([b[:, 2], zero, -b[:, 0]], 1),
+                             np.stack([-b[:, 1], b[:, 0], zero], 1)], 1)
+    J[:, :, 3:] = np.eye(3)
+    J = J.reshape(-1, 6)
     cov = np.linalg.inv(J.T @ J) * sigma**2
     dof = 3 * len(P) - 6
     if threshold is None:
         threshold = MIN_THRESHOLD_MM if sigma <= 0 else max(
-            MIN_THRESHOLD_MM, sigma * float(np.sqrt(chi2.ppf(1 - FALSE_ALARM, dof) / len(P))))
+            MIN_THRESHOLD_MM, sigma * float(np.sqrt(chi2_quantile(1 - FALSE_ALARM, dof) / len(P))))
     if rms > threshold:
         worst = int(np.argmax(np.linalg.norm(resid, axis=1)))
         return RigidFit(T, resid, rms, cov, False,

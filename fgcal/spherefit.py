@@ -12,7 +12,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2
 
 __all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "fit_spheres_batch", "best_of_candidates",
            "mirror_through_points", "fit_spheres_checked", "default_threshold", "check_points"]
@@ -46,8 +45,19 @@ def algebraic_sphere(points) -> tuple[np.ndarray, float]:
 
 
 @lru_cache(maxsize=256)
+def chi2_quantile(p: float, dof: int) -> float:
+    """The ``p`` quantile of the chi-square distribution with ``dof`` degrees of freedom.
+
+    ``scipy.special`` (not ``scipy.stats``, which takes ~1 s to import) and only when first needed.
+    """
+    from scipy.special import chdtri
+
+    return float(chdtri(dof, 1.0 - p))
+
+
+@lru_cache(maxsize=256)
 def _chi2_bound(dof: int) -> float:
-    return float(chi2.ppf(1.0 - FALSE_ALARM, dof))
+    return chi2_quantile(1.0 - FALSE_ALARM, dof)
 
 
 def default_threshold(sigma: float, n_points: int, n_unknowns: int = 3) -> float:

@@ -135,6 +135,14 @@ def trials_for(study: str, **kw) -> list[Trial]:
 
 
 @lru_cache(maxsize=4)
+def _model(robot: str):
+    """The robot model, read once per process (trials do not change it)."""
+    from .robot_file import load_model
+
+    return load_model(robot)
+
+
+@lru_cache(maxsize=4)
 def _paper_plan(robot: str):
     from .robot_file import load_model
     from .simulate import paper_plan
@@ -152,13 +160,12 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     """
     from .calibrate import calibrate
     from .dataset import Noise
-    from .robot_file import load_model
     from .simulate import draw_truth, measure, random_plan
     from .kinematics import forward
     from .verify import compare_poses, measured_poses
 
     t0 = time.perf_counter()
-    model = load_model(trial.robot)
+    model = _model(trial.robot)
     # crc32, not hash(): str hashes differ between processes
     rng = np.random.default_rng([trial.seed, trial.trial, zlib.crc32(trial.study.encode())])
     truth = draw_truth(model, rng)

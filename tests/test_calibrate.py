@@ -97,6 +97,8 @@ def test_same_graph_in_gtsam(puma):
     g2, v2 = nonlinear_graph(graph, solved)
     np.testing.assert_allclose(gtsam.Marginals(g2, v2).marginalCovariance(fx.theta_key()), cov,
                                rtol=1e-6, atol=1e-9 * np.abs(cov).max())
+    # calibrate's covariance, the inverse of the solve's Schur complement, is GTSAM's
+    np.testing.assert_allclose(graph.covariance(solved), cov, rtol=1e-6, atol=1e-9 * np.abs(cov).max())
 
 
 def test_redundant_parameter_is_held_and_named(puma):

@@ -10,7 +10,7 @@ import pytest
 from fgcal.calibrate import CalibrationOptions, calibrate
 from fgcal.dataset_io import load_dataset, save_dataset
 from fgcal.online import make_engine, pose_records
-from fgcal.online_run import OnlineRun
+from fgcal.online_run import OnlineRun, read_checkpoint
 from fgcal.simulate import SimulationSettings, simulate
 
 
@@ -81,7 +81,7 @@ def test_resume_gives_the_same_result(puma, dataset, engine, tmp_path):
     first = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
     for rec in first.pending()[:17]:
         first.feed(rec)
-    del first  # "crash"
+    first.close()  # "crash": the journal has no end-of-run mark, closing is the same as dying
     second = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
     assert second.resume() == 17
     for rec in second.pending():
@@ -104,14 +104,14 @@ def test_cli_online_follows_a_growing_dataset(puma, dataset, tmp_path):
         save_dataset(dataset.select(dataset.pose_ids[:14]), live, overwrite=True)  # six more poses arrive
         deadline = time.time() + 20
         while time.time() < deadline:
-            if ckpt.exists() and len(json.loads(ckpt.read_text())["processed"]) == 14:
+            if ckpt.exists() and len(read_checkpoint(ckpt)["entries"]) == 14:
                 break
             time.sleep(0.3)
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
-    state = json.loads(ckpt.read_text())
+    state = {"processed": read_checkpoint(ckpt)["entries"]}
     assert [p["pose"] for p in state["processed"]] == dataset.pose_ids[:14].tolist()
     assert "pose 14 (14)" in out and "accepted" in out  # plain lines when not on a terminal
     accepted = sum(p["accepted"] for p in state["processed"])
@@ -196,3 +196,78 @@ def test_gate_uses_the_estimated_noise(puma):
     reports = [e.update(rec) for rec in pose_records(ds)]
     assert all(r.accepted for r in reports), [r.reason for r in reports if not r.accepted]
     assert e.noise.factor() > 3.0  # the declared noise is far too small for these innovations
+def test_resume_from_snapshot_and_torn_journal_is_identical(puma, dataset, tmp_path, monkeypatch):
+    """A crash in mid-write (a torn last journal line) after a snapshot resumes to the same numbers."""
+    import fgcal.online_run as orun
+
+    monkeypatch.setattr(orun, "SNAPSHOT_EVERY", 7)
+    whole = OnlineRun(dataset, puma, "ekf", tmp_path / "a.ck")
+    for rec in whole.pending():
+        whole.feed(rec)
+    expected = whole.result()
+    first = OnlineRun(dataset, puma, "ekf", tmp_path / "b.ck")
+    for rec in first.pending()[:17]:
+        first.feed(rec)
+    first.close()
+    with open(tmp_path / "b.ck", "ab") as fh:  # pose 18 was being written when the process died
+        fh.write(b'{"pose": 18, "accepted": tr')
+    assert json.loads((tmp_path / "b.ck.snapshot").read_text())["n"] == 14  # snapshot, then 3 journalled poses
+    second = OnlineRun(dataset, puma, "ekf", tmp_path / "b.ck")
+    assert second.resume() == 17
+    for rec in second.pending():
+        second.feed(rec)
+    got = second.result()
+    np.testing.assert_array_equal(got.estimate, expected.estimate)
+    np.testing.assert_array_equal(got.covariance, expected.covariance)
+    assert [h["estimate"] for h in second.history] == [h["estimate"] for h in whole.history]
+
+
+def test_checkpoint_is_locked_and_never_over_an_input(puma, dataset, tmp_path):
+    first = OnlineRun(dataset, puma, "ekf", tmp_path / "c.ck")
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(dataset.path), "--engine", "ekf",
+                          "--checkpoint", str(tmp_path / "c.ck")], capture_output=True, text=True)
+    assert run.returncode == 2 and run.stderr.strip().count("\n") == 0
+    assert "in use by another fgcal online session" in run.stderr
+    first.close()
+    before = (dataset.path / "probes.csv").read_bytes()
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(dataset.path), "--engine", "ekf",
+                          "--checkpoint", str(dataset.path / "probes.csv"), "--restart"], capture_output=True, text=True)
+    assert run.returncode == 2 and "input file of the dataset" in run.stderr
+    (tmp_path / "notes.txt").write_text("mine\n")
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(dataset.path), "--engine", "ekf",
+                          "--checkpoint", str(tmp_path / "notes.txt"), "--restart"], capture_output=True, text=True)
+    assert run.returncode == 2 and "not an fgcal online checkpoint" in run.stderr
+    assert (dataset.path / "probes.csv").read_bytes() == before and (tmp_path / "notes.txt").read_text() == "mine\n"
+
+
+def test_default_checkpoint_belongs_to_dataset_and_output(tmp_path):
+    from fgcal.online_run import default_checkpoint
+
+    a = default_checkpoint(tmp_path / "x" / "d", "ekf")
+    b = default_checkpoint(tmp_path / "y" / "d", "ekf")  # same folder name, another dataset
+    assert a != b and a != default_checkpoint(tmp_path / "x" / "d", "isam2")
+    assert default_checkpoint(tmp_path / "x" / "d", "ekf", tmp_path / "r1.json") != \
+        default_checkpoint(tmp_path / "x" / "d", "ekf", tmp_path / "r2.json")
+
+
+def test_stream_skips_undecodable_lines():
+    from fgcal.online_run import read_stream
+
+    warnings = []
+    lines = [b"joints,1,0,0,0,0,0,0\n", b"probe,1,A,1,2,\xff3\n", b"probe,1,A,1,2,3\n", b"end,1\n"]
+    recs = list(read_stream(lines, {"A": [0, 0, 0]}, warn=warnings.append))
+    assert len(recs) == 1 and recs[0].probes[0][1].tolist() == [[1.0, 2.0, 3.0]]
+    assert len(warnings) == 1 and "line 2 skipped: not UTF-8" in warnings[0]
+
+
+def test_ukf_reused_equals_a_fresh_filter_per_pose(puma, dataset):
+    """One UnscentedKalmanFilter for the whole run gives exactly what a new one per pose gave."""
+    records = pose_records(dataset)[:8]
+    reused, fresh = make_engine("ukf", dataset, puma), make_engine("ukf", dataset, puma)
+    for rec in records:
+        reused.update(rec)
+        fresh._ukf = None  # the old behaviour: a new filter for this pose
+        fresh.update(rec)
+    assert reused._ukf is not None
+    for a, b in zip(reused.estimate(), fresh.estimate()):
+        np.testing.assert_array_equal(a, b)
