@@ -577,7 +577,7 @@ def _cmd_online(args) -> int:
         if args.stdin:
             from .online_run import read_stream
 
-            for rec in read_stream(sys.stdin.buffer, ds.tooling.balls):
+            for rec in read_stream(sys.stdin.buffer, ds.tooling.balls, model=model):
                 display.show(run.feed(rec, streamed=True))
         elif args.follow:
             print(f"following {args.dataset} (Ctrl-C to stop); checkpoint {checkpoint}")

@@ -32,7 +32,7 @@ from .dataset import Dataset
 from .errors import FgcalError
 from .graph import Sigmas
 from .model import ParameterSet, RobotModel
-from .dataset import PointObservations, PoseObservations
+from .dataset import DistanceObservations, PointObservations, PoseObservations
 from .spherefit import best_of_candidates, chi2_quantile, fit_spheres_batch, fit_spheres_checked, mirror_through_points
 from .transforms import matrix_to_quaternion, pose_matrices
 
@@ -54,6 +54,10 @@ class PoseData:
     probes: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ball, points (n, 3))
     centres: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ball, xyz (3,))
     T: np.ndarray | None = None
+    distances: list[tuple[str, float]] = field(default_factory=list)  # (ball, ballbar length mm)
+
+    def measured(self) -> bool:
+        return bool(self.probes or self.centres or self.T is not None or self.distances)
 
 
 def _rows_by_pose(obs, pose_ids):
@@ -67,18 +71,21 @@ def _rows_by_pose(obs, pose_ids):
     return {int(p): order[a:z] for p, a, z in zip(pose_ids, lo, hi)}
 
 
-def pose_records(ds: Dataset, levels=None, poses=None) -> list[PoseData]:
+def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseData]:
     """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose).
 
     ``poses``: only these pose ids (the others are not read). Linear in the dataset's size.
+    ``model`` converts the readings (prismatic joints are mm); all revolute without it.
     """
     levels = ds.levels() if levels is None else list(levels)
     ids = np.asarray(ds.pose_ids, dtype=int)
     keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
-    ids, joints = ids[keep], ds.joints_rad[keep]
+    ids = ids[keep]
+    joints = (model.joints_to_internal(ds.joints_deg) if model is not None else ds.joints_rad)[keep]
     probes = _rows_by_pose(ds.probes, ids) if "probes" in levels else {}
     centres = _rows_by_pose(ds.centres, ids) if "centres" in levels else {}
     pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
+    distance_rows = _rows_by_pose(ds.distances, ids) if "distances" in levels else {}
     out = []
     for pid, q in zip(ids.tolist(), joints):
         rec = PoseData(pid, q)
@@ -92,6 +99,8 @@ def pose_records(ds: Dataset, levels=None, poses=None) -> list[PoseData]:
         if pose_rows and len(pose_rows[pid]):
             i = pose_rows[pid][0]
             rec.T = pose_matrices(ds.poses.xyz[i], ds.poses.quat[i])
+        if distance_rows:
+            rec.distances += [(str(ds.distances.ball[i]), float(ds.distances.length[i])) for i in distance_rows[pid]]
         out.append(rec)
     return out
 
@@ -168,22 +177,28 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, 
     return good, None
 
 
-def records_dataset(meta: Dataset, records: list[PoseData]) -> Dataset:
+def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Dataset:
     """A dataset (robot, tool and noise of ``meta``) holding the poses ``records``."""
     probes = [(r.pose, b, x) for r in records for b, pts in r.probes for x in pts]
     centres = [(r.pose, b, c) for r in records for b, c in r.centres]
     poses = [(r.pose, r.T) for r in records if r.T is not None]
+    distances = [(r.pose, b, v) for r in records for b, v in r.distances]
+    q = np.array([r.q for r in records]).reshape(len(records), -1)
 
     def points(rows):
         return PointObservations([p for p, _, _ in rows], [b for _, b, _ in rows],
                                  np.array([x for _, _, x in rows]).reshape(-1, 3)) if rows else None
 
     return Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
-                   pose_ids=[r.pose for r in records], joints_deg=np.degrees([r.q for r in records]).reshape(-1, 6),
+                   pose_ids=[r.pose for r in records],
+                   joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
                    probes=points(probes), centres=points(centres),
                    poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
                                           matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
-                   if poses else None, path=meta.path)
+                   if poses else None,
+                   distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
+                                                  [v for _, _, v in distances]) if distances else None,
+                   path=meta.path, chain=meta.chain)
 
 
 class NoiseTracker:
@@ -259,7 +274,7 @@ class _Engine:
             return {}
         offsets = np.array([self.ds.tooling.balls[b] for b in balls])
         e, _, _ = fx.pose_ball_centres_error(theta, rec.q, offsets, np.zeros_like(offsets), self.params.index,
-                                             self.held)
+                                             self.held, self.model.chain)
         return dict(zip(balls, e))
 
     def _measurement(self, rec: PoseData, flip=()):
@@ -274,7 +289,7 @@ class _Engine:
                 return None, reason
             centre_parts += [(self.ds.tooling.balls[b], c, cov) for b, c, cov in good]
         centre_parts += [(self.ds.tooling.balls[b], xyz, np.eye(3) * sig.centre**2) for b, xyz in rec.centres]
-        if not centre_parts and T_meas is None:
+        if not centre_parts and T_meas is None and not rec.distances:
             return None, "no measurements"
         Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
         offsets = np.array([p[0] for p in centre_parts]).reshape(-1, 3)
@@ -282,6 +297,10 @@ class _Engine:
         R_blocks = [p[2] for p in centre_parts]
         if T_meas is not None:
             R_blocks.append(np.diag([sig.pose_rotation**2] * 3 + [sig.pose_position**2] * 3))
+        d_offsets = np.array([self.ds.tooling.balls[b] for b, _ in rec.distances]).reshape(-1, 3)
+        d_lengths = np.array([v for _, v in rec.distances], dtype=float)
+        if len(d_lengths):
+            R_blocks.append(np.eye(len(d_lengths)) * sig.distance**2)
         m = sum(len(b) for b in R_blocks)
         R0 = np.zeros((m, m))
         k = 0
@@ -292,15 +311,24 @@ class _Engine:
         def evaluate(theta):
             e, Jt, Jq = [], [], []
             if len(offsets):
-                ee, jt, jq = fx.pose_ball_centres_error(theta, rec.q, offsets, zs, self.params.index, self.held)
+                ee, jt, jq = fx.pose_ball_centres_error(theta, rec.q, offsets, zs, self.params.index, self.held,
+                                                        self.model.chain)
                 e.append(ee.ravel())
                 Jt.append(jt.reshape(-1, jt.shape[-1]))
-                Jq.append(jq.reshape(-1, 6))
+                Jq.append(jq.reshape(-1, jq.shape[-1]))
             if T_meas is not None:
-                ee, jt, jq = fx.pose_error(theta, rec.q[None], T_meas[None], self.params.index, self.held)
+                ee, jt, jq = fx.pose_error(theta, rec.q[None], T_meas[None], self.params.index, self.held,
+                                           self.model.chain)
                 e.append(ee[0])
                 Jt.append(jt[0])
                 Jq.append(jq[0])
+            if len(d_lengths):
+                qs = np.broadcast_to(rec.q, (len(d_lengths), len(rec.q)))
+                ee, jt, jq = fx.distance_error(theta, qs, d_offsets, d_lengths, self.params.index, self.held,
+                                               self.model.chain)
+                e.append(ee[:, 0])
+                Jt.append(jt[:, 0])
+                Jq.append(jq[:, 0])
             Jq = np.vstack(Jq)
             return np.concatenate(e), np.vstack(Jt), R0 + Jq @ Rj @ Jq.T  # joint noise folded in
 
@@ -314,7 +342,7 @@ class _Engine:
         points, the variant without the one probe point that makes it pass with the smallest
         innovation. Returns ``(evaluate, record used, noise factor, None)`` or ``(None, rec, f, reason)``."""
 
-        if rec.probes or rec.centres or rec.T is not None:
+        if rec.measured():
             self.seen[rec.pose] = rec
             self._final = None
 
@@ -351,7 +379,7 @@ class _Engine:
         def without_one(rec):
             for j, (ball, pts) in enumerate(rec.probes):
                 for k in range(len(pts) if len(pts) >= 4 else 0):
-                    variant = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T)
+                    variant = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances))
                     variant.probes[j] = (ball, np.delete(pts, k, axis=0))
                     yield variant, ()
 
@@ -384,7 +412,7 @@ class _Engine:
         options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
                           exclude=tuple(n for n in ident if n not in names))
         try:
-            r = calibrate(records_dataset(self.ds, list(self.seen.values())), self.model, options)
+            r = calibrate(records_dataset(self.ds, list(self.seen.values()), self.model), self.model, options)
         except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
             log.info("final smoothing skipped: %s", exc)
             return None
@@ -449,7 +477,7 @@ class ISAM2Engine(_Engine):
             graph.add(fx.parameter_prior(self.t_key, self.params.nominal(), self.prior_sigma))
             values.insert(self.t_key, self.params.nominal())
         joint_vars = bool(np.all(np.asarray(sig.joint) > 0))
-        qargs = {"q_key": fx.joint_key(i)} if joint_vars else {"q_fixed": rec.q}
+        qargs = ({"q_key": fx.joint_key(i)} if joint_vars else {"q_fixed": rec.q}) | {"chain": self.model.chain}
         if joint_vars:
             graph.add(fx.joint_prior(fx.joint_key(i), rec.q, sig.joint * np.sqrt(f)))
             values.insert(fx.joint_key(i), rec.q.copy())
@@ -465,6 +493,9 @@ class ISAM2Engine(_Engine):
         if rec.T is not None:
             graph.add(fx.pose_factor(self.params.index, self.held, rec.T, sig.pose_rotation * np.sqrt(f),
                                      sig.pose_position * np.sqrt(f), t_key=self.t_key, **qargs))
+        for ball, length in rec.distances:
+            graph.add(fx.distance_factor(self.params.index, self.held, self.ds.tooling.balls[ball], length,
+                                         sig.distance * np.sqrt(f), t_key=self.t_key, **qargs))
         self._keep.append(graph)
         self.isam.update(graph, values)
         self._linpoint = self.isam.getLinearizationPoint()  # keep a reference (DESIGN.md section 5)

@@ -32,36 +32,41 @@ __all__ = ["OnlineRun", "CHECKPOINT_FORMAT", "read_stream", "STREAM_FORMAT", "re
 
 STREAM_FORMAT = """\
 One record a line, comma-separated (lines starting with # and blank lines are ignored):
-  joints,POSE,q1,q2,q3,q4,q5,q6      joint readings (deg); starts pose POSE
+  joints,POSE,q1,...,qn              joint readings (deg; mm for prismatic joints); starts pose POSE
   probe,POSE,BALL,x,y,z              a probe point (mm, world)
   centre,POSE,BALL,x,y,z             a ball centre (mm, world)
   pose,POSE,x,y,z,qw,qx,qy,qz        a measured tool pose (mm, unit quaternion)
+  distance,POSE,BALL,length          a ballbar length from the pivot (world origin) to BALL (mm)
   end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
 
 
 def _record_to_json(rec: PoseData) -> dict:
     return {"pose": rec.pose, "q": rec.q.tolist(), "probes": [[b, p.tolist()] for b, p in rec.probes],
-            "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist()}
+            "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist(),
+            "distances": [[b, float(v)] for b, v in rec.distances]}
 
 
 def _record_from_json(d: dict) -> PoseData:
     return PoseData(int(d["pose"]), np.array(d["q"], dtype=float),
                     [(b, np.array(p, dtype=float)) for b, p in d["probes"]],
                     [(b, np.array(c, dtype=float)) for b, c in d["centres"]],
-                    None if d["T"] is None else np.array(d["T"], dtype=float))
+                    None if d["T"] is None else np.array(d["T"], dtype=float),
+                    [(b, float(v)) for b, v in d.get("distances", [])])
 
 
-def read_stream(lines, balls, warn=None):
+def read_stream(lines, balls, warn=None, model=None):
     """Pose records from a stream of lines (:data:`STREAM_FORMAT`), each as soon as it is complete.
 
     A malformed line is reported through ``warn(message)`` with its line number and skipped; the
-    stream goes on (an operator's typo should not end a measuring session).
+    stream goes on (an operator's typo should not end a measuring session). ``model`` gives the
+    number of joints and their units (six revolute joints without it).
     """
     from .transforms import pose_matrices
 
     warn = warn or (lambda m: print(m, file=sys.stderr))
     current: PoseData | None = None
-    widths = {"joints": 8, "probe": 6, "centre": 6, "pose": 9, "end": 2}
+    n_joints = 6 if model is None else model.n_joints
+    widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "end": 2}
     for n, raw in enumerate(lines, start=1):
         if isinstance(raw, bytes):
             try:
@@ -76,15 +81,15 @@ def read_stream(lines, balls, warn=None):
         tag = f[0]
         try:
             if tag not in widths:
-                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, end)")
+                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, end)")
             if len(f) != widths[tag]:
                 raise ValueError(f"{tag} takes {widths[tag] - 1} fields, got {len(f) - 1}")
             pose = int(f[1])
             if tag != "joints" and (current is None or current.pose != pose):
                 raise ValueError(f"{tag} for pose {pose} before its joints line")
-            if tag in ("probe", "centre") and f[2] not in balls:
+            if tag in ("probe", "centre", "distance") and f[2] not in balls:
                 raise ValueError(f"unknown ball {f[2]!r} (dataset.yaml has {', '.join(balls)})")
-            values = [float(v) for v in f[3 if tag in ("probe", "centre") else 2:]]
+            values = [float(v) for v in f[3 if tag in ("probe", "centre", "distance") else 2:]]
             if not all(np.isfinite(values)):
                 raise ValueError("a number is not finite")
         except ValueError as exc:
@@ -93,13 +98,15 @@ def read_stream(lines, balls, warn=None):
         if tag == "joints":
             if current is not None:
                 yield current
-            current = PoseData(pose, np.radians(values))
+            current = PoseData(pose, np.radians(values) if model is None else model.joints_to_internal(values))
         elif tag == "probe":
             pts = dict(current.probes)
             pts[f[2]] = np.vstack([pts.get(f[2], np.zeros((0, 3))), values])
             current.probes = list(pts.items())
         elif tag == "centre":
             current.centres.append((f[2], np.array(values)))
+        elif tag == "distance":
+            current.distances.append((f[2], float(values[0])))
         elif tag == "pose":
             q = np.array(values[3:])
             if abs(np.linalg.norm(q) - 1) > 1e-3:
@@ -115,7 +122,7 @@ def read_stream(lines, balls, warn=None):
 log = logging.getLogger(__name__)
 CHECKPOINT_FORMAT = "fgcal-online-checkpoint/2"
 SNAPSHOT_EVERY = 100  # poses between snapshots of a filter's state (the journal has every pose)
-INPUT_NAMES = ("dataset.yaml", "truth.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv")
+INPUT_NAMES = ("dataset.yaml", "truth.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "distances.csv")
 
 
 def default_checkpoint(dataset, engine: str, out=None) -> Path:
@@ -271,7 +278,7 @@ class OnlineRun:
             return 0
         self.streamed = {int(e["pose"]): _record_from_json(e["record"]) for e in entries if "record" in e}
         wanted = {e["pose"] for e in entries}
-        records = {r.pose: r for r in pose_records(self.ds, poses=wanted)}
+        records = {r.pose: r for r in pose_records(self.ds, poses=wanted, model=self.model)}
         records.update(self.streamed)
         missing = [e["pose"] for e in entries if e["pose"] not in records]
         if missing:
@@ -297,7 +304,7 @@ class OnlineRun:
     def pending(self, ds: Dataset | None = None):
         done = {p["pose"] for p in self.processed}
         ds = ds or self.ds
-        return pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in done])
+        return pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in done], model=self.model)
 
     def feed(self, rec, streamed: bool = False) -> dict:
         if streamed:
