@@ -180,9 +180,10 @@ class Candidates:
 
     @classmethod
     def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
-              layout: Layout | None = None, params: ParameterSet | None = None):
+              layout: Layout | None = None, params: ParameterSet | None = None, slots=None):
         """Information of every candidate (measured as ``layout`` says; by default the three most
-        accessible balls, probed) and the weight of the accuracy at ``q_verify``."""
+        accessible balls, probed) and the weight of the accuracy at ``q_verify``, linearised at
+        ``slots`` (the nominal by default)."""
         params = params or model.parameters()
         q = np.atleast_2d(np.asarray(candidates, dtype=float))
         layout = layout if layout is not None else layout_from_access(model, q, ("probes",))
@@ -190,8 +191,8 @@ class Candidates:
         if not usable.any():
             raise FgcalError(f"none of the {len(q)} candidate poses gives a measurement "
                              f"({', '.join(layout.levels)}): no ball is accessible at any of them")
-        info = information(model, q, layout, noise, params)
-        W = verification_weight(model, q[usable] if q_verify is None else q_verify, params)
+        info = information(model, q, layout, noise, params, slots)
+        W = verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
         scale = deviations.sigmas(params.names)
         dropped = analyse_information(info[usable].sum(axis=0), params.names).redundant
         keep = np.array([n not in dropped for n in params.names])

@@ -93,7 +93,7 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
     if other:
         log.warning("design leaves out the dataset's %s (not yet part of the design's information)", ", ".join(other))
     names = model.tooling.names if model.tooling is not None else []
-    point_levels = [getattr(ds, lv) for lv in ("probes", "centres") if lv in levels]
+    point_levels = [getattr(ds, lv) for lv in ("probes", "centres", "distances") if lv in levels]
     ppb = 4
     if ds.probes is not None and len(ds.probes):
         _, counts = np.unique([f"{p}/{b}" for p, b in zip(ds.probes.pose, ds.probes.ball)], return_counts=True)
@@ -112,6 +112,18 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
             _, counts = np.unique(obs.pose, return_counts=True)
             per_pose = max(per_pose, int(np.median(counts)))
     return layout_from_access(model, q, levels, max(per_pose, 1), probes_per_ball=ppb)
+
+
+def _linearisation_point(ds: Dataset, model: RobotModel):
+    """The nominal geometry, with a ballbar dataset's world origin moved to its pivot (fitted to the
+    lengths as the estimator starts): a ballbar's information depends on where the pivot is."""
+    if ds.distances is None or not len(ds.distances):
+        return None
+    from .calibrate import _initial_pivot
+
+    d = ds.distances
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(d.pose)])
+    return _initial_pivot(model, model.nominal, q, ds.tooling.offsets(d.ball), d.length)
 
 
 def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates=None, index: str = DATASET_INDEX,
@@ -153,7 +165,7 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     where = "the candidates" if candidates is not None else f"{ds.path or 'the dataset'}"
     if len(ids) < n_poses:
         raise FgcalError(f"{where}: {len(ids)} candidate poses for a plan of {n_poses}: fewer candidates than poses")
-    prep = Candidates.build(model, q, ds.noise, layout=layout)
+    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=_linearisation_point(ds, model))
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.errors import ball_centre_error, pose_error, probe_error
+from factors.errors import ball_centre_error, distance_error, pose_error, probe_error
 
 from .calibrate import CalibrationOptions, _sigmas
 from .dataset import Dataset, Noise
@@ -33,7 +33,7 @@ from .simulate import UP, ball_access
 
 __all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information"]
 
-DESIGNED_LEVELS = ("probes", "centres", "poses")  # of fgcal.dataset.LEVELS: ballbar distances not yet
+DESIGNED_LEVELS = ("probes", "centres", "poses", "distances")  # all of fgcal.dataset.LEVELS
 
 
 @dataclass
@@ -162,6 +162,10 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
             for j in range(k):
                 rows_c[:, j, :, 3 * j:3 * j + 3] = Jc[:, j]
             add(np.zeros((n, k * ppb, P)), None, rows_c.reshape(n, k * ppb, 3 * k))
+    if k and "distances" in layout.levels:  # a ballbar from the world origin (its pivot) to each ball
+        off = offsets[balls].reshape(-1, 3)
+        _, Jt, Jq = distance_error(theta, np.repeat(q, k, axis=0), off, np.ones(len(off)), idx, x, model.chain)
+        add(Jt.reshape(n, k, P) / sig.distance, Jq.reshape(n, k, nj) / sig.distance)
     if "poses" in layout.levels:
         _, Jt, Jq = pose_error(theta, q, model.forward(x, q), idx, x, model.chain)
         w = 1.0 / np.array([sig.pose_rotation] * 3 + [sig.pose_position] * 3)

@@ -253,3 +253,16 @@ def test_online_engines_take_a_ballbar_and_a_prismatic_arm(puma, engine):
         theta, _ = e.estimate()
         est = ParameterSet(model, tuple(batch.names)).to_file_units(theta)
         assert np.max(np.abs(est - batch.estimate) / batch.sigma) < 0.1
+
+
+def test_design_from_a_ballbar_dataset(puma):
+    """`design --dataset` plans for a ballbar (linearised with the pivot fitted to the lengths): the plan
+    predicts better than the median random set of the same size from the same candidates."""
+    from fgcal.design_dataset import design_from_dataset
+
+    settings = SimulationSettings(n_poses=200, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.01))
+    ds, _ = simulate(puma, np.random.default_rng(41), settings)
+    plan = design_from_dataset(ds, puma, 40, random_sets=30, rng=np.random.default_rng(1))
+    assert plan.levels == ("distances",) and len(plan.pose_ids) == 40
+    assert set(plan.pose_ids.tolist()) <= set(ds.pose_ids.tolist())
+    assert plan.values["pred"] < np.median(plan.random_pred)
