@@ -140,12 +140,11 @@ def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int
     return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)), keys, error)
 
 
-def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, t_key: int,
-                q_key: int | None = None, q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
-    """A measured tool pose (4, 4) against FK(theta, q): error ``[rotation (rad); position (mm)]``."""
+def _kinematic_factor(error_fn, noise, index, held, *, t_key: int, q_key: int | None, q_fixed, chain):
+    """A factor on (theta, q) whose error is ``error_fn(theta, q (1, n), index, held, chain)`` ->
+    ``(e (1, m), J_theta (1, m, P), J_q (1, m, n))``; joints are the variable ``q_key`` or ``q_fixed``."""
     if (q_key is None) == (q_fixed is None):
         raise ValueError("give exactly one of q_key and q_fixed")
-    T_measured = np.array(T_measured, dtype=float).reshape(1, 4, 4)
     index = np.array(index, dtype=int)
     held = np.array(held, dtype=float)
     q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
@@ -153,38 +152,33 @@ def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, 
 
     def error(this, values, H):
         q = q_const if q_key is None else _vector(values, q_key)[None]
-        e, J_t, J_q = pose_error(_vector(values, t_key), q, T_measured, index, held, chain)
+        e, J_t, J_q = error_fn(_vector(values, t_key), q, index, held, chain)
         if H is not None:
             H[0] = J_t[0]
             if q_key is not None:
                 H[1] = J_q[0]
         return e[0]
 
-    return gtsam.CustomFactor(noise_model([sigma_rot] * 3 + [sigma_pos] * 3, robust), keys, error)
+    return gtsam.CustomFactor(noise, keys, error)
+
+
+def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, t_key: int,
+                q_key: int | None = None, q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
+    """A measured tool pose (4, 4) against FK(theta, q): error ``[rotation (rad); position (mm)]``."""
+    T_measured = np.array(T_measured, dtype=float).reshape(1, 4, 4)
+    return _kinematic_factor(lambda theta, q, i, h, c: pose_error(theta, q, T_measured, i, h, c),
+                             noise_model([sigma_rot] * 3 + [sigma_pos] * 3, robust), index, held, t_key=t_key,
+                             q_key=q_key, q_fixed=q_fixed, chain=chain)
 
 
 def distance_factor(index, held, offset, length: float, sigma: float, *, t_key: int, q_key: int | None = None,
                     q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
     """A ballbar length (mm) from the world origin (the pivot) to the tool ball at ``offset`` (3,)."""
-    if (q_key is None) == (q_fixed is None):
-        raise ValueError("give exactly one of q_key and q_fixed")
     offset = np.array(offset, dtype=float).reshape(1, 3)
     length = np.array([float(length)])
-    index = np.array(index, dtype=int)
-    held = np.array(held, dtype=float)
-    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
-    keys = [t_key] + ([q_key] if q_key is not None else [])
-
-    def error(this, values, H):
-        q = q_const if q_key is None else _vector(values, q_key)[None]
-        e, J_t, J_q = distance_error(_vector(values, t_key), q, offset, length, index, held, chain)
-        if H is not None:
-            H[0] = J_t[0]
-            if q_key is not None:
-                H[1] = J_q[0]
-        return e[0]
-
-    return gtsam.CustomFactor(noise_model([sigma], robust), keys, error)
+    return _kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, length, i, h, c),
+                             noise_model([sigma], robust), index, held, t_key=t_key, q_key=q_key, q_fixed=q_fixed,
+                             chain=chain)
 
 
 def joint_prior(q_key: int, reading, sigma: float) -> gtsam.PriorFactorVector:
