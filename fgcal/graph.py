@@ -10,7 +10,7 @@ on ``theta``.
 Every pose's variables touch only that pose's factors and ``theta``: the graph is an arrow.
 :class:`Graph` evaluates all factors at once with the batched error functions and stores the
 whitened Jacobian in per-pose blocks (padded to equal size), so a Gauss-Newton step eliminates
-the per-pose variables in one batched Schur complement. :func:`to_gtsam` turns the same
+the per-pose variables in one batched Schur complement. :func:`fgcal.gtsam_graph.to_gtsam` turns the same
 linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 """
 from __future__ import annotations
