@@ -21,6 +21,10 @@ __all__ = ["parameter_names", "finite_float", "nonnegative_float", "positive_flo
 DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
 
 
+MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
+MAX_BATCH_ROWS = 250_000  # measurement rows of one batch graph (calibrate, check) within about 1 GB
+
+
 def _float(text: str) -> float:
     try:
         value = float(text)

@@ -47,11 +47,13 @@ def test_compact_jacobian_analyses_like_the_full_one(puma):
 
 
 def test_batch_size_limit_refuses_calibrate_and_bounds_check(puma, tmp_path, capsys, monkeypatch):
-    import fgcal.cli as cli
+    import fgcal.commands.calibrate as calibrate_command
+    import fgcal.commands.check as check_command
     from hostile_util import call, one_line_error, small_dataset
 
     small_dataset(puma, tmp_path / "ds", n_poses=6)
-    monkeypatch.setattr(cli, "MAX_BATCH_ROWS", 50)  # 6 poses x 3 balls x 4 points = 72 rows
+    for command in (calibrate_command, check_command):  # 6 poses x 3 balls x 4 points = 72 rows
+        monkeypatch.setattr(command, "MAX_BATCH_ROWS", 50)
     code, _, err = call(["calibrate", tmp_path / "ds", "--out", tmp_path / "r.json"], capsys)
     one_line_error(code, err, "72 measurement rows (6 poses)", "--poses")
     code, out, err = call(["check", tmp_path / "ds"], capsys)

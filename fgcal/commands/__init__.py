@@ -1,0 +1,1 @@
+"""One module per ``fgcal`` command: each a thin layer over the library (see :mod:`fgcal.cli`)."""
