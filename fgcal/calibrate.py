@@ -26,7 +26,7 @@ from .posefit import rigid_fit
 from .result import CalibrationResult, LevelSummary, ParameterEstimate, ResidualSummary
 from .spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from .simulate import Deviations
-from .transforms import euler_zyx_trans, to_euler_zyx_trans
+from .transforms import to_euler_zyx_trans
 from .gravity import model_inertials
 from .joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 
@@ -178,13 +178,7 @@ def _initial_pivot(model: RobotModel, held, q, offsets, length):
     b = np.sum(p**2, axis=1) - np.asarray(length, dtype=float) ** 2
     if len(p) < 4 or np.linalg.matrix_rank(A) < 4:
         return held
-    c = np.linalg.lstsq(A, b, rcond=None)[0][:3]
-    base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
-    shift = np.eye(4)
-    shift[:3, 3] = -c
-    out = np.array(held, dtype=float)
-    out[base] = to_euler_zyx_trans(shift @ euler_zyx_trans(*out[base]))
-    return out
+    return model.with_world_origin_at(held, np.linalg.lstsq(A, b, rcond=None)[0][:3])
 
 
 def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None):

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import FgcalError
-from .kinematics import forward, jacobians
 from .model import RobotModel, slot
 from .transforms import check_transform, euler_zyx_trans, pose_difference, rot, so3_left_jacobian_inverse
 

@@ -28,6 +28,8 @@ from functools import cached_property
 
 import numpy as np
 
+from .transforms import euler_zyx_trans, to_euler_zyx_trans
+
 __all__ = ["SLOT_NAMES", "SLOT_IS_ANGLE", "JointType", "Tooling", "RobotModel", "ParameterSet", "slot_names_for"]
 
 EULER_FIELDS = ("phi", "theta", "psi", "px", "py", "pz")
@@ -231,6 +233,16 @@ class RobotModel:
 
     def slots_from_file_units(self, values) -> np.ndarray:
         return np.where(self.slot_is_angle, np.radians(values), values)
+
+    def with_world_origin_at(self, slots, point) -> np.ndarray:
+        """``slots`` (S,) with the world frame moved so that its origin is ``point`` (3,), mm in the
+        current world frame: the base becomes ``Trans(-point) A_b`` (a ballbar's pivot frame)."""
+        base = [self.slot(f"base.{f}") for f in EULER_FIELDS]
+        shift = np.eye(4)
+        shift[:3, 3] = -np.asarray(point, dtype=float)
+        out = np.array(slots, dtype=float)
+        out[base] = to_euler_zyx_trans(shift @ euler_zyx_trans(*out[base]))
+        return out
 
     def forward(self, slots, q) -> np.ndarray:
         """Tool poses ``(N, 4, 4)`` (mm) at readings ``q`` (N, n) with geometry ``slots`` (S,)."""

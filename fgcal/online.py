@@ -458,7 +458,6 @@ class ISAM2Engine(_Engine):
         return self.isam.calculateEstimateVector(self.t_key) if self._started else self.params.nominal()
 
     def update(self, rec: PoseData) -> UpdateReport:
-        sig = self.sigmas
         i = rec.pose
         # The innovation against the current estimate, at the noise estimated so far.
         cov = self.isam.marginalCovariance(self.t_key) if self._started else np.diag(self.prior_sigma**2)

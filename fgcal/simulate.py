@@ -24,7 +24,7 @@ from .errors import FgcalError
 from .ik import BRANCHES, solve_puma_batch
 from .kinematics import forward, tool_points
 from .model import RobotModel, Tooling
-from .transforms import euler_zyx_trans, matrix_to_quaternion, quaternion_to_matrix, to_euler_zyx_trans
+from .transforms import matrix_to_quaternion, quaternion_to_matrix
 
 __all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
 
@@ -343,13 +343,7 @@ def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarra
     bar's length varies over the poses.
     """
     centres = tool_points(model.forward(slots, q), tooling.offsets()).reshape(-1, 3)
-    pivot = centres.mean(axis=0) - np.array([0.0, 0.0, 300.0])
-    base = [model.slot(f"base.{f}") for f in ("phi", "theta", "psi", "px", "py", "pz")]
-    shift = np.eye(4)
-    shift[:3, 3] = -pivot
-    out = np.array(slots, dtype=float)
-    out[base] = to_euler_zyx_trans(shift @ euler_zyx_trans(*out[base]))
-    return out
+    return model.with_world_origin_at(slots, centres.mean(axis=0) - np.array([0.0, 0.0, 300.0]))
 
 
 def _small_rotation(v) -> np.ndarray:

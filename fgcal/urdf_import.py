@@ -24,6 +24,7 @@ import numpy as np
 from .errors import ModelError
 from .model import JointType, RobotModel
 from .transforms import rot, to_euler_zyx_trans
+from .yamlio import read_text_file
 
 __all__ = ["UrdfJoint", "parse_urdf", "urdf_chain", "model_from_urdf", "load_urdf_model", "rpy_matrix"]
 
@@ -288,14 +289,5 @@ def _check_same_kinematics(model: RobotModel, chain, source: str) -> None:
 def load_urdf_model(path, base: str | None = None, tip: str | None = None) -> RobotModel:
     """Read a URDF file (a regular file of at most 20 MB) and convert the chain ``base`` -> ``tip``."""
     path = Path(path)
-    try:
-        if not path.is_file():
-            raise ModelError(f"{path}: not a regular file" if path.exists() else f"{path}: file not found")
-        if path.stat().st_size > MAX_URDF_BYTES:
-            raise ModelError(f"{path}: {path.stat().st_size} bytes, more than a URDF of {MAX_URDF_BYTES} bytes")
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise ModelError(f"{path}: not a UTF-8 text file") from None
-    except OSError as exc:
-        raise ModelError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    text = read_text_file(path, ModelError, MAX_URDF_BYTES)
     return model_from_urdf(text, source=str(path), base=base, tip=tip, name=path.stem)
