@@ -14,6 +14,7 @@ import numpy as np
 
 from fgcal import __version__
 from fgcal.measurements.dataset import LEVELS, Dataset
+from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.holding import held_parameters, holding_cost
@@ -222,28 +223,18 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw.update(probes=(np.array([row[p] for p in pr.pose], dtype=int),
                           np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int),
                           pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset, radius=ds.tooling.radius)
-    if "centres" in levels:
-        ce = ds.centres
-        idx = np.array([row[p] for p in ce.pose], dtype=int)
-        offsets = np.array([ds.tooling.balls[b] for b in ce.ball]).reshape(-1, 3)
-        kw["centres"] = (idx, offsets, ce.xyz)
-        for i, o, w in zip(idx, offsets, ce.xyz):
-            offs, pts_w = world_points.get(i, (np.zeros((0, 3)), np.zeros((0, 3))))
-            world_points[i] = (np.vstack([offs, o]), np.vstack([pts_w, w]))
-    if "poses" in levels:
-        po = ds.poses
-        idx = np.array([row[p] for p in po.pose], dtype=int)
-        T = po.matrices()
-        kw["poses"] = (idx, T)
-        axes = np.array([[0.0, 0, 0], [100.0, 0, 0], [0, 100.0, 0], [0, 0, 100.0]])
-        for i, Ti in zip(idx, T):
-            world_points[i] = (axes, axes @ Ti[:3, :3].T + Ti[:3, 3])
+    kw["measurements"] = {}
+    for kind in kinematic_levels(levels):
+        terms = kind.terms(getattr(ds, kind.level), ds.tooling, row)
+        kw["measurements"][kind.level] = terms
+        for i, (offs, pts_w) in kind.world_points(terms).items():
+            if i in world_points and kind.level != "poses":  # a measured pose fixes the pose alone
+                offs, pts_w = np.vstack([world_points[i][0], offs]), np.vstack([world_points[i][1], pts_w])
+            world_points[i] = (offs, pts_w)
     pivot_start = None
     if "distances" in levels:
-        di = ds.distances
-        idx = np.array([row[p] for p in di.pose], dtype=int)
-        kw["distances"] = (idx, ds.tooling.offsets(di.ball), di.length)
-        pivot_start = _initial_pivot(model, held, q[idx], ds.tooling.offsets(di.ball), di.length)
+        terms = kw["measurements"]["distances"]
+        pivot_start = _initial_pivot(model, held, q[terms.pose], *terms.data)
     if options.prior == "weak":
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
@@ -336,8 +327,7 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
     lin = graph.linearise(state) if lin is None else lin
     red = graph.leverage_by_level(state, cov_internal, lin)
     out = {}
-    units = {"probes": "mm", "kinematic": "mm", "centres": "mm", "poses": "mm", "distances": "mm", "joints": "deg",
-             "prior": "-"}
+    units = {"probes": "mm", "kinematic": "mm", "joints": "deg", "prior": "-"}
     sig = graph.sigmas
     for level, (e, s, w) in lin.raw.items():
         n_rows, h = red.get(level, (0, 0.0))
@@ -345,19 +335,24 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
             e = e[~graph.excluded[level]]
         redundancy = n_rows - h
         vf = float(np.sum(w * s**2) / redundancy) if redundancy > 1e-9 else float("nan")
-        if level == "poses":
-            rms_pos = float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1))))
-            rms_rot = float(np.degrees(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))))
-            out[level] = LevelSummary(len(e), rms_pos, "mm", sig.pose_position, vf, redundancy, rms_rot,
-                                      float(np.degrees(sig.pose_rotation)))
+        if level in BY_LEVEL:
+            kind = BY_LEVEL[level]
+            dist, angle = kind.metric(e)
+            sigma, sigma_angle = kind.reported_sigma(sig)
+            out[level] = LevelSummary(len(e), _rms(dist), "mm", sigma, vf, redundancy,
+                                      None if angle is None else _rms(angle), sigma_angle)
             continue
         norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
         scale = np.degrees(1.0) if level == "joints" else 1.0
-        sigma = {"probes": sig.probe, "kinematic": sig.kinematic, "centres": sig.centre, "distances": sig.distance,
+        sigma = {"probes": sig.probe, "kinematic": sig.kinematic,
                  "joints": _joint_sigma_file_units(graph), "prior": float("nan")}[level]
         out[level] = LevelSummary(len(e), float(np.sqrt(np.mean(norms**2)) * scale), units[level], float(sigma),
                                   vf, redundancy)
     return out
+
+
+def _rms(values) -> float:
+    return float(np.sqrt(np.mean(np.asarray(values) ** 2)))
 
 
 def _joint_sigma_file_units(graph: Graph) -> float:
@@ -424,16 +419,15 @@ def _at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
         at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
     raw = graph.linearise(at).raw
     out = {}
-    for level in ("probes", "centres", "poses"):
+    for level in ("probes", *BY_LEVEL):
         if level not in raw:
             continue
         e = raw[level][0][~graph.excluded.get(level, np.zeros(len(raw[level][0]), dtype=bool))]
-        if level == "poses":
-            out[level] = ResidualSummary(len(e), float(np.sqrt(np.mean(np.sum(e[:, 3:] ** 2, axis=1)))), "mm",
-                                         float(np.degrees(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1))))))
+        if level in BY_LEVEL:
+            dist, angle = BY_LEVEL[level].metric(e)
+            out[level] = ResidualSummary(len(e), _rms(dist), "mm", None if angle is None else _rms(angle))
         else:
-            out[level] = ResidualSummary(len(e), float(np.sqrt(np.mean(np.sum(e.reshape(len(e), -1) ** 2, axis=1)))),
-                                         "mm")
+            out[level] = ResidualSummary(len(e), _rms(np.linalg.norm(e.reshape(len(e), -1), axis=1)), "mm")
     return out
 
 
@@ -470,12 +464,13 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         full = False
         for lv in levels:
             obs = getattr(ds, lv)
-            if lv == "poses":
+            width = BY_LEVEL[lv].width if lv in BY_LEVEL else 3  # a probed ball places a point
+            if width >= 6:
                 full |= bool(np.any(obs.pose == p))
-            elif lv == "distances":
-                dof += int(np.sum(obs.pose == p))
-            else:
+            elif width == 3:
                 balls |= set(obs.ball[obs.pose == p].tolist())
+            else:
+                dof += width * int(np.sum(obs.pose == p))
         dof += _pose_dof(min(len(balls), 3), full)
     if dof < len(names):
         raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
@@ -556,13 +551,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     residuals = {}
     if "probes" in raw:
         residuals["probes_mm"] = raw["probes"][0][:, 0].tolist()
-    if "centres" in raw:
-        residuals["centres_mm"] = raw["centres"][0].ravel().tolist()
-    if "poses" in raw:
-        residuals["poses_position_mm"] = raw["poses"][0][:, 3:].ravel().tolist()
-        residuals["poses_rotation_deg"] = np.degrees(raw["poses"][0][:, :3]).ravel().tolist()
-    if "distances" in raw:
-        residuals["distances_mm"] = raw["distances"][0][:, 0].tolist()
+    for level in graph.measurements:
+        residuals.update(BY_LEVEL[level].residual_summary(raw[level][0]))
     if "joints" in raw:
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]

@@ -21,13 +21,14 @@ from functools import cached_property
 import numpy as np
 
 import factors.errors as fx
+from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
 POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
-LEVELS = ("probes", "kinematic", "centres", "poses", "distances", "joints", "prior")
+LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
 
 @dataclass(frozen=True)
@@ -110,10 +111,9 @@ class Graph:
     ball_pose, ball_offset : ndarray, shapes (Nb,), (Nb, 3)
         The ball-centre variables: their pose index and tool-frame offset.
     radius : float
-    centres : tuple (pose_index (Mc,), offset (Mc, 3), xyz (Mc, 3)) or None
-    poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
-    distances : tuple (pose_index (Md,), offset (Md, 3), length (Md,)) or None
-        Ballbar lengths from the world origin (the pivot) to a tool ball.
+    measurements : dict of level to Terms, optional
+        The kinematic measurements (ball centres, poses, ballbar lengths, ...), each a
+        :class:`fgcal.measurements.base.Terms` of its type in :mod:`fgcal.measurements.types`.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
     joint_errors : ndarray, shape (N, n, K), optional
@@ -122,7 +122,7 @@ class Graph:
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
-                 ball_offset=None, radius=0.0, centres=None, poses=None, distances=None, prior=None, robust=None,
+                 ball_offset=None, radius=0.0, measurements=None, prior=None, robust=None,
                  robust_k=None, joint_errors=None):
         self.params = params
         self.index = params.index
@@ -147,9 +147,12 @@ class Graph:
         self.ball_pose = np.zeros(0, dtype=int) if ball_pose is None else np.asarray(ball_pose, dtype=int)
         self.ball_offset = np.zeros((0, 3)) if ball_offset is None else np.asarray(ball_offset, dtype=float)
         self.probes = probes
-        self.centres = centres
-        self.poses = poses
-        self.distances = distances
+        measurements = measurements or {}
+        unknown = set(measurements) - set(BY_LEVEL)
+        if unknown:
+            raise ValueError(f"unknown measurement level(s) {', '.join(sorted(unknown))}")
+        # In registry order: the row layout does not depend on the caller's dict order.
+        self.measurements = {t.level: measurements[t.level] for t in kinematic_levels(measurements)}
 
         # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
         qdim = nj if self.joint_vars else 0
@@ -186,12 +189,8 @@ class Graph:
         self.level_rows = {}
         if nb:
             self.row["kinematic"] = take(self.ball_pose, 3)
-        if centres is not None:
-            self.row["centres"] = take(centres[0], 3)
-        if poses is not None:
-            self.row["poses"] = take(poses[0], 6)
-        if distances is not None:
-            self.row["distances"] = take(distances[0], 1)
+        for level, terms in self.measurements.items():
+            self.row[level] = take(terms.pose, BY_LEVEL[level].width)
         if self.joint_vars and self.K:  # the joint-error block enters the joint rows
             self.row["joints"] = take(np.arange(n), nj)
         self.m_theta = int(rows.max()) if n else 0
@@ -220,16 +219,13 @@ class Graph:
 
     @cached_property
     def pose_rows(self) -> list:
-        """Per pose, the rows that touch only theta and q (centres, poses, joints)."""
-        n = self.n_poses
-        pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", self.n_joints)):
+        """Per pose, the rows that touch only theta and q (kinematic measurements, joints)."""
+        pose_rows = [[] for _ in range(self.n_poses)]
+        for level in [*self.measurements, "joints"]:
             if level in self.row:
-                pose_of = {"centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
-                           "distances": lambda: self.distances[0],
-                           "joints": lambda: np.arange(n)}
-                for p, start in zip(pose_of[level](), self.row[level]):
-                    pose_rows[p] += list(range(int(start), int(start) + width))
+                pose, rows_ = self.factor_rows(level)
+                for p, r in zip(pose.tolist(), rows_):
+                    pose_rows[p] += r.tolist()
         return [np.array(r, dtype=int) for r in pose_rows]
 
     # ------------------------------------------------------------------ evaluation
@@ -280,8 +276,7 @@ class Graph:
             width = e.shape[1]
             ew = e / sigma
             s = np.linalg.norm(ew, axis=1)
-            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses", "distances") else None,
-                             self.robust_k)
+            w, rho = _robust(s, self.robust if level == "probes" or level in BY_LEVEL else None, self.robust_k)
             if level in self.excluded:  # excluded measurements: zero weight, no cost
                 w = np.where(self.excluded[level], 0.0, w)
                 rho = np.where(self.excluded[level], 0.0, rho)
@@ -324,22 +319,11 @@ class Graph:
             J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
-        if self.centres is not None:
-            pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
-            J_t = self._with_block(pose_i, J_t, J_q)
-            put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
-        if self.poses is not None:
-            pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(theta, q[pose_i], T, self.index, self.held, self.chain)
-            J_t = self._with_block(pose_i, J_t, J_q)
-            sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
-            put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
-        if self.distances is not None:
-            pose_i, offset, length = self.distances
-            e, J_t, J_q = fx.distance_error(theta, q[pose_i], offset, length, self.index, self.held, self.chain)
-            J_t = self._with_block(pose_i, J_t, J_q)
-            put("distances", pose_i, self.row["distances"], e, J_t, J_q, sigma=self.sigmas.distance)
+        for level, terms in self.measurements.items():
+            kind = BY_LEVEL[level]
+            e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
+            J_t = self._with_block(terms.pose, J_t, J_q)
+            put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
         if self.joint_vars:
             nj = self.n_joints
             J_t = None
@@ -467,11 +451,12 @@ class Graph:
 
     def factor_rows(self, level: str):
         """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
-        width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
-                 "joints": self.n_joints}[level]
-        pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
-                "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
-                "distances": lambda: self.distances[0], "joints": lambda: np.arange(self.n_poses)}[level]()
+        if level in self.measurements:
+            width, pose = BY_LEVEL[level].width, self.measurements[level].pose
+        else:
+            width = {"probes": 1, "kinematic": 3, "joints": self.n_joints}[level]
+            pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
+                    "joints": lambda: np.arange(self.n_poses)}[level]()
         return np.asarray(pose, dtype=int), self.row[level][:, None] + np.arange(width)
 
     def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
