@@ -152,17 +152,182 @@ def _paper_plan(robot: str):
     return q
 
 
+_UP = np.array([0.0, 0.0, 1.0])  # the CMM's probe comes down from +z (as in fgcal.simulate)
+
+
+def _cross(a, b):
+    """Row-wise cross products of ``(..., 3)`` arrays, in :func:`fgcal.simulate._cap_directions`'s order."""
+    return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                     a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+
+
+@dataclass
+class ProbedPoses:
+    """Simulated CMM probing of a set of poses, every pose with the same number of balls and points.
+
+    Attributes
+    ----------
+    pose_ids : ndarray of int, shape (K,)
+        The poses kept (those with enough reachable balls on the actual robot), 1-based.
+    joints_deg : ndarray, shape (K, n)
+        Controller readings in file units (deg; mm for prismatic joints).
+    ball_names : ndarray of str, shape (K, B)
+        The probed balls of each pose, in the tool's order.
+    points : ndarray, shape (K, B, P, 3)
+        Probe points in the world (mm).
+    """
+
+    pose_ids: np.ndarray
+    joints_deg: np.ndarray
+    ball_names: np.ndarray
+    points: np.ndarray
+
+    def dataset(self, model, noise):
+        """The probes as a :class:`~fgcal.dataset.Dataset` (rows by pose, ball, point, as ``measure`` writes)."""
+        from .dataset import Dataset, PointObservations
+
+        K, B, P, _ = self.points.shape
+        probes = PointObservations(np.repeat(self.pose_ids, B * P), np.repeat(self.ball_names.reshape(-1), P),
+                                   self.points.reshape(-1, 3))
+        return Dataset(robot=model.name, tooling=model.tooling, noise=noise, provenance={}, pose_ids=self.pose_ids,
+                       joints_deg=self.joints_deg, probes=probes)
+
+    def measured_poses(self, tooling, sigma: float):
+        """Tool poses measured as :func:`fgcal.verify.measured_poses` measures probe data.
+
+        Sphere fits of known radius with the residual check (:func:`fgcal.spherefit.fit_spheres_checked`),
+        then a least-squares rigid fit of each pose's three or more good balls with its chi-square
+        check, all vectorised. Returns the rows (into ``pose_ids``) of the accepted poses, ``(K',)``,
+        and their poses ``(K', 4, 4)``.
+        """
+        from .posefit import rigid_fit
+        from .spherefit import fit_spheres_checked
+
+        K, B, P, _ = self.points.shape
+        if K == 0:
+            return np.zeros(0, dtype=int), np.zeros((0, 4, 4))
+        fits = fit_spheres_checked(list(self.points.reshape(K * B, P, 3)), tooling.radius, sigma)
+        good = np.array([f.ok for f in fits]).reshape(K, B)
+        centre = np.array([f.centre for f in fits]).reshape(K, B, 3)
+        var = np.array([np.trace(f.covariance) / 3 if f.ok else np.nan for f in fits]).reshape(K, B)
+        tool = np.array([tooling.balls[b] for b in self.ball_names.reshape(-1)], dtype=float).reshape(K, B, 3)
+        T = np.full((K, 4, 4), np.nan)
+        ok = np.zeros(K, dtype=bool)
+        whole = good.all(axis=1)
+        if B >= 3 and whole.any():
+            ok[whole], T[whole] = rigid_fits(tool[whole], centre[whole], np.sqrt(var[whole].mean(axis=1)))
+        for k in np.nonzero(~whole & (good.sum(axis=1) >= 3))[0]:  # a ball failed its check: the other balls
+            g = good[k]
+            fit = rigid_fit(tool[k, g], centre[k, g], sigma=float(np.sqrt(var[k, g].mean())))
+            ok[k], T[k] = fit.ok, fit.T
+        rows = np.nonzero(ok)[0]
+        return rows, T[rows]
+
+
+def rigid_fits(tool, world, sigma):
+    """:func:`fgcal.posefit.rigid_fit` (Kabsch, with its collinearity and chi-square checks) for many poses.
+
+    Parameters
+    ----------
+    tool, world : ndarray, shape (K, n, 3)
+        Ball centres in the tool frame and as measured in the world (mm), n >= 3.
+    sigma : ndarray, shape (K,)
+        Per-coordinate noise of each pose's centres (mm).
+
+    Returns
+    -------
+    ok : ndarray of bool, shape (K,)
+    T : ndarray, shape (K, 4, 4)
+    """
+    from .spherefit import FALSE_ALARM, MIN_THRESHOLD_MM, chi2_quantile
+
+    K, n, _ = tool.shape
+    pc, wc = tool.mean(axis=1), world.mean(axis=1)
+    H = np.einsum("kni,knj->kij", tool - pc[:, None], world - wc[:, None])
+    U, S, Vt = np.linalg.svd(H)
+    V, Ut = np.swapaxes(Vt, 1, 2), np.swapaxes(U, 1, 2)
+    D = np.ones((K, 3))
+    D[:, 2] = np.sign(np.linalg.det(V @ Ut))
+    R = (V * D[:, None, :]) @ Ut
+    t = wc - np.einsum("kij,kj->ki", R, pc)
+    resid = world - (tool @ np.swapaxes(R, 1, 2) + t[:, None])
+    rms = np.sqrt(np.mean(np.sum(resid**2, axis=2), axis=1))
+    bound = float(np.sqrt(chi2_quantile(1 - FALSE_ALARM, 3 * n - 6) / n))
+    threshold = np.where(sigma <= 0, MIN_THRESHOLD_MM, np.maximum(MIN_THRESHOLD_MM, sigma * bound))
+    ok = (S[:, 1] >= 1e-9 * np.maximum(S[:, 0], 1e-300)) & (rms <= threshold)
+    T = np.zeros((K, 4, 4))
+    T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = R, t, 1.0
+    return ok, T
+
+
+def simulate_probes(model, slots, q_commanded, rng: np.random.Generator, tooling, noise, volume=None,
+                    n_balls: int = 3, probes_per_ball: int = 4) -> ProbedPoses:
+    """:func:`fgcal.simulate.measure` of probe points (no outliers), vectorised.
+
+    The same random stream as ``measure`` (the arm's landing error, then per probed ball the cap's
+    uniform draws and the points' CMM noise), so the same points to rounding; only the per-ball
+    random draws remain a loop.
+
+    Parameters
+    ----------
+    slots : ndarray, shape (S,)
+        The actual robot (mm, rad).
+    q_commanded : array_like, shape (N, n)
+        Commanded joints (rad, mm).
+    """
+    from .simulate import ball_access
+
+    q = np.atleast_2d(np.asarray(q_commanded, dtype=float))
+    q_actual = q + rng.normal(size=q.shape) * model.joints_to_internal(np.full(model.n_joints, noise.repeatability))
+    reading = model.joints_to_file_units(q)
+    if noise.joint_resolution > 0:
+        reading = np.round(reading / noise.joint_resolution) * noise.joint_resolution
+    T = model.forward(slots, q_actual)
+    ok, upness, centres = ball_access(T, tooling, volume)
+    keep = np.nonzero(ok.sum(axis=1) >= n_balls)[0]
+    # The most upward-facing reachable balls (stable among equals), in the tool's order.
+    balls = np.sort(np.argsort(np.where(ok, -upness, np.inf), axis=1, kind="stable")[keep, :n_balls], axis=1)
+    K, B, P = len(keep), n_balls, probes_per_ball
+    n_ring = P - 1
+    u = np.empty((K, B, 2 * n_ring + 1))
+    g = np.empty((K, B, P, 3))
+    for k in range(K):
+        for b in range(B):
+            u[k, b] = rng.random(2 * n_ring + 1)  # = uniform(0, 2 pi), then (uniform(45, 75), uniform(-0.2, 0.2))
+            g[k, b] = rng.normal(size=(P, 3))
+    names = np.array(tooling.names)
+    unit = np.array([tooling.balls[nm] / np.linalg.norm(tooling.balls[nm]) for nm in names])[balls]  # (K, B, 3)
+    outward = np.einsum("kij,kbj->kbi", T[keep, :3, :3], unit)
+    axis = outward + _UP
+    axis = axis / np.linalg.norm(axis, axis=2, keepdims=True)
+    helper = np.where((np.abs(axis[..., 0]) < 0.9)[..., None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    e1 = _cross(axis, helper)
+    e1 = e1 / np.linalg.norm(e1, axis=2, keepdims=True)
+    e2 = _cross(axis, e1)
+    start = 0.0 + 2 * np.pi * u[..., :1]
+    polar = np.radians(45.0 + 30.0 * u[..., 1::2])
+    az = start + 2 * np.pi * np.arange(n_ring) / max(n_ring, 1) + (-0.2 + 0.4 * u[..., 2::2])
+    ring = (np.cos(polar)[..., None] * axis[:, :, None]
+            + np.sin(polar)[..., None] * (np.cos(az)[..., None] * e1[:, :, None] + np.sin(az)[..., None] * e2[:, :, None]))
+    dirs = np.concatenate([axis[:, :, None], ring], axis=2)[:, :, :P]
+    c = centres[keep[:, None], balls]  # (K, B, 3)
+    points = c[:, :, None] + tooling.radius * dirs + g * noise.cmm_sigma
+    return ProbedPoses(np.arange(1, len(q) + 1)[keep], reading[keep], names[balls], points)
+
+
 def run_trial(trial: Trial, q_identify=None) -> dict:
     """Simulate, calibrate and verify one trial; a row of :data:`RESULT_COLUMNS`.
 
     ``q_identify`` (N, 6) rad fixes the identification poses (a designed plan); the trial's own
-    random draw is used otherwise.
+    random draw is used otherwise. The simulation and the verification's sphere and pose fits are
+    the vectorised forms of :func:`fgcal.simulate.measure` and :func:`fgcal.verify.measured_poses`
+    (same random stream, same estimators and checks: the same numbers, to rounding).
     """
     from .calibrate import calibrate
     from .dataset import Noise
-    from .simulate import draw_truth, measure, random_plan
     from .kinematics import forward
-    from .verify import compare_poses, measured_poses
+    from .simulate import draw_truth, random_plan
+    from .verify import compare_poses
 
     t0 = time.perf_counter()
     model = _model(trial.robot)
@@ -171,12 +336,9 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     truth = draw_truth(model, rng)
     noise = Noise(trial.cmm_sigma, trial.joint_resolution, trial.repeatability)
     measured_pos = measured_ori = float("nan")
-    from .dataset import Dataset
 
-    def dataset(q):
-        ids, joints, probes, _, _, _, _, skipped = measure(model, truth, q, rng, model.tooling, noise, model.volume)
-        return Dataset(robot=model.name, tooling=model.tooling, noise=noise, provenance={}, pose_ids=ids,
-                       joints_deg=joints, probes=probes)
+    def probe(q):
+        return simulate_probes(model, truth, q, rng, model.tooling, noise, model.volume)
 
     if trial.plan == "experiment":
         plan = _paper_plan(trial.robot)
@@ -189,16 +351,17 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
         verify_q = random_plan(model, truth, trial.n_verify, rng, model.tooling, model.volume)
     if trial.q_plan and q_identify is None:
         q_id = np.array(trial.q_plan, dtype=float)
-    ident = dataset(q_id)
-    result = calibrate(ident, model)
-    ver = dataset(verify_q)
-    q_ver = ver.joints_rad
-    after = compare_poses(forward(result.slot_vector(), q_ver), forward(truth, q_ver)).summary()
+    result = calibrate(probe(q_id).dataset(model, noise), model)
+    ver = probe(verify_q)
+    q_ver = np.radians(ver.joints_deg)
+    x = result.slot_vector()
+    T_cal = forward(x, q_ver)
+    after = compare_poses(T_cal, forward(truth, q_ver)).summary()
     pos_rms, pos_max = after["position_mm"]["rms"], after["position_mm"]["max"]
     ori_rms, ori_max = after["orientation_deg"]["rms"], after["orientation_deg"]["max"]
-    ids, T_meas, _ = measured_poses(ver)
-    if len(ids):
-        against = compare_poses(forward(result.slot_vector(), ver.joints_rad[ver.row_of(ids)]), T_meas).summary()
+    rows, T_meas = ver.measured_poses(model.tooling, noise.cmm_sigma)
+    if len(rows):
+        against = compare_poses(T_cal[rows], T_meas).summary()
         measured_pos = against["position_mm"]["rms"]
         measured_ori = against["orientation_deg"]["rms"]
     row = asdict(trial)
