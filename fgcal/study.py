@@ -142,12 +142,19 @@ def _model(robot: str):
     return load_model(robot)
 
 
+def prepare_process(robots) -> None:
+    """Import what a trial uses and read the ``robots``' models, so that forked workers inherit them."""
+    from . import calibrate, kinematics, simulate, spherefit, verify  # noqa: F401
+
+    for robot in robots:
+        _model(robot)
+
+
 @lru_cache(maxsize=4)
 def _paper_plan(robot: str):
-    from .robot_file import load_model
     from .simulate import paper_plan
 
-    model = load_model(robot)
+    model = _model(robot)
     q, _, _ = paper_plan(model, np.random.default_rng(1993), model.tooling, model.volume)
     return q
 
@@ -195,22 +202,26 @@ class ProbedPoses:
     def measured_poses(self, tooling, sigma: float):
         """Tool poses measured as :func:`fgcal.verify.measured_poses` measures probe data.
 
-        Sphere fits of known radius with the residual check (:func:`fgcal.spherefit.fit_spheres_checked`),
+        Sphere fits of known radius with the residual check (as :func:`fgcal.spherefit.fit_spheres_checked`),
         then a least-squares rigid fit of each pose's three or more good balls with its chi-square
         check, all vectorised. Returns the rows (into ``pose_ids``) of the accepted poses, ``(K',)``,
         and their poses ``(K', 4, 4)``.
         """
         from .posefit import rigid_fit
-        from .spherefit import fit_spheres_checked
+        from .spherefit import fit_sphere, fit_spheres_arrays
 
         K, B, P, _ = self.points.shape
         if K == 0:
             return np.zeros(0, dtype=int), np.zeros((0, 4, 4))
-        fits = fit_spheres_checked(list(self.points.reshape(K * B, P, 3)), tooling.radius, sigma)
-        good = np.array([f.ok for f in fits]).reshape(K, B)
-        centre = np.array([f.centre for f in fits]).reshape(K, B, 3)
-        var = np.array([np.trace(f.covariance) / 3 if f.ok else np.nan for f in fits]).reshape(K, B)
-        tool = np.array([tooling.balls[b] for b in self.ball_names.reshape(-1)], dtype=float).reshape(K, B, 3)
+        pts = self.points.reshape(K * B, P, 3)
+        centre, _, _, cov, good = fit_spheres_arrays(pts, tooling.radius, sigma)
+        var = np.trace(cov, axis1=1, axis2=2) / 3
+        for i in np.nonzero(~good)[0]:  # fit_spheres_checked's path: the full diagnosis decides
+            fit = fit_sphere(pts[i], radius=tooling.radius, sigma=sigma)
+            good[i], centre[i], var[i] = fit.ok, fit.centre, np.trace(fit.covariance) / 3
+        good, centre, var = good.reshape(K, B), centre.reshape(K, B, 3), var.reshape(K, B)
+        names, which = np.unique(self.ball_names, return_inverse=True)
+        tool = tooling.offsets(names)[which.reshape(K, B)]
         T = np.full((K, 4, 4), np.nan)
         ok = np.zeros(K, dtype=bool)
         whole = good.all(axis=1)

@@ -187,3 +187,30 @@ def test_vectorised_verification_poses_match_measured_poses(puma):
     assert 3 in rows.tolist() and 7 not in rows.tolist() and 11 not in rows.tolist()
     assert np.array_equal(probed.pose_ids[rows], ids)
     np.testing.assert_allclose(T_fast, T_slow, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["fork", "spawn"])
+def test_workers_give_the_numbers_of_this_process(tmp_path, monkeypatch, method):
+    """Forked workers (inheriting the imports and the robot model) and spawned ones compute what
+    this process computes."""
+    import multiprocessing
+
+    import fgcal.study_run as study_run
+
+    if method == "fork" and not hasattr(__import__("os"), "fork"):
+        pytest.skip("no fork on this platform")
+    chosen, real = [], study_run._worker_context
+
+    def context(todo):
+        chosen.append(real(todo)._name if method == "fork" else method)
+        return multiprocessing.get_context(chosen[-1])
+
+    monkeypatch.setattr(study_run, "_worker_context", context)
+    trials = trials_for("fig13", trials=3, poses=8, seed=4)
+    rows = run_study(trials, tmp_path, workers=2, progress=False)
+    if method == "fork":
+        assert chosen == ["fork"] or not sys.platform.startswith("linux")
+    here = {t.trial: run_trial(t) for t in trials}
+    for r in rows:
+        for k in ("position_rms_mm", "orientation_max_deg", "measured_position_rms_mm"):
+            assert r[k] == here[r["trial"]][k]
