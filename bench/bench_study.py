@@ -56,7 +56,7 @@ class _Timed:
 
 def _trial_cpu(trial):
     """A study runner that reports each trial's CPU (s) in its ``seconds`` column."""
-    from fgcal.study import run_trial
+    from fgcal.studies.study import run_trial
 
     c0 = time.process_time()
     row = run_trial(trial)
@@ -69,10 +69,12 @@ def main():
     ap.add_argument("--trials", type=int, default=100)
     ap.add_argument("--dask", action="store_true", help="also run the study on a Dask LocalCluster of 2 workers")
     args = ap.parse_args()
-    from fgcal.study import ProbedPoses, run_trial, trials_for
-    from fgcal.study_run import run_study
+    from fgcal.studies.probing import ProbedPoses
+    from fgcal.studies.study import run_trial, trials_for
+    from fgcal.studies.study_run import run_study
 
-    cal_mod, sim_mod, study_mod = (importlib.import_module(f"fgcal.{m}") for m in ("calibrate", "simulate", "study"))
+    cal_mod, sim_mod, probing = (importlib.import_module(f"fgcal.{m}") for m in
+                                 ("estimation.calibrate", "studies.simulate", "studies.probing"))
     trials = trials_for("fig13", trials=args.trials, poses=12, seed=7)
     run_trial(trials[0])  # warm: imports, the robot model, the paper's chi-square bounds
 
@@ -80,7 +82,7 @@ def main():
     # so that both see the same load on a shared machine)
     bare = 0.0
     with _Timed(cal_mod, "calibrate", keep_arg=True) as cal, _Timed(sim_mod, "random_plan") as plan, \
-            _Timed(study_mod, "simulate_probes") as sim, _Timed(ProbedPoses, "measured_poses") as ver:
+            _Timed(probing, "simulate_probes") as sim, _Timed(ProbedPoses, "measured_poses") as ver:
         trial_cpu = 0.0
         for t in trials:
             c0 = time.process_time()

@@ -5,8 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.study import RESULT_COLUMNS, run_trial, trials_for
-from fgcal.study_run import read_rows, run_study, study_figures
+from fgcal.studies.study import RESULT_COLUMNS, run_trial, trials_for
+from fgcal.studies.study_run import read_rows, run_study, study_figures
 
 
 def test_trial_is_reproducible_and_sane():
@@ -69,17 +69,17 @@ def test_cli_study_and_figures(tmp_path):
 # --- the vectorised trial against the unchanged slow path ------------------------------------------------------
 
 def _reference_trial(trial):
-    """The trial as computed before the vectorised path: fgcal.simulate.measure for every pose set and
-    fgcal.verify.measured_poses (per-ball sphere fits, per-pose rigid fits) for the verification."""
+    """The trial as computed before the vectorised path: fgcal.studies.simulate.measure for every pose set and
+    fgcal.report.verify.measured_poses (per-ball sphere fits, per-pose rigid fits) for the verification."""
     import zlib
     from dataclasses import asdict
 
-    from fgcal.calibrate import calibrate
-    from fgcal.dataset import Dataset, Noise
-    from fgcal.kinematics import forward
-    from fgcal.robot_file import load_model
-    from fgcal.simulate import draw_truth, measure, paper_plan, random_plan
-    from fgcal.verify import compare_poses, measured_poses
+    from fgcal.estimation.calibrate import calibrate
+    from fgcal.measurements.dataset import Dataset, Noise
+    from fgcal.robots.kinematics import forward
+    from fgcal.robots.robot_file import load_model
+    from fgcal.studies.simulate import draw_truth, measure, paper_plan, random_plan
+    from fgcal.report.verify import compare_poses, measured_poses
 
     model = load_model(trial.robot)
     rng = np.random.default_rng([trial.seed, trial.trial, zlib.crc32(trial.study.encode())])
@@ -115,23 +115,23 @@ def test_trial_equals_the_slow_path(study, index):
     """Same seeds, same estimates, same verification numbers as the per-ball, per-pose path
     (fig13 trial 0 has two verification poses rejected by the fit checks; the experiment trial has
     a landing error, so the arm's actual joints differ from the commanded ones)."""
-    import fgcal.study as study_module
+    import fgcal.studies.probing as probing
 
     trial = trials_for(study, trials=10 if study == "experiment" else 1, poses=12)[index]
     ref = _reference_trial(trial)
     captured = {}
-    real = study_module.ProbedPoses.measured_poses
+    real = probing.ProbedPoses.measured_poses
 
     def spy(self, tooling, sigma):
         rows, T = real(self, tooling, sigma)
         captured["n"] = len(rows)
         return rows, T
 
-    study_module.ProbedPoses.measured_poses = spy
+    probing.ProbedPoses.measured_poses = spy
     try:
         row = run_trial(trial)
     finally:
-        study_module.ProbedPoses.measured_poses = real
+        probing.ProbedPoses.measured_poses = real
     assert captured["n"] == ref["n_measured"]
     if study == "fig13":
         assert ref["n_measured"] == 48  # the two rejections are part of what is compared
@@ -142,11 +142,11 @@ def test_trial_equals_the_slow_path(study, index):
 
 
 def test_simulated_probes_are_measure_s(puma):
-    """The vectorised probing draws the same random stream as fgcal.simulate.measure: the same points,
+    """The vectorised probing draws the same random stream as fgcal.studies.simulate.measure: the same points,
     readings and kept poses (poses outside the volume dropped), and the generator ends in the same state."""
-    from fgcal.dataset import Noise
-    from fgcal.simulate import draw_truth, measure, random_plan
-    from fgcal.study import simulate_probes
+    from fgcal.measurements.dataset import Noise
+    from fgcal.studies.simulate import draw_truth, measure, random_plan
+    from fgcal.studies.probing import simulate_probes
 
     rng = np.random.default_rng(5)
     truth = draw_truth(puma, rng)
@@ -168,10 +168,10 @@ def test_simulated_probes_are_measure_s(puma):
 def test_vectorised_verification_poses_match_measured_poses(puma):
     """Four balls a pose, a gross error on one ball of one pose and on two balls of another: the
     vectorised sphere and rigid fits accept and reject the same poses as measured_poses, same poses."""
-    from fgcal.dataset import Noise
-    from fgcal.simulate import draw_truth, random_plan
-    from fgcal.study import simulate_probes
-    from fgcal.verify import measured_poses
+    from fgcal.measurements.dataset import Noise
+    from fgcal.studies.simulate import draw_truth, random_plan
+    from fgcal.studies.probing import simulate_probes
+    from fgcal.report.verify import measured_poses
 
     rng = np.random.default_rng(3)
     truth = draw_truth(puma, rng)
@@ -192,25 +192,26 @@ def test_vectorised_verification_poses_match_measured_poses(puma):
 @pytest.mark.parametrize("method", ["fork", "spawn"])
 def test_workers_give_the_numbers_of_this_process(tmp_path, monkeypatch, method):
     """Forked workers (inheriting the imports and the robot model) and spawned ones compute what
-    this process computes."""
+    this process computes; fork is chosen on Linux from a process with no other thread."""
     import multiprocessing
+    import threading
 
-    import fgcal.study_run as study_run
+    import fgcal.studies.study_run as study_run
+    from fgcal.studies.study import prepare_process
 
-    if method == "fork" and not hasattr(__import__("os"), "fork"):
+    if method == "fork" and "fork" not in multiprocessing.get_all_start_methods():
         pytest.skip("no fork on this platform")
-    chosen, real = [], study_run._worker_context
-
-    def context(todo):
-        chosen.append(real(todo)._name if method == "fork" else method)
-        return multiprocessing.get_context(chosen[-1])
-
-    monkeypatch.setattr(study_run, "_worker_context", context)
     trials = trials_for("fig13", trials=3, poses=8, seed=4)
+    real = study_run._worker_context
+    for threads, expected in ((1, "fork" if sys.platform.startswith("linux") else "spawn"), (2, "spawn")):
+        monkeypatch.setattr(threading, "active_count", lambda: threads)
+        assert real(trials).get_start_method() == expected
+    monkeypatch.undo()
+    monkeypatch.setattr(study_run, "_worker_context", lambda todo: (
+        prepare_process({t.robot for t in todo}), multiprocessing.get_context(method))[1])
     rows = run_study(trials, tmp_path, workers=2, progress=False)
-    if method == "fork":
-        assert chosen == ["fork"] or not sys.platform.startswith("linux")
     here = {t.trial: run_trial(t) for t in trials}
+    assert len(rows) == 3
     for r in rows:
         for k in ("position_rms_mm", "orientation_max_deg", "measured_position_rms_mm"):
             assert r[k] == here[r["trial"]][k]
