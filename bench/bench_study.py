@@ -147,7 +147,8 @@ def main():
         ba = _before_after(trials[:args.before], cal_mod, probing)
         m = min(args.before, len(trials))
         print(f"{m} trials, before issue 16 / now (interleaved): {1000 * ba['before'][0] / m:.1f} / "
-              f"{1000 * ba['now'][0] / m:.1f} ms CPU a trial, {ba['before'][1]:.2f} / {ba['now'][1]:.2f}x its calibration")
+              f"{1000 * ba['now'][0] / m:.1f} ms CPU a trial, {ba['before'][1]:.2f} / {ba['now'][1]:.2f}x its "
+              "calibration")
 
     # 1. a trial against its calibration inside it, and against the same calibration bare (interleaved,
     # so that both see the same load on a shared machine)
@@ -170,7 +171,8 @@ def main():
           f"{1000 * bare / n:.1f} ms bare: ratio {trial_cpu / cal.cpu:.2f} ({trial_cpu / bare:.2f} to the bare one)")
     other = trial_cpu - cal.cpu - plan.cpu - sim.cpu - ver.cpu
     print(f"  besides the calibration, per trial: plans {1000 * plan.cpu / n:.1f} ms, probe simulation "
-          f"{1000 * sim.cpu / n:.1f} ms, verification fits {1000 * ver.cpu / n:.1f} ms, the rest {1000 * other / n:.1f} ms")
+          f"{1000 * sim.cpu / n:.1f} ms, verification fits {1000 * ver.cpu / n:.1f} ms, the rest "
+          f"{1000 * other / n:.1f} ms")
 
     # 2. the study on 2 worker processes against the same calibrations, bare, on 2 worker processes
     from concurrent.futures import ProcessPoolExecutor

@@ -104,7 +104,8 @@ def _reference_trial(trial):
     ids, T_meas, _ = measured_poses(ver)
     against = compare_poses(forward(result.slot_vector(), ver.joints_rad[ver.row_of(ids)]), T_meas).summary()
     return {"position_rms_mm": after["position_mm"]["rms"], "position_max_mm": after["position_mm"]["max"],
-            "orientation_rms_deg": after["orientation_deg"]["rms"], "orientation_max_deg": after["orientation_deg"]["max"],
+            "orientation_rms_deg": after["orientation_deg"]["rms"],
+            "orientation_max_deg": after["orientation_deg"]["max"],
             "measured_position_rms_mm": against["position_mm"]["rms"],
             "measured_orientation_rms_deg": against["orientation_deg"]["rms"], "n_measured": len(ids),
             "estimate": result.slot_vector(), "settings": asdict(trial)}

@@ -14,9 +14,6 @@ import numpy as np
 
 __all__ = ["ProbedPoses", "rigid_fits", "simulate_probes"]
 
-_UP = np.array([0.0, 0.0, 1.0])  # the CMM's probe comes down from +z (as in fgcal.studies.simulate)
-
-
 def _cross(a, b):
     """Row-wise cross products of ``(..., 3)`` arrays, in :func:`fgcal.studies.simulate._cap_directions`'s order."""
     return np.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1], a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
@@ -45,7 +42,7 @@ class ProbedPoses:
     points: np.ndarray
 
     def dataset(self, model, noise):
-        """The probes as a :class:`~fgcal.measurements.dataset.Dataset` (rows by pose, ball, point, as ``measure`` writes)."""
+        """The probes as a :class:`~fgcal.measurements.dataset.Dataset` (by pose, ball, point, as ``measure``)."""
         from fgcal.measurements.dataset import Dataset, PointObservations
 
         K, B, P, _ = self.points.shape
@@ -57,9 +54,9 @@ class ProbedPoses:
     def measured_poses(self, tooling, sigma: float):
         """Tool poses measured as :func:`fgcal.report.verify.measured_poses` measures probe data.
 
-        Sphere fits of known radius with the residual check (as :func:`fgcal.measurements.spherefit.fit_spheres_checked`),
-        then a least-squares rigid fit of each pose's three or more good balls with its chi-square
-        check, all vectorised. Returns the rows (into ``pose_ids``) of the accepted poses, ``(K',)``,
+        Sphere fits of known radius with the residual check (as
+        :func:`fgcal.measurements.spherefit.fit_spheres_checked`), then a least-squares rigid fit of
+        each pose's three or more good balls with its chi-square check, all vectorised. Returns the rows (into ``pose_ids``) of the accepted poses, ``(K',)``,
         and their poses ``(K', 4, 4)``.
         """
         from fgcal.measurements.posefit import rigid_fit
@@ -91,7 +88,7 @@ class ProbedPoses:
 
 
 def rigid_fits(tool, world, sigma):
-    """:func:`fgcal.measurements.posefit.rigid_fit` (Kabsch, with its collinearity and chi-square checks) for many poses.
+    """:func:`fgcal.measurements.posefit.rigid_fit` (Kabsch, its collinearity and chi-square checks), many poses.
 
     Parameters
     ----------
@@ -141,7 +138,7 @@ def simulate_probes(model, slots, q_commanded, rng: np.random.Generator, tooling
     q_commanded : array_like, shape (N, n)
         Commanded joints (rad, mm).
     """
-    from fgcal.studies.simulate import ball_access
+    from fgcal.studies.simulate import UP, ball_access
 
     q = np.atleast_2d(np.asarray(q_commanded, dtype=float))
     q_actual = q + rng.normal(size=q.shape) * model.joints_to_internal(np.full(model.n_joints, noise.repeatability))
@@ -164,7 +161,7 @@ def simulate_probes(model, slots, q_commanded, rng: np.random.Generator, tooling
     names = np.array(tooling.names)
     unit = np.array([tooling.balls[nm] / np.linalg.norm(tooling.balls[nm]) for nm in names])[balls]  # (K, B, 3)
     outward = np.einsum("kij,kbj->kbi", T[keep, :3, :3], unit)
-    axis = outward + _UP
+    axis = outward + UP
     axis = axis / np.linalg.norm(axis, axis=2, keepdims=True)
     helper = np.where((np.abs(axis[..., 0]) < 0.9)[..., None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
     e1 = _cross(axis, helper)
@@ -174,7 +171,8 @@ def simulate_probes(model, slots, q_commanded, rng: np.random.Generator, tooling
     polar = np.radians(45.0 + 30.0 * u[..., 1::2])
     az = start + 2 * np.pi * np.arange(n_ring) / max(n_ring, 1) + (-0.2 + 0.4 * u[..., 2::2])
     ring = (np.cos(polar)[..., None] * axis[:, :, None]
-            + np.sin(polar)[..., None] * (np.cos(az)[..., None] * e1[:, :, None] + np.sin(az)[..., None] * e2[:, :, None]))
+            + np.sin(polar)[..., None] * (np.cos(az)[..., None] * e1[:, :, None]
+                                          + np.sin(az)[..., None] * e2[:, :, None]))
     dirs = np.concatenate([axis[:, :, None], ring], axis=2)[:, :, :P]
     c = centres[keep[:, None], balls]  # (K, B, 3)
     points = c[:, :, None] + tooling.radius * dirs + g * noise.cmm_sigma
