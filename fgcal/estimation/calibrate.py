@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from fgcal import __version__
-from fgcal.measurements.dataset import LEVELS, Dataset
-from fgcal.measurements.types import BY_LEVEL, kinematic_levels
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import BY_LEVEL, all_levels, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.holding import held_parameters, holding_cost
@@ -137,8 +137,8 @@ def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
     if options.levels is None:
         return present
     for lv in options.levels:
-        if lv not in LEVELS:
-            raise FgcalError(f"unknown level {lv!r} ({', '.join(LEVELS)})")
+        if lv not in all_levels():
+            raise FgcalError(f"unknown level {lv!r} ({', '.join(all_levels())})")
         if lv not in present:
             raise FgcalError(f"{ds.path or 'dataset'}: has no {lv} (it has: {', '.join(present) or 'none'})")
     return list(options.levels)
