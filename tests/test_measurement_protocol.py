@@ -11,7 +11,7 @@ import pytest
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.measurements import types
-from fgcal.measurements.base import KinematicMeasurement, Terms
+from fgcal.measurements.base import KinematicMeasurement, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.measurements.dataset import Noise
 from fgcal.report.verify import verify
@@ -20,23 +20,13 @@ from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @dataclass
-class HeightObservations:
+class HeightObservations(ObservationRows):
     pose: np.ndarray
     ball: np.ndarray
     z: np.ndarray
     line: np.ndarray | None = None
 
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
-        self.z = np.asarray(self.z, dtype=float).reshape(-1)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask):
-        return HeightObservations(self.pose[mask], self.ball[mask], self.z[mask], self.line[mask])
+    ROW_SHAPES = {"z": ()}
 
 
 class HeightMeasurement(KinematicMeasurement):
