@@ -24,7 +24,8 @@ from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
                     scaled_inverse, update_sigmas)
 from fgcal.measurements.posefit import rigid_fit
-from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate, ResidualSummary
+from fgcal.estimation.residuals import at_readings, pose_residuals
+from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from fgcal.studies.simulate import Deviations
 from fgcal.robots.transforms import to_euler_zyx_trans
@@ -408,29 +409,6 @@ def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
     return graph.covariance(state, lin)
 
 
-def _at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
-    """Residuals with the joints at their readings and centres on the kinematics (the training error)."""
-    if not graph.joint_vars:
-        return {}
-    at = state.copy()
-    at.q = graph.readings.copy()
-    if len(graph.ball_pose):
-        T = graph.params.model.forward(graph.params.full(state.theta, graph.held), at.q[graph.ball_pose])
-        at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
-    raw = graph.linearise(at).raw
-    out = {}
-    for level in ("probes", *BY_LEVEL):
-        if level not in raw:
-            continue
-        e = raw[level][0][~graph.excluded.get(level, np.zeros(len(raw[level][0]), dtype=bool))]
-        if level in BY_LEVEL:
-            dist, angle = BY_LEVEL[level].metric(e)
-            out[level] = ResidualSummary(len(e), _rms(dist), "mm", None if angle is None else _rms(angle))
-        else:
-            out[level] = ResidualSummary(len(e), _rms(np.linalg.norm(e.reshape(len(e), -1), axis=1)), "mm")
-    return out
-
-
 def _measured_points(ds: Dataset, levels) -> np.ndarray | str:
     if "poses" in levels:
         return "pose"
@@ -490,6 +468,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         graph, state, pose_ids = build_graph(ds, model, names, options)
         lin = None
 
+    theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     state, iterations, converged = _solve(graph, state, options)
     declared = graph.sigmas
     if options.estimate_noise:
@@ -570,7 +549,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         noise_mode=noise_mode.value, noise=noise_table, outliers=outliers,
         fit_test={"statistic": float(ssq_declared), "redundancy": float(red_total),
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
-        at_readings=_at_readings(graph, state),
+        at_readings=at_readings(graph, state), pose_residuals=pose_residuals(graph, state, theta_start, pose_ids),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
 
 
