@@ -73,6 +73,7 @@ class KinematicMeasurement(ABC):
     width: int
     per_ball: bool = True
     title: str = ""
+    noun: str = "measurement"
 
     # ------------------------------------------------------------------ model
     @abstractmethod
@@ -116,16 +117,18 @@ class KinematicMeasurement(ABC):
 
     # ------------------------------------------------------------------ data
     @abstractmethod
-    def simulate(self, T, offsets, rng: np.random.Generator, noise) -> tuple:
-        """Noisy measurements ``(payload arrays)`` of the true tool poses ``T`` (M, 4, 4), of balls ``offsets``."""
+    def simulate(self, T, offsets, rng: np.random.Generator, noise) -> np.ndarray:
+        """Noisy measurements of the true tool poses ``T`` (M, 4, 4) and balls ``offsets`` (M, 3), as
+        the values (M, k) :meth:`parse` gives for a file row; ``noise`` is the dataset's ``Noise``."""
 
     @abstractmethod
     def parse(self, where: str, record: dict, balls: dict) -> tuple:
-        """One file row (a dict of column to text) as ``(pose id, ball or "", values)``; raises ``DatasetError``."""
+        """One file row (a dict of column to text; its pose is read by the caller) as
+        ``(ball or "", values (k,))``; raises ``DatasetError`` naming ``where``."""
 
     @abstractmethod
-    def observations(self, pose, ball, values, line):
-        """The level's observations object from parsed rows (arrays)."""
+    def observations(self, pose, ball, values, line=None):
+        """The level's observations from rows: pose ids (M,), balls (M,), values (M, k), file lines (M,)."""
 
     @abstractmethod
     def rows(self, obs):

@@ -62,6 +62,7 @@ class DistanceMeasurement(KinematicMeasurement):
     width = 1
     per_ball = True
     title = "ballbar lengths"
+    noun = "length"
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import distance_error
@@ -79,10 +80,10 @@ class DistanceMeasurement(KinematicMeasurement):
     def design_data(self, forward, offsets) -> tuple:
         return (offsets, np.linalg.norm(tool_points(forward, offsets[:, None, :])[:, 0], axis=1))
 
-    def simulate(self, T, offsets, rng, noise) -> tuple:
+    def simulate(self, T, offsets, rng, noise) -> np.ndarray:
         sd = noise.distance_sigma if noise.distance_sigma is not None else noise.cmm_sigma
         length = np.linalg.norm(tool_points(T, offsets[:, None, :])[:, 0], axis=1)
-        return (offsets, length + np.array([rng.normal() for _ in length]) * sd)
+        return (length + rng.normal(size=len(length)) * sd)[:, None]
 
     def parse(self, where, record, balls):
         b = ball_name(record["ball"], where, balls)
@@ -91,7 +92,7 @@ class DistanceMeasurement(KinematicMeasurement):
             raise DatasetError(f"{where}: length must be positive (mm), got {value!r}")
         return b, np.array([value])
 
-    def observations(self, pose, ball, values, line):
+    def observations(self, pose, ball, values, line=None):
         return DistanceObservations(pose, ball, np.asarray(values, dtype=float).reshape(-1), line)
 
     def rows(self, obs: DistanceObservations):

@@ -10,7 +10,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.errors import DatasetError
 from fgcal.measurements.base import KinematicMeasurement, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
@@ -60,6 +59,7 @@ class PointMeasurement(KinematicMeasurement):
     width = 3
     per_ball = True
     title = "ball centres"
+    noun = "centre"
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import ball_centre_error
@@ -84,15 +84,15 @@ class PointMeasurement(KinematicMeasurement):
     def design_data(self, forward, offsets) -> tuple:
         return (offsets, tool_points(forward, offsets[:, None, :])[:, 0])
 
-    def simulate(self, T, offsets, rng, noise) -> tuple:
+    def simulate(self, T, offsets, rng, noise) -> np.ndarray:
         c = tool_points(T, offsets[:, None, :])[:, 0]
-        return (offsets, c + rng.normal(size=c.shape) * noise.cmm_sigma)
+        return c + rng.normal(size=c.shape) * noise.cmm_sigma
 
     def parse(self, where, record, balls):
         b = ball_name(record["ball"], where, balls)
         return b, np.array([number(record[c], where, c) for c in "xyz"])
 
-    def observations(self, pose, ball, values, line):
+    def observations(self, pose, ball, values, line=None):
         return PointObservations(pose, ball, np.asarray(values, dtype=float).reshape(-1, 3), line)
 
     def rows(self, obs: PointObservations):

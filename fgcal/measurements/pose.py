@@ -68,6 +68,7 @@ class PoseMeasurement(KinematicMeasurement):
     width = 6
     per_ball = False
     title = "tool poses"
+    noun = "pose"
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import pose_error
@@ -90,14 +91,14 @@ class PoseMeasurement(KinematicMeasurement):
     def design_data(self, forward, offsets) -> tuple:
         return (np.asarray(forward, dtype=float),)
 
-    def simulate(self, T, offsets, rng, noise) -> tuple:
+    def simulate(self, T, offsets, rng, noise) -> np.ndarray:
         sp = noise.pose_position_sigma or 0.0
         so = np.radians(noise.pose_orientation_sigma or 0.0)
-        out = np.array(T, dtype=float)
-        for k in range(len(out)):  # rotation first, then position: the simulator's order of draws
-            out[k, :3, :3] = small_rotation(rng.normal(size=3) * so) @ out[k, :3, :3]
-            out[k, :3, 3] = out[k, :3, 3] + rng.normal(size=3) * sp
-        return (out,)
+        out = []
+        for Tk in np.asarray(T, dtype=float).reshape(-1, 4, 4):  # per pose: rotation, then position
+            R = small_rotation(rng.normal(size=3) * so) @ Tk[:3, :3]
+            out.append(np.concatenate([Tk[:3, 3] + rng.normal(size=3) * sp, matrix_to_quaternion(R)]))
+        return np.array(out).reshape(-1, 7)
 
     def parse(self, where, record, balls):
         q = np.array([number(record[c], where, c) for c in ("qw", "qx", "qy", "qz")])
@@ -106,14 +107,9 @@ class PoseMeasurement(KinematicMeasurement):
             raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {norm:.6g}, expected 1")
         return "", np.concatenate([[number(record[c], where, c) for c in "xyz"], q / norm])
 
-    def observations(self, pose, ball, values, line):
+    def observations(self, pose, ball, values, line=None):
         values = np.asarray(values, dtype=float).reshape(-1, 7)
         return PoseObservations(pose, values[:, :3], values[:, 3:], line)
-
-    def observations_of(self, pose, T):
-        """Observations of poses ``T`` (M, 4, 4) at pose ids ``pose``."""
-        T = np.asarray(T, dtype=float).reshape(-1, 4, 4)
-        return PoseObservations(pose, T[:, :3, 3], np.array([matrix_to_quaternion(R) for R in T[:, :3, :3]]))
 
     def rows(self, obs: PoseObservations):
         quat = obs.quat / np.linalg.norm(obs.quat, axis=1, keepdims=True)

@@ -19,12 +19,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from fgcal.measurements.dataset import LEVELS, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
+from fgcal.measurements.dataset import LEVELS, Dataset, Noise, PointObservations
+from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.robots.ik import BRANCHES, solve_puma_batch
 from fgcal.robots.kinematics import forward, tool_points
 from fgcal.robots.model import RobotModel, Tooling
-from fgcal.robots.transforms import matrix_to_quaternion, quaternion_to_matrix
+from fgcal.robots.transforms import quaternion_to_matrix
 
 __all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
 
@@ -284,8 +285,9 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     T = model.forward(slots, q_actual)
     ok, upness, centres = ball_access(T, tooling, volume)
     names = np.array(tooling.names)
-    keep, probe_rows, centre_rows, pose_rows, outliers, skipped = [], [], [], [], [], []
-    distance_rows = []
+    kinds = kinematic_levels(levels)
+    keep, probe_rows, outliers, skipped = [], [], [], []
+    rows = {kind.level: [] for kind in kinds}  # (pose id, ball, values) per measurement
     for i in range(n):
         visible = np.nonzero(ok[i])[0]
         if len(visible) < n_balls:
@@ -305,34 +307,24 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
                         pts[k] += outlier_size * rng.choice([-1.0, 1.0]) * dirs[k]
                         outliers.append((int(ids[i]), str(names[b]), k))
                     probe_rows.append((ids[i], names[b], pts[k]))
-            if "centres" in levels:
-                centre_rows.append((ids[i], names[b], c + rng.normal(size=3) * noise.cmm_sigma))
-            if "distances" in levels:  # a ballbar from the world origin (its pivot) to the ball
-                sd = noise.distance_sigma if noise.distance_sigma is not None else noise.cmm_sigma
-                distance_rows.append((ids[i], names[b], float(np.linalg.norm(c)) + rng.normal() * sd))
-        if "poses" in levels:
-            sp = noise.pose_position_sigma or 0.0
-            so = np.radians(noise.pose_orientation_sigma or 0.0)
-            dR = _small_rotation(rng.normal(size=3) * so)
-            R = dR @ T[i, :3, :3]
-            pose_rows.append((ids[i], T[i, :3, 3] + rng.normal(size=3) * sp, matrix_to_quaternion(R)))
+            for kind in kinds:
+                if kind.per_ball:
+                    values = kind.simulate(T[i:i + 1], tooling.balls[names[b]][None], rng, noise)
+                    rows[kind.level].append((ids[i], names[b], values[0]))
+        for kind in kinds:
+            if not kind.per_ball:
+                rows[kind.level].append((ids[i], "", kind.simulate(T[i:i + 1], np.zeros((1, 3)), rng, noise)[0]))
 
-    def points(rows):
-        if not rows:
-            return None
-        return PointObservations([r[0] for r in rows], [r[1] for r in rows], np.array([r[2] for r in rows]))
-
-    probes = points(probe_rows) if "probes" in levels else None
-    centres_obs = points(centre_rows) if "centres" in levels else None
-    poses = None
-    if "poses" in levels and pose_rows:
-        poses = PoseObservations([r[0] for r in pose_rows], np.array([r[1] for r in pose_rows]),
-                                 np.array([r[2] for r in pose_rows]))
+    probes = None
+    if "probes" in levels and probe_rows:
+        probes = PointObservations([r[0] for r in probe_rows], [r[1] for r in probe_rows],
+                                   np.array([r[2] for r in probe_rows]))
+    observed = {kind.level: kind.observations(np.array([r[0] for r in rows[kind.level]], dtype=int),
+                                              np.array([r[1] for r in rows[kind.level]], dtype=str),
+                                              np.array([r[2] for r in rows[kind.level]]))
+                for kind in kinds if rows[kind.level]}
     keep = np.array(keep, dtype=int)
-    distances = None
-    if "distances" in levels and distance_rows:
-        distances = DistanceObservations([r[0] for r in distance_rows], [r[1] for r in distance_rows],
-                                         [r[2] for r in distance_rows])
+    centres_obs, poses, distances = (observed.get(level) for level in ("centres", "poses", "distances"))
     return ids[keep], reading[keep], probes, centres_obs, poses, distances, outliers, skipped
 
 
@@ -344,15 +336,6 @@ def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarra
     """
     centres = tool_points(model.forward(slots, q), tooling.offsets()).reshape(-1, 3)
     return model.with_world_origin_at(slots, centres.mean(axis=0) - np.array([0.0, 0.0, 300.0]))
-
-
-def _small_rotation(v) -> np.ndarray:
-    angle = np.linalg.norm(v)
-    if angle == 0:
-        return np.eye(3)
-    k = v / angle
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
 @dataclass(frozen=True)
