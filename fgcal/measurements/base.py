@@ -19,11 +19,11 @@ variables of their own (ball centres) and are handled by the graph directly. No 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["Terms", "KinematicMeasurement"]
+__all__ = ["Terms", "ObservationRows", "KinematicMeasurement"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,35 @@ class Terms:
 
     def take(self, rows) -> "Terms":
         return Terms(self.pose[rows], tuple(np.asarray(d)[rows] for d in self.data))
+
+
+class ObservationRows:
+    """Per-row arrays of one measurement level (a base of the levels' dataclasses).
+
+    The dataclass has ``pose`` (M,) ids, optionally ``ball`` (M,) names, float arrays whose row
+    shapes are in ``ROW_SHAPES`` (``{"xyz": (3,)}``) and ``line`` (M,), the file line (0 when made
+    in memory). Converts them, checks their lengths, and gives ``len`` and ``subset``.
+    """
+
+    ROW_SHAPES: dict = {}
+
+    def __post_init__(self):
+        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
+        if hasattr(self, "ball"):
+            self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
+        for name, shape in self.ROW_SHAPES.items():
+            setattr(self, name, np.asarray(getattr(self, name), dtype=float).reshape((-1, *shape)))
+        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
+        names = [f.name for f in fields(self)]
+        if len({len(getattr(self, n)) for n in names}) > 1:
+            raise ValueError(f"{', '.join(names[:-1])} and {names[-1]} must have the same length")
+
+    def __len__(self):
+        return len(self.pose)
+
+    def subset(self, mask):
+        """The rows selected by ``mask`` (a boolean mask or indices)."""
+        return type(self)(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
 
 
 class KinematicMeasurement(ABC):
