@@ -13,17 +13,22 @@ import numpy as np
 
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.result import PoseResidual, ResidualSummary
-from fgcal.measurements.types import BY_LEVEL
+from fgcal.measurements.types import kinematic_types
 from fgcal.robots.kinematics import tool_points
 
 __all__ = ["raw_at_readings", "at_readings", "pose_residuals"]
+
+
+def _levels() -> tuple:
+    """Probe points and every registered kinematic measurement type's level."""
+    return ("probes",) + tuple(t.level for t in kinematic_types())
 
 
 def _metric(level: str, e):
     """A factor's position residual (mm) and rotation residual (deg, or None) from its raw error (K, width)."""
     if level == "probes":  # signed distance off the sphere
         return np.abs(e[:, 0]), None
-    return BY_LEVEL[level].metric(e)
+    return next(t for t in kinematic_types() if t.level == level).metric(e)
 
 
 def _rms(values) -> float:
@@ -50,7 +55,7 @@ def at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
         return {}
     raw = raw_at_readings(graph, state.theta)
     out = {}
-    for level in ("probes", *BY_LEVEL):
+    for level in _levels():
         if level not in raw:
             continue
         e = raw[level][0][_kept(graph, level, len(raw[level][0]))]
@@ -64,7 +69,7 @@ def _per_pose(graph: Graph, raw: dict):
     rotation count, excluded count), kept measurements only (rotations in deg)."""
     n = graph.n_poses
     ssq, cnt, big, rssq, rcnt, excl = (np.zeros(n) for _ in range(6))
-    for level in ("probes", *BY_LEVEL):
+    for level in _levels():
         if level not in raw:
             continue
         e = raw[level][0]

@@ -23,7 +23,30 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["Terms", "ObservationRows", "KinematicMeasurement"]
+__all__ = ["NoiseComponent", "Terms", "ObservationRows", "KinematicMeasurement"]
+
+
+@dataclass(frozen=True)
+class NoiseComponent:
+    """A variance component of a measurement type: some of its error rows and the sigma they share.
+
+    Attributes
+    ----------
+    name : str
+        Its name in results (``"poses_rotation"``).
+    columns : slice
+        Its rows among the type's ``width`` error rows.
+    sigma_field : str
+        The field of the graph's ``Sigmas`` that holds its sigma.
+    unit : str
+        The unit a report shows it in; ``to_unit`` converts from internal units (mm, rad).
+    """
+
+    name: str
+    columns: slice
+    sigma_field: str
+    unit: str = "mm"
+    to_unit: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -94,6 +117,10 @@ class KinematicMeasurement(ABC):
         Whether a pose has one measurement per tool ball (else one per pose).
     title : str
         What a person calls it, for reports.
+    noun : str
+        One measurement, in messages (``"centre"``).
+    noise_components : tuple of NoiseComponent
+        Its variance components, estimated from the residuals (:mod:`fgcal.estimation.noise`).
     """
 
     level: str
@@ -103,11 +130,17 @@ class KinematicMeasurement(ABC):
     per_ball: bool = True
     title: str = ""
     noun: str = "measurement"
+    noise_components: tuple = ()
 
     # ------------------------------------------------------------------ model
     @abstractmethod
     def error(self, theta, q, data, index, held, chain):
         """Unwhitened error ``(M, width)`` and Jacobians ``(M, width, P)``, ``(M, width, n)``."""
+
+    def declared_sigmas(self, noise) -> dict:
+        """Sigmas of a type beyond the built-in ones, ``{field: sigma}`` (mm, rad), from the dataset's
+        ``Noise``; the built-in types' are fields of ``Sigmas`` and return nothing."""
+        return {}
 
     @abstractmethod
     def sigma(self, sigmas) -> np.ndarray:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcal.errors import DatasetError
-from fgcal.measurements.base import KinematicMeasurement, ObservationRows, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
@@ -51,6 +51,7 @@ class DistanceMeasurement(KinematicMeasurement):
     per_ball = True
     title = "ballbar lengths"
     noun = "length"
+    noise_components = (NoiseComponent("distances", slice(0, 1), "distance"),)
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import distance_error

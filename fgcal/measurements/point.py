@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.measurements.base import KinematicMeasurement, ObservationRows, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
@@ -48,6 +48,7 @@ class PointMeasurement(KinematicMeasurement):
     per_ball = True
     title = "ball centres"
     noun = "centre"
+    noise_components = (NoiseComponent("centres", slice(0, 3), "centre"),)
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import ball_centre_error

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcal.errors import DatasetError
-from fgcal.measurements.base import KinematicMeasurement, ObservationRows, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import number
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
@@ -57,6 +57,8 @@ class PoseMeasurement(KinematicMeasurement):
     per_ball = False
     title = "tool poses"
     noun = "pose"
+    noise_components = (NoiseComponent("poses", slice(3, 6), "pose_position"),
+                        NoiseComponent("poses_rotation", slice(0, 3), "pose_rotation", "deg", float(np.degrees(1.0))))
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import pose_error
