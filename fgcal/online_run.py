@@ -120,7 +120,7 @@ def read_stream(lines, balls, warn=None, model=None):
         yield current
 
 log = logging.getLogger(__name__)
-CHECKPOINT_FORMAT = "fgcal-online-checkpoint/2"
+CHECKPOINT_FORMAT = "fgcal-online-checkpoint/3"
 SNAPSHOT_EVERY = 100  # poses between snapshots of a filter's state (the journal has every pose)
 INPUT_NAMES = ("dataset.yaml", "truth.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "distances.csv")
 
@@ -188,6 +188,7 @@ class OnlineRun:
     def __post_init__(self):
         self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options, **self.engine_kw)
         self._fd = None
+        self._done = {p["pose"] for p in self.processed}
         if self.checkpoint is not None:
             self.checkpoint = Path(self.checkpoint)
             self._open()
@@ -244,15 +245,16 @@ class OnlineRun:
         os.fsync(self._fd)
 
     def _snapshot(self) -> None:
-        if hasattr(self.engine, "state"):
-            atomic_write_text(self.snapshot_path, json.dumps({"n": len(self.processed), "state": self.engine.state(),
-                                                              "n_accepted": self.engine.n_accepted}) + "\n")
+        if self.engine.snapshots:
+            atomic_write_text(self.snapshot_path, json.dumps({"n": len(self.processed), "state": self.engine.state()}) + "\n")
 
-    def save(self) -> None:
-        """Journal the last pose (and every :data:`SNAPSHOT_EVERY` poses a snapshot of the state)."""
+    def save(self, journal: dict | None = None) -> None:
+        """Journal the last pose (with the engine's ``journal`` of it, and the record when it came
+        from a stream) and every :data:`SNAPSHOT_EVERY` poses a snapshot of a filter's state."""
         if self._fd is None:
             return
         entry = dict(self.processed[-1])
+        entry.update(journal or {})
         if entry["accepted"]:
             entry["history"] = self.history[-1]
         if entry["pose"] in self.streamed:
@@ -262,7 +264,11 @@ class OnlineRun:
             self._snapshot()
 
     def resume(self) -> int:
-        """Restore from the checkpoint if there is one; returns the number of poses restored."""
+        """Restore from the checkpoint if there is one; returns the number of poses restored.
+
+        A filter restores its last snapshot with the book-keeping of the poses journalled before
+        it and replays the poses after it; iSAM2 adds every journalled pose again as it was taken
+        (linear in the poses: no screening, no snapshot)."""
         if self._fd is None:
             return 0
         d = read_checkpoint(self.checkpoint)
@@ -283,18 +289,23 @@ class OnlineRun:
         missing = [e["pose"] for e in entries if e["pose"] not in records]
         if missing:
             raise FgcalError(f"{self.checkpoint}: pose(s) {missing[:5]} are no longer in the dataset; use --restart")
+        journal = [(records[e["pose"]], e) for e in entries]
         start = 0
-        if hasattr(self.engine, "restore") and self.snapshot_path.exists():
+        if not self.engine.snapshots:
+            self.engine.restore(None, journal)
+            start = len(entries)
+        elif self.snapshot_path.exists():
             snap = json.loads(self.snapshot_path.read_text(encoding="utf-8"))
             if snap["n"] <= len(entries):
-                self.engine.restore(snap["state"], snap["n_accepted"])
+                self.engine.restore(snap["state"], journal[:snap["n"]])
                 start = snap["n"]
-        for e in entries[start:]:  # replay what the snapshot does not hold, in order
-            if e["accepted"]:
-                report = self.engine.update(records[e["pose"]])
-                if not report.accepted:
-                    raise FgcalError(f"{self.checkpoint}: replaying pose {e['pose']} failed ({report.reason})")
+        for rec, e in journal[start:]:  # replay what the snapshot does not hold, in order
+            report = self.engine.update(rec)
+            if report.accepted != e["accepted"]:
+                raise FgcalError(f"{self.checkpoint}: replaying pose {e['pose']} gave another outcome "
+                                 f"({report.reason}); use --restart")
         self.processed = [{k: e[k] for k in ("pose", "accepted", "reason")} for e in entries]
+        self._done = {e["pose"] for e in entries}
         self.history = [e["history"] for e in entries if e["accepted"]]
         if self.engine.n_accepted:
             self.last_estimate = self.engine.estimate()
@@ -302,25 +313,25 @@ class OnlineRun:
 
     # ------------------------------------------------------------- feeding
     def pending(self, ds: Dataset | None = None):
-        done = {p["pose"] for p in self.processed}
         ds = ds or self.ds
-        return pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in done], model=self.model)
+        return pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in self._done], model=self.model)
 
     def feed(self, rec, streamed: bool = False) -> dict:
         if streamed:
-            if rec.pose in {p["pose"] for p in self.processed}:
+            if rec.pose in self._done:
                 return {"pose": rec.pose, "accepted": False, "reason": "already processed (ignored)"}
             self.streamed[rec.pose] = rec
         report = self.engine.update(rec)
         entry = {"pose": rec.pose, "accepted": report.accepted, "reason": report.reason}
         self.processed.append(entry)
+        self._done.add(rec.pose)
         if report.accepted:
             theta, cov = self.last_estimate = self.engine.estimate()
             params = self.engine.params
             self.history.append({"pose": rec.pose, "n": self.engine.n_accepted,
                                  "estimate": params.to_file_units(theta).tolist(),
                                  "sigma": np.sqrt(np.diag(params.covariance_to_file_units(cov))).tolist()})
-        self.save()
+        self.save(report.journal)
         return entry
 
     def estimate(self):
