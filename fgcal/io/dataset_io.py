@@ -1,0 +1,482 @@
+"""Reading and writing dataset directories (DESIGN.md section 3) with validation.
+
+Every problem ends in a :class:`~fgcal.errors.DatasetError` whose one-line message names the file
+and the line (the header is line 1) or the pose. Writing goes to a temporary directory first,
+which then replaces the target, so a dataset on disk is never half written.
+"""
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import os
+import shutil
+import tempfile
+from array import array
+from pathlib import Path
+
+import numpy as np
+
+from fgcal.measurements.dataset import FORMAT, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
+from fgcal.errors import DatasetError, FgcalError
+from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
+from fgcal.robots.robot_file import load_model
+from fgcal.io.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
+
+__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
+
+log = logging.getLogger(__name__)
+
+_SLOT_FIELDS = set(EULER_FIELDS) | set(LINK_FIELDS)
+
+JOINT_COLUMNS = ["pose", "q1", "q2", "q3", "q4", "q5", "q6"]
+MAX_JOINTS = 64
+
+
+def joint_columns(n: int) -> list[str]:
+    """``pose, q1 .. qn``: the header of joints.csv for an ``n``-joint robot."""
+    return ["pose"] + [f"q{i}" for i in range(1, n + 1)]
+POINT_COLUMNS = ["pose", "ball", "x", "y", "z"]
+POSE_COLUMNS = ["pose", "x", "y", "z", "qw", "qx", "qy", "qz"]
+DISTANCE_COLUMNS = ["pose", "ball", "length"]
+
+
+# Bounds beyond which a value is a mistake, not a measurement: 1000 km, or a million degrees.
+MAX_MM = 1e9
+MAX_DEG = 1e6
+
+
+def _number(text: str, where: str, what: str, limit: float = MAX_MM) -> float:
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: {what} is not a number: {short_repr(text)}") from None
+    if not math.isfinite(value):
+        raise DatasetError(f"{where}: {what} is not finite: {short_repr(text)}")
+    if abs(value) > limit:
+        raise DatasetError(f"{where}: {what} = {text} is absurdly large (beyond {limit:g}; a unit mistake?)")
+    return value
+
+
+def _integer(text: str, where: str, what: str) -> int:
+    try:
+        return int(text)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{where}: {what} must be an integer id, got {short_repr(text)}") from None
+
+
+def _table_records(path: Path, columns: list[str], optional=()):
+    """The header and the non-blank records of a CSV file, streamed: yields ``(line, header, cells)``.
+
+    The header must hold ``columns`` and may hold ``optional``; line numbers are 1-based (the
+    header is line 1). Only a regular file is opened.
+    """
+    check_regular_file(path, DatasetError)
+    try:
+        fh = path.open(newline="", encoding="utf-8")
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    with fh:
+        reader = csv.reader(fh)
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise DatasetError(f"{path}: empty file (expected the header {','.join(columns)})")
+            header = [h.strip() for h in header]
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise DatasetError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                   f"(expected {','.join(columns)})")
+            unknown = [h[:24] for h in header if h not in columns and h not in optional]
+            if unknown:
+                raise DatasetError(f"{path}: line 1: unknown column(s) {', '.join(unknown[:3])}"
+                                   f"{' ...' if len(unknown) > 3 else ''} "
+                                   f"(expected {','.join(list(columns) + list(optional))})")
+            if len(set(header)) != len(header):
+                raise DatasetError(f"{path}: line 1: a column is repeated in the header")
+            n = len(header)
+            for record in reader:
+                if not record or all(not c.strip() for c in record):
+                    continue
+                if len(record) != n:
+                    raise DatasetError(f"{path}: line {reader.line_num}: {len(record)} fields, expected {n}")
+                yield reader.line_num, header, [c.strip() for c in record]
+        except csv.Error as exc:
+            raise DatasetError(f"{path}: line {reader.line_num}: {exc}") from None
+        except UnicodeDecodeError:
+            raise DatasetError(f"{path}: line {reader.line_num + 1}: not UTF-8 text") from None
+        except OSError as exc:
+            raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
+def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
+    """Rows of a CSV file as (line number, dict); the header holds ``columns`` and maybe ``optional``."""
+    return [(line, dict(zip(header, cells))) for line, header, cells in _table_records(path, columns, optional)]
+
+
+def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> PointObservations:
+    """A ``pose,ball,x,y,z`` file, streamed into compact arrays (memory linear in the rows, small constant)."""
+    names = list(balls)
+    ball_index = {b: i for i, b in enumerate(names)}
+    pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
+    seen = {}
+    cols = None
+    for line, header, cells in _table_records(path, POINT_COLUMNS):
+        if cols is None:
+            cols = [header.index(c) for c in POINT_COLUMNS]
+        where = f"{path}: line {line}"
+        p_txt, b, x, y, z = (cells[i] for i in cols)
+        pid = _integer(p_txt, where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        k = ball_index.get(b)
+        if k is None:
+            raise DatasetError(f"{where}: unknown ball {short_repr(b)} (dataset.yaml tool.balls has "
+                               f"{', '.join(balls)})")
+        if unique:
+            key = (pid, k)
+            if key in seen:
+                raise DatasetError(f"{where}: duplicate centre of ball {b} at pose {pid} (first on line {seen[key]})")
+            seen[key] = line
+        pose.append(pid)
+        ball.append(k)
+        xyz.extend((_number(x, where, "x"), _number(y, where, "y"), _number(z, where, "z")))
+        lines.append(line)
+    ball_names = np.array(names, dtype=str)[np.frombuffer(ball, dtype=np.int16).astype(int)] if len(ball) \
+        else np.zeros(0, dtype=str)
+    return PointObservations(np.frombuffer(pose, dtype=np.int64).astype(int), ball_names,
+                             np.frombuffer(xyz, dtype=float).reshape(-1, 3).copy(),
+                             np.frombuffer(lines, dtype=np.int64).astype(int))
+
+
+def _distance_table(path: Path, known_poses: set, balls: dict) -> DistanceObservations:
+    """``distances.csv``: ``pose,ball,length`` (mm), one ballbar length per pose and ball."""
+    rows = _read_table(path, DISTANCE_COLUMNS)
+    pose, ball, length, lines, seen = [], [], [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        if r["ball"] not in balls:
+            raise DatasetError(f"{where}: unknown ball {short_repr(r['ball'])} (dataset.yaml tool.balls has {', '.join(balls)})")
+        key = (pid, r["ball"])
+        if key in seen:
+            raise DatasetError(f"{where}: duplicate length of ball {r['ball']} at pose {pid} (first on line {seen[key]})")
+        seen[key] = line
+        value = _number(r["length"], where, "length")
+        if value <= 0:
+            raise DatasetError(f"{where}: length must be positive (mm), got {value!r}")
+        pose.append(pid)
+        ball.append(r["ball"])
+        length.append(value)
+        lines.append(line)
+    return DistanceObservations(np.array(pose, dtype=int), np.array(ball, dtype=str), np.array(length, dtype=float),
+                                np.array(lines, dtype=int))
+
+
+def _pose_row(where: str, r: dict) -> tuple[int, np.ndarray, np.ndarray]:
+    """``(pose, xyz, unit quaternion)`` of a ``pose,x,y,z,qw,qx,qy,qz`` row; the norm is checked."""
+    pid = _integer(r["pose"], where, "pose")
+    q = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
+    norm = np.linalg.norm(q)
+    if abs(norm - 1.0) > 1e-3:
+        raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {norm:.6g}, expected 1")
+    return pid, np.array([_number(r[c], where, c) for c in "xyz"]), q / norm
+
+
+def _pose_table(path: Path, known_poses: set) -> PoseObservations:
+    rows = _read_table(path, POSE_COLUMNS)
+    pose, xyz, quat, lines = [], [], [], []
+    seen = {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid, p, q = _pose_row(where, r)
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        pose.append(pid)
+        xyz.append(p)
+        quat.append(q)
+        lines.append(line)
+    return PoseObservations(np.array(pose, dtype=int), np.array(xyz).reshape(-1, 3), np.array(quat).reshape(-1, 4),
+                            np.array(lines, dtype=int))
+
+
+def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
+    data = read_yaml(path, error=DatasetError)
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a mapping with format, robot, tool, noise, provenance")
+    missing = [k for k in ("format", "robot", "tool", "noise", "provenance") if k not in data]
+    if missing:
+        raise DatasetError(f"{path}: missing key(s) {', '.join(missing)}")
+    if data["format"] != FORMAT:
+        raise DatasetError(f"{path}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
+    if not isinstance(data["robot"], str) or not data["robot"]:
+        raise DatasetError(f"{path}: robot must be a model name or a model file path")
+    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance"}
+    if unknown:
+        raise DatasetError(f"{path}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+    chain = data.get("chain")
+    if chain is not None:
+        if (not isinstance(chain, dict) or set(chain) - {"base", "tip"}
+                or not all(isinstance(v, str) and v for v in chain.values())):
+            raise DatasetError(f"{path}: chain must be {{base: LINK, tip: LINK}} (URDF link names)")
+
+    def num(value, what, minimum=None):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise DatasetError(f"{path}: {what} must be a finite number, got {short_repr(value)}")
+        if minimum is not None and value < minimum:
+            raise DatasetError(f"{path}: {what} must be >= {minimum}, got {short_repr(value)}")
+        return float(value)
+
+    tool = data["tool"]
+    if not isinstance(tool, dict) or "radius" not in tool or not isinstance(tool.get("balls"), dict) or not tool["balls"]:
+        raise DatasetError(f"{path}: tool must have radius and balls {{name: [x, y, z]}}")
+    balls = {}
+    for name, centre in tool["balls"].items():
+        if not isinstance(centre, list) or len(centre) != 3:
+            raise DatasetError(f"{path}: tool.balls.{name} must be [x, y, z] (mm)")
+        balls[str(name)] = np.array([num(c, f"tool.balls.{name}") for c in centre])
+    tooling = Tooling(radius=num(tool["radius"], "tool.radius", 0.0), balls=balls)
+
+    noise_raw = data["noise"]
+    allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
+               "centre_sigma", "distance_sigma")
+    if not isinstance(noise_raw, dict):
+        raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
+    unknown = set(noise_raw) - set(allowed)
+    if unknown:
+        raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(str(k)[:24] for k in unknown))}")
+    noise = Noise(**{k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()})
+    provenance = data["provenance"]
+    if not isinstance(provenance, dict):
+        provenance = {"text": str(provenance)}
+    return data["robot"], tooling, noise, provenance, chain
+
+
+def load_truth(path) -> tuple[dict, list]:
+    """``truth.yaml``: parameter values {name: value} (mm, deg) and planted outliers."""
+    path = Path(path)
+    data = read_yaml(path, error=DatasetError)
+    if not isinstance(data, dict) or not isinstance(data.get("parameters"), dict):
+        raise DatasetError(f"{path}: expected 'parameters: {{name: value}}'")
+    truth = {}
+    for name, value in data["parameters"].items():
+        if not isinstance(name, str) or name.rpartition(".")[2] not in _SLOT_FIELDS or not name.rpartition(".")[0]:
+            raise DatasetError(f"{path}: unknown parameter {short_repr(name)}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise DatasetError(f"{path}: parameter {name} must be a finite number, got {short_repr(value)}")
+        truth[name] = float(value)
+    outliers = []
+    for i, item in enumerate(data.get("outliers") or []):
+        if not (isinstance(item, list) and len(item) == 3):
+            raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index]")
+        try:
+            outliers.append((int(item[0]), str(item[1]), int(item[2])))
+        except (TypeError, ValueError):
+            raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index] (integers)") from None
+    return truth, outliers
+
+
+def load_dataset_meta(directory) -> Dataset:
+    """Only ``dataset.yaml`` of a dataset directory, as a dataset with no poses (for streams)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    return Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.zeros(0, dtype=int),
+                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain)
+
+
+def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
+    """A ``joints.csv``-like file: ``(pose ids (N,), joint readings (N, n) deg or mm)``, columns
+    ``pose,q1..qn``.
+
+    Raises :class:`DatasetError` naming the file and line for a malformed row or repeated id.
+    """
+    joints_path = Path(path)
+    rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)])
+    if not rows:
+        raise DatasetError(f"{joints_path}: no poses")
+    n_joints = sum(1 for c in rows[0][1] if c != "pose")
+    columns = joint_columns(n_joints)
+    if set(rows[0][1]) != set(columns):
+        raise DatasetError(f"{joints_path}: line 1: joint columns must be q1..qn without gaps, got "
+                           f"{','.join(c for c in rows[0][1] if c != 'pose')}")
+    ids, q, seen = [], [], {}
+    for line, r in rows:
+        where = f"{joints_path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        q.append([_number(r[c], where, c, MAX_DEG) for c in columns[1:]])
+    return np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints)
+
+
+def load_dataset(directory) -> Dataset:
+    """Read and validate a dataset directory.
+
+    Raises
+    ------
+    DatasetError
+        With a one-line message naming the file and line, for any malformed input.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    ids, q = read_joints(directory / "joints.csv")
+    known = set(ids.tolist())
+    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=ids,
+                 joints_deg=q, path=directory, chain=chain)
+    if os.path.lexists(directory / "probes.csv"):
+        if tooling.radius <= 0:
+            raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
+        ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
+    if os.path.lexists(directory / "centres.csv"):
+        ds.centres = _point_table(directory / "centres.csv", known, tooling.balls, unique=True)
+    if os.path.lexists(directory / "poses.csv"):
+        ds.poses = _pose_table(directory / "poses.csv", known)
+    if os.path.lexists(directory / "distances.csv"):
+        ds.distances = _distance_table(directory / "distances.csv", known, tooling.balls)
+    if os.path.lexists(directory / "truth.yaml"):
+        ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
+    if not ds.levels():
+        log.warning("%s: no measurements (probes.csv, centres.csv, poses.csv or distances.csv); joint readings only",
+                    directory)
+    return ds
+
+
+def read_targets(path):
+    """Target tool poses: ``pose,x,y,z,qw,qx,qy,qz`` and optionally seed joints ``q1..q6`` (deg).
+
+    Returns ``(ids (N,), T (N, 4, 4) mm, seeds (N, 6) rad or None)``.
+    """
+    from fgcal.robots.transforms import pose_matrices
+
+    path = Path(path)
+    rows = _read_table(path, POSE_COLUMNS, optional=JOINT_COLUMNS[1:])
+    if not rows:
+        raise DatasetError(f"{path}: no targets")
+    has_q = [c in rows[0][1] for c in JOINT_COLUMNS[1:]]
+    if any(has_q) and not all(has_q):
+        raise DatasetError(f"{path}: line 1: give all of q1..q6 or none")
+    ids, T, seeds, seen = [], [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid, xyz, quat = _pose_row(where, r)
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        T.append(pose_matrices(xyz, quat))
+        if all(has_q):
+            seeds.append(np.radians([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]]))
+    return np.array(ids), np.array(T), (np.array(seeds) if seeds else None)
+
+
+def dataset_model(ds: Dataset) -> RobotModel:
+    """The robot model a dataset names (built-in, or a file relative to the dataset directory)."""
+    ref = ds.robot
+    if ds.path is not None and (ref.endswith((".yaml", ".yml", ".urdf")) or "/" in ref):
+        candidate = (ds.path / ref) if not Path(ref).is_absolute() else Path(ref)
+        model = load_model(candidate, chain=ds.chain)
+    else:
+        try:
+            model = load_model(ref, chain=ds.chain)
+        except FgcalError as exc:
+            where = ds.path / "dataset.yaml" if ds.path else "dataset"
+            raise DatasetError(f"{where}: robot: {exc}") from None
+    check_joint_count(ds, model)
+    return model
+
+
+def check_joint_count(ds: Dataset, model: RobotModel) -> None:
+    """joints.csv must hold one column per joint of the model's chain."""
+    if ds.n_poses and ds.n_joints != model.n_joints:
+        where = ds.path / "joints.csv" if ds.path else "joints"
+        raise DatasetError(f"{where}: {ds.n_joints} joint columns, but robot {model.name} has {model.n_joints} "
+                           f"joints ({', '.join(model.joint_names)})")
+
+
+def _fmt(v: float) -> str:
+    return repr(float(v))
+
+
+def write_csv(path, header, rows) -> None:
+    """Write a CSV file atomically; floats with full (round-trip) precision."""
+    lines = [",".join(header)]
+    for row in rows:
+        lines.append(",".join(_fmt(v) if isinstance(v, (float, np.floating)) else str(v) for v in row))
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _write_into(ds: Dataset, directory: Path) -> None:
+    meta = {
+        "format": FORMAT,
+        "robot": ds.robot,
+        **({"chain": dict(ds.chain)} if ds.chain else {}),
+        "tool": {"radius": float(ds.tooling.radius),
+                 "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
+        "noise": {k: v for k, v in vars(ds.noise).items() if v is not None},
+        "provenance": ds.provenance,
+    }
+    atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
+    write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
+              ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
+    for level, name in (("probes", "probes.csv"), ("centres", "centres.csv")):
+        obs = getattr(ds, level)
+        if obs is not None:
+            write_csv(directory / name, POINT_COLUMNS,
+                      ([int(p), b, *map(float, x)] for p, b, x in zip(obs.pose, obs.ball, obs.xyz)))
+    if ds.poses is not None:
+        quat = ds.poses.quat / np.linalg.norm(ds.poses.quat, axis=1, keepdims=True)
+        write_csv(directory / "poses.csv", POSE_COLUMNS,
+                  ([int(p), *map(float, x), *map(float, qq)] for p, x, qq in zip(ds.poses.pose, ds.poses.xyz, quat)))
+    if ds.distances is not None:
+        d = ds.distances
+        write_csv(directory / "distances.csv", DISTANCE_COLUMNS,
+                  ([int(p), b, float(v)] for p, b, v in zip(d.pose, d.ball, d.length)))
+    if ds.truth is not None:
+        truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
+        if ds.truth_outliers:
+            truth["outliers"] = [[int(p), str(b), int(i)] for p, b, i in ds.truth_outliers]
+        atomic_write_text(directory / "truth.yaml", dump_yaml(truth))
+
+
+def save_dataset(ds: Dataset, directory, overwrite: bool = False, extra_files=None) -> Path:
+    """Write ``ds`` as a dataset directory, all at once (a temporary directory is renamed).
+
+    ``extra_files`` maps further file names to their text (for example ``quality.csv``).
+
+    Raises
+    ------
+    FgcalError
+        If ``directory`` exists and ``overwrite`` is false.
+    """
+    directory = Path(directory)
+    if directory.exists() and not overwrite:
+        raise FgcalError(f"{directory}: already exists (use --force to replace it)")
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    tmp = make_dir(directory)
+    try:
+        _write_into(ds, tmp)
+        for name, text in (extra_files or {}).items():
+            atomic_write_text(tmp / name, text)
+        if directory.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
+            old.rmdir()
+            directory.rename(old)
+            tmp.rename(directory)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(directory)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return directory
