@@ -35,7 +35,7 @@ from fgcal.measurements.dataset import DistanceObservations, PointObservations, 
 from fgcal.measurements.spherefit import best_of_candidates, chi2_quantile, fit_spheres_batch, fit_spheres_checked, mirror_through_points
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseData", "pose_records", "records_dataset", "weak_prior", "UpdateReport", "NoiseTracker",
+__all__ = ["PoseData", "pose_records", "prefit", "records_dataset", "weak_prior", "UpdateReport", "NoiseTracker",
            "ISAM2Engine", "KalmanEngine", "make_engine"]
 
 log = logging.getLogger(__name__)
@@ -54,6 +54,8 @@ class PoseData:
     centres: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ball, xyz (3,))
     T: np.ndarray | None = None
     distances: list[tuple[str, float]] = field(default_factory=list)  # (ball, ballbar length mm)
+    # probe index -> (its points, plain SphereFit, its mirror image (3,)), from :func:`prefit`
+    fits: dict | None = field(default=None, repr=False, compare=False)
 
     def measured(self) -> bool:
         return bool(self.probes or self.centres or self.T is not None or self.distances)
@@ -137,23 +139,24 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, 
     usable = [(b, p) for b, p in rec.probes if len(p) >= 3]
     bad += [f"ball {b}: {len(p)} probe points" for b, p in rec.probes if len(p) < 3]
     sigma = max(sigma_cmm, 1e-6)
-    fits = fit_spheres_checked([p for _, p in usable], tooling.radius, sigma)
+    prefit([rec], tooling, sigma_cmm)
+    fits = [rec.fits[j][1:] for j, (_, p) in enumerate(rec.probes) if len(p) >= 3]
     kept = []
-    for (ball, pts), fit in zip(usable, fits):
+    for (ball, pts), (fit, mirror) in zip(usable, fits):
         # A residual above the sphere check's limit alone does not reject the ball: as in the batch
         # solve, the innovation gate (with the kinematic prediction's redundancy) judges the pose.
         if not fit.ok and not (prediction is not None and fit.status.startswith("residual")):
             bad.append(f"ball {ball}: {fit.status}")
             continue
-        kept.append((ball, pts, fit))
+        kept.append((ball, pts, fit, mirror))
     chosen, ambiguous = {}, []
     if prediction is not None:
-        kept_pred = [(ball, pts, fit) for ball, pts, fit in kept if ball in prediction]
+        kept_pred = [k for k in kept if k[0] in prediction]
         if not search and kept_pred:
             kept_pred = [k for k, plain in zip(kept_pred, _plain_fit_will_do(kept_pred, prediction, tooling.radius))
                          if not plain]
-        chosen, ambiguous = _search_mirrors(kept_pred, prediction, tooling.radius, sigma, flip)
-    for ball, pts, fit in kept:
+        chosen, ambiguous = _search_mirrors([k[:3] for k in kept_pred], prediction, tooling.radius, sigma, flip)
+    for ball, pts, fit, _ in kept:
         centre, cov = fit.centre, fit.covariance
         if ball in chosen and np.linalg.norm(chosen[ball] - centre) > 1e-9:
             d = pts - chosen[ball]
@@ -167,20 +170,39 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, min_balls: int = 3, 
 
 
 def _plain_fit_will_do(kept, prediction, radius) -> np.ndarray:
-    """For each ``(ball, points, fit)``: its fit passed its check and lies near the prediction (a
-    quarter of the radius, and a quarter of the way to its mirror image): any other start would
-    end in the same minimum."""
-    ok = np.array([fit.ok for _, _, fit in kept])
-    centre = np.array([fit.centre for _, _, fit in kept])
-    pred = np.array([prediction[b] for b, _, _ in kept])
+    """For each ``(ball, points, fit, mirror)``: its fit passed its check and lies near the
+    prediction (a quarter of the radius, and a quarter of the way to its mirror image): any other
+    start would end in the same minimum."""
+    ok = np.array([fit.ok for _, _, fit, _ in kept])
+    centre = np.array([fit.centre for _, _, fit, _ in kept])
+    pred = np.array([prediction[b] for b, _, _, _ in kept])
     d_pred = np.linalg.norm(centre - pred, axis=1)
-    counts = np.array([len(pts) for _, pts, _ in kept])
-    mirror = np.empty_like(centre)
+    d_mirror = np.linalg.norm(centre - np.array([m for _, _, _, m in kept]), axis=1)
+    return ok & (d_pred < 0.25 * radius) & (d_pred < 0.25 * d_mirror)
+
+
+def prefit(records, tooling, sigma_cmm: float) -> None:
+    """The plain sphere fit of every probed ball (3 points or more) of ``records`` and its mirror
+    image through the points, kept on each record (``fits``): all at once, vectorised (each
+    ball's fit is the one a fit of its pose alone gives). Records that have them are left alone."""
+    def stale(r, j, p):
+        return r.fits is None or j not in r.fits or r.fits[j][0] is not p
+
+    todo = [(r, j, p) for r in records for j, (_, p) in enumerate(r.probes) if len(p) >= 3 and stale(r, j, p)]
+    for r in records:
+        if r.fits is None:
+            r.fits = {}
+    if not todo:
+        return
+    fits = fit_spheres_checked([p for _, _, p in todo], tooling.radius, max(sigma_cmm, 1e-6))
+    counts = np.array([len(p) for _, _, p in todo])
+    mirrors = np.empty((len(todo), 3))
     for n in np.unique(counts):
         idx = np.nonzero(counts == n)[0]
-        mirror[idx] = mirror_through_points(np.array([kept[i][1] for i in idx]), centre[idx])
-    d_mirror = np.linalg.norm(centre - mirror, axis=1)
-    return ok & (d_pred < 0.25 * radius) & (d_pred < 0.25 * d_mirror)
+        mirrors[idx] = mirror_through_points(np.array([todo[i][2] for i in idx]),
+                                             np.array([fits[i].centre for i in idx]))
+    for (r, j, p), fit, mirror in zip(todo, fits, mirrors):
+        r.fits[j] = (p, fit, mirror)  # the points themselves: a record whose points are replaced is fitted again
 
 
 def _search_mirrors(kept, prediction, radius, sigma, flip):
@@ -349,14 +371,14 @@ def _centre_rows(engine, theta, q, offsets, centres):
 
 def _pose_rows(engine, theta, q, T):
     """A measured tool pose: 6 rows (rotation log, rad; position, mm), J_theta, J_q."""
-    e, jt, jq = fx.pose_error(theta, q[None], T[None], engine.params.index, engine.held, engine.model.chain)
+    e, jt, jq = fx.pose_error(theta, q[None], T[None], engine.index, engine.held, engine.model.chain)
     return e[0], jt[0], jq[0]
 
 
 def _distance_rows(engine, theta, q, offsets, lengths):
     """Ballbar lengths: one row per ball (mm), J_theta, J_q."""
     qs = np.broadcast_to(q, (len(lengths), len(q)))
-    e, jt, jq = fx.distance_error(theta, qs, offsets, lengths, engine.params.index, engine.held, engine.model.chain)
+    e, jt, jq = fx.distance_error(theta, qs, offsets, lengths, engine.index, engine.held, engine.model.chain)
     return e[:, 0], jt[:, 0], jq[:, 0]
 
 
@@ -365,7 +387,8 @@ def _variant(rec: PoseData, taken: dict) -> PoseData:
     if not taken.get("drop"):
         return rec
     j, k = taken["drop"]
-    out = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances))
+    out = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances),
+                   None if rec.fits is None else dict(rec.fits))
     ball, pts = rec.probes[j]
     out.probes[j] = (ball, np.delete(pts, k, axis=0))
     return out
@@ -378,6 +401,7 @@ class _Engine:
         self.model = model
         self.options = options
         self.params = model.parameters() if names is None else ParameterSet(model, tuple(names))
+        self.index = self.params.index  # slot of each parameter (P,) (a property that builds it anew)
         self.held = model.nominal.copy()
         self.sigmas: Sigmas = _sigmas(ds, model, options)
         self.prior_sigma = weak_prior(self.params)
@@ -404,7 +428,7 @@ class _Engine:
             if len(self._kinematics) >= 8:
                 self._kinematics.clear()
             hit = self._kinematics[key] = fx.pose_ball_centres_error(
-                theta, q, offsets, np.zeros_like(offsets), self.params.index, self.held, self.model.chain)
+                theta, q, offsets, np.zeros_like(offsets), self.index, self.held, self.model.chain)
         return hit
 
     def _prediction(self, rec: PoseData, theta) -> dict:

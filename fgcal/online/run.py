@@ -23,7 +23,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import SLOT_NAMES, RobotModel, slots_to_file_units
-from fgcal.online.engines import PoseData, make_engine, pose_records
+from fgcal.online.engines import PoseData, make_engine, pose_records, prefit
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
 from fgcal.robots.robot_file import model_to_dict
 from fgcal.io.yamlio import atomic_write_text
@@ -189,6 +189,8 @@ class OnlineRun:
         self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options, **self.engine_kw)
         self._fd = None
         self._done = {p["pose"] for p in self.processed}
+        self._is_angle = self.engine.params.is_angle
+        self._file_units = None
         if self.checkpoint is not None:
             self.checkpoint = Path(self.checkpoint)
             self._open()
@@ -285,6 +287,7 @@ class OnlineRun:
         self.streamed = {int(e["pose"]): _record_from_json(e["record"]) for e in entries if "record" in e}
         wanted = {e["pose"] for e in entries}
         records = {r.pose: r for r in pose_records(self.ds, poses=wanted, model=self.model)}
+        prefit(list(records.values()), self.ds.tooling, self.ds.noise.cmm_sigma)
         records.update(self.streamed)
         missing = [e["pose"] for e in entries if e["pose"] not in records]
         if missing:
@@ -309,12 +312,15 @@ class OnlineRun:
         self.history = [e["history"] for e in entries if e["accepted"]]
         if self.engine.n_accepted:
             self.last_estimate = self.engine.estimate()
+            self._file_units = None
         return len(self.processed)
 
     # ------------------------------------------------------------- feeding
     def pending(self, ds: Dataset | None = None):
         ds = ds or self.ds
-        return pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in self._done], model=self.model)
+        records = pose_records(ds, poses=[int(p) for p in ds.pose_ids if int(p) not in self._done], model=self.model)
+        prefit(records, ds.tooling, ds.noise.cmm_sigma)  # every sphere fit at once, vectorised
+        return records
 
     def feed(self, rec, streamed: bool = False) -> dict:
         if streamed:
@@ -326,11 +332,11 @@ class OnlineRun:
         self.processed.append(entry)
         self._done.add(rec.pose)
         if report.accepted:
-            theta, cov = self.last_estimate = self.engine.estimate()
-            params = self.engine.params
-            self.history.append({"pose": rec.pose, "n": self.engine.n_accepted,
-                                 "estimate": params.to_file_units(theta).tolist(),
-                                 "sigma": np.sqrt(np.diag(params.covariance_to_file_units(cov))).tolist()})
+            self.last_estimate = self.engine.estimate()
+            self._file_units = None
+            est, sig = self.estimate_file_units()
+            self.history.append({"pose": rec.pose, "n": self.engine.n_accepted, "estimate": est.tolist(),
+                                 "sigma": sig.tolist()})
         self.save(report.journal)
         return entry
 
@@ -338,7 +344,16 @@ class OnlineRun:
         """``(theta, covariance)`` now (kept from the last accepted pose: no second evaluation)."""
         if self.last_estimate is None:
             self.last_estimate = self.engine.estimate()
+            self._file_units = None
         return self.last_estimate
+
+    def estimate_file_units(self):
+        """``(estimate (P,), sigma (P,))`` now, in file units (mm, deg); computed once a pose."""
+        if self._file_units is None:
+            theta, cov = self.estimate()
+            self._file_units = (np.where(self._is_angle, np.degrees(theta), theta),
+                                np.where(self._is_angle, np.degrees(1.0), 1.0) * np.sqrt(np.diag(cov)))
+        return self._file_units
 
     def result(self) -> CalibrationResult:
         self.engine.finish()
@@ -370,27 +385,27 @@ class Display:
         self.tty = self.stream.isatty()
         self.rows = rows
         self._drawn = 0
+        params = run.engine.params
+        self._prior = params.to_file_units(run.engine.prior_sigma)
+        self._units = params.units
 
     def show(self, entry: dict, total: int | None = None) -> None:
         run = self.run
         params = run.engine.params
-        theta, cov = run.estimate()
-        est = params.to_file_units(theta)
-        sig = np.sqrt(np.diag(params.covariance_to_file_units(cov)))
-        prior = params.to_file_units(run.engine.prior_sigma)
-        rel = sig / prior  # 1: the data have said nothing yet; small: well determined
+        est, sig = run.estimate_file_units()
+        rel = sig / self._prior  # 1: the data have said nothing yet; small: well determined
         order = np.argsort(-rel)[: self.rows]
         n = run.engine.n_accepted
         where = f"{len(run.processed)}/{total}" if total else str(len(run.processed))
         status = "accepted" if entry["accepted"] else f"REJECTED: {entry['reason']}"
         worst = int(np.argmax(rel))
         head = (f"pose {entry['pose']} ({where}) {status}; {n} poses in the estimate; largest sigma "
-                f"{params.names[worst]} {sig[worst]:.3g} {params.units[worst]} ({rel[worst]:.2%} of its prior)")
+                f"{params.names[worst]} {sig[worst]:.3g} {self._units[worst]} ({rel[worst]:.2%} of its prior)")
         if not self.tty:
             print(head, file=self.stream, flush=True)
             return
         lines = [head, f"  {'most uncertain':14s} {'estimate':>14s} {'sigma':>10s}  of prior"]
-        lines += [f"  {params.names[i]:14s} {est[i]:14.6f} {sig[i]:10.3g}  {rel[i]:7.2%} {params.units[i]}"
+        lines += [f"  {params.names[i]:14s} {est[i]:14.6f} {sig[i]:10.3g}  {rel[i]:7.2%} {self._units[i]}"
                   for i in order]
         if self._drawn:
             self.stream.write(f"\x1b[{self._drawn}F\x1b[J")
