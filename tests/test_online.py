@@ -10,7 +10,8 @@ import pytest
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.online.engines import make_engine, pose_records
-from fgcal.online.run import OnlineRun, read_checkpoint
+from fgcal.online.checkpoint import read_checkpoint
+from fgcal.online.run import OnlineRun
 from fgcal.studies.simulate import SimulationSettings, simulate
 
 
@@ -241,7 +242,7 @@ def test_checkpoint_is_locked_and_never_over_an_input(puma, dataset, tmp_path):
 
 
 def test_default_checkpoint_belongs_to_dataset_and_output(tmp_path):
-    from fgcal.online.run import default_checkpoint
+    from fgcal.online.checkpoint import default_checkpoint
 
     a = default_checkpoint(tmp_path / "x" / "d", "ekf")
     b = default_checkpoint(tmp_path / "y" / "d", "ekf")  # same folder name, another dataset
@@ -251,7 +252,7 @@ def test_default_checkpoint_belongs_to_dataset_and_output(tmp_path):
 
 
 def test_stream_skips_undecodable_lines():
-    from fgcal.online.run import read_stream
+    from fgcal.online.stream import read_stream
 
     warnings = []
     lines = [b"joints,1,0,0,0,0,0,0\n", b"probe,1,A,1,2,\xff3\n", b"probe,1,A,1,2,3\n", b"end,1\n"]
