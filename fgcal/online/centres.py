@@ -40,7 +40,9 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, prediction=None, spr
     the points' information linearised at the prediction instead (:func:`_linearised_at`), the
     first-order content of its probe residuals there, as the batch's joint solve sees them,
     once the prediction is certain enough for that (``spread``, ball -> mm, within
-    :data:`NEAR_ENOUGH` of the radius); until then it is fitted as the others.
+    :data:`NEAR_ENOUGH` of the radius); until then only along the cap's axis
+    (:func:`_axial_only`): a fitted centre there, even the one nearer the prediction, can be
+    millimetres off and would corrupt the early estimate.
     """
     good, bad = [], []
     usable = [(b, p) for b, p in rec.probes if len(p) >= 3]
@@ -56,8 +58,10 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, prediction=None, spr
             bad.append(f"ball {ball}: {fit.status}")
             continue
         kept.append((ball, pts, fit, mirror))
-        if thin and prediction is not None and ball in prediction and spread[ball] < NEAR_ENOUGH * tooling.radius:
-            narrow[ball] = _linearised_at(pts, prediction[ball], tooling.radius, sigma)
+        if thin and prediction is not None and ball in prediction:
+            narrow[ball] = (_linearised_at(pts, prediction[ball], tooling.radius, sigma)
+                            if spread[ball] < NEAR_ENOUGH * tooling.radius else
+                            _axial_only(pts, prediction[ball], tooling.radius, sigma, spread[ball]))
     chosen, ambiguous = {}, []
     if prediction is not None:
         kept_pred = [k for k in kept if k[0] in prediction and k[0] not in narrow]
@@ -68,13 +72,15 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, prediction=None, spr
     for ball, pts, fit, _ in kept:
         centre, cov = fit.centre, fit.covariance
         if ball in narrow:
+            if narrow[ball] is None:
+                continue
             centre, cov = narrow[ball]
         elif ball in chosen and np.linalg.norm(chosen[ball] - centre) > 1e-9:
             d = pts - chosen[ball]
             J = d / np.linalg.norm(d, axis=1, keepdims=True)
             centre, cov = chosen[ball], np.linalg.inv(J.T @ J) * sigma**2
         good.append((ball, centre, cov))
-    if rec.probes and len(good) < min_balls:
+    if rec.probes and len(good) + sum(v is None for v in narrow.values()) < min_balls:
         return None, [], f"{len(good)} good ball(s) of {len(rec.probes)}; a pose needs {min_balls}" + (
             f" ({'; '.join(bad)})" if bad else "")
     return good, ambiguous, None
@@ -89,6 +95,24 @@ def _linearised_at(points, centre, radius: float, sigma: float):
     U = d / dist[:, None]
     info = U.T @ U
     return centre + np.linalg.solve(info, U.T @ (dist - radius)), np.linalg.inv(info) * sigma**2
+
+
+def _axial_only(points, centre, radius: float, sigma: float, spread: float):
+    """``(centre (3,), covariance (3, 3))`` from a narrow cap's ``points`` along its axis only, for a
+    prediction ``centre`` of standard deviation ``spread`` (mm): the mean distance of the points
+    from it says where the centre lies along the axis (to ``spread^2 / 2 radius``, the error of
+    a prediction off to the side); across the axis the covariance is the radius squared, which
+    leaves the information there to the other balls and poses. None when that axial error
+    exceeds the radius (the ball then says nothing: it is left out of the pose, not refused)."""
+    d = points - centre
+    dist = np.linalg.norm(d, axis=1)
+    axis = np.mean(d / dist[:, None], axis=0)
+    axis /= np.linalg.norm(axis)
+    along = sigma**2 / len(points) + (spread**2 / (2.0 * radius)) ** 2
+    aa = np.outer(axis, axis)
+    if along > radius**2:  # the prediction is too uncertain for the cap to say anything
+        return None
+    return centre + np.mean(dist - radius) * axis, along * aa + radius**2 * (np.eye(3) - aa)
 
 
 def _plain_fit_will_do(kept, prediction, radius) -> np.ndarray:

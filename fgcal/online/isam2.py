@@ -18,7 +18,7 @@ class ISAM2Engine(_Engine):
     snapshots = False  # the tree cannot be stored: a resume replays the journal
 
     def __init__(self, ds, model, options=CalibrationOptions(), names=None, theta_threshold=(0.05, 1e-4),
-                 factorization="CHOLESKY", window: int = 50):
+                 factorization="QR", window: int = 50):
         """``window``: poses (their joint variables and factors) in one tree. When it is full the
         tree is replaced by a new one whose only factor is the parameters' marginal, a Gaussian at
         the current estimate: each pose's information stays, its linearisation is frozen (as a
