@@ -21,13 +21,14 @@ from functools import cached_property
 import numpy as np
 
 import factors.errors as fx
+from fgcal.estimation.elimination import POSE_CHUNK, ArrowElimination
+from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
-POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
-LEVELS = ("probes", "kinematic", "centres", "poses", "distances", "joints", "prior")
+LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ def _robust(s, kind, k):
     raise ValueError(f"unknown robust loss {kind!r}")
 
 
-class Graph:
+class Graph(ArrowElimination):
     """The factor graph of one dataset, laid out for batched evaluation.
 
     Parameters
@@ -110,10 +111,9 @@ class Graph:
     ball_pose, ball_offset : ndarray, shapes (Nb,), (Nb, 3)
         The ball-centre variables: their pose index and tool-frame offset.
     radius : float
-    centres : tuple (pose_index (Mc,), offset (Mc, 3), xyz (Mc, 3)) or None
-    poses : tuple (pose_index (Mq,), T (Mq, 4, 4)) or None
-    distances : tuple (pose_index (Md,), offset (Md, 3), length (Md,)) or None
-        Ballbar lengths from the world origin (the pivot) to a tool ball.
+    measurements : dict of level to Terms, optional
+        The kinematic measurements (ball centres, poses, ballbar lengths, ...), each a
+        :class:`fgcal.measurements.base.Terms` of its type in :mod:`fgcal.measurements.types`.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
     joint_errors : ndarray, shape (N, n, K), optional
@@ -122,7 +122,7 @@ class Graph:
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
-                 ball_offset=None, radius=0.0, centres=None, poses=None, distances=None, prior=None, robust=None,
+                 ball_offset=None, radius=0.0, measurements=None, prior=None, robust=None,
                  robust_k=None, joint_errors=None):
         self.params = params
         self.index = params.index
@@ -147,9 +147,12 @@ class Graph:
         self.ball_pose = np.zeros(0, dtype=int) if ball_pose is None else np.asarray(ball_pose, dtype=int)
         self.ball_offset = np.zeros((0, 3)) if ball_offset is None else np.asarray(ball_offset, dtype=float)
         self.probes = probes
-        self.centres = centres
-        self.poses = poses
-        self.distances = distances
+        measurements = measurements or {}
+        unknown = set(measurements) - set(BY_LEVEL)
+        if unknown:
+            raise ValueError(f"unknown measurement level(s) {', '.join(sorted(unknown))}")
+        # In registry order: the row layout does not depend on the caller's dict order.
+        self.measurements = {t.level: measurements[t.level] for t in kinematic_levels(measurements)}
 
         # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
         qdim = nj if self.joint_vars else 0
@@ -186,12 +189,8 @@ class Graph:
         self.level_rows = {}
         if nb:
             self.row["kinematic"] = take(self.ball_pose, 3)
-        if centres is not None:
-            self.row["centres"] = take(centres[0], 3)
-        if poses is not None:
-            self.row["poses"] = take(poses[0], 6)
-        if distances is not None:
-            self.row["distances"] = take(distances[0], 1)
+        for level, terms in self.measurements.items():
+            self.row[level] = take(terms.pose, BY_LEVEL[level].width)
         if self.joint_vars and self.K:  # the joint-error block enters the joint rows
             self.row["joints"] = take(np.arange(n), nj)
         self.m_theta = int(rows.max()) if n else 0
@@ -220,16 +219,13 @@ class Graph:
 
     @cached_property
     def pose_rows(self) -> list:
-        """Per pose, the rows that touch only theta and q (centres, poses, joints)."""
-        n = self.n_poses
-        pose_rows = [[] for _ in range(n)]
-        for level, width in (("centres", 3), ("poses", 6), ("distances", 1), ("joints", self.n_joints)):
+        """Per pose, the rows that touch only theta and q (kinematic measurements, joints)."""
+        pose_rows = [[] for _ in range(self.n_poses)]
+        for level in [*self.measurements, "joints"]:
             if level in self.row:
-                pose_of = {"centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
-                           "distances": lambda: self.distances[0],
-                           "joints": lambda: np.arange(n)}
-                for p, start in zip(pose_of[level](), self.row[level]):
-                    pose_rows[p] += list(range(int(start), int(start) + width))
+                pose, rows_ = self.factor_rows(level)
+                for p, r in zip(pose.tolist(), rows_):
+                    pose_rows[p] += r.tolist()
         return [np.array(r, dtype=int) for r in pose_rows]
 
     # ------------------------------------------------------------------ evaluation
@@ -280,8 +276,7 @@ class Graph:
             width = e.shape[1]
             ew = e / sigma
             s = np.linalg.norm(ew, axis=1)
-            w, rho = _robust(s, self.robust if level in ("probes", "centres", "poses", "distances") else None,
-                             self.robust_k)
+            w, rho = _robust(s, self.robust if level == "probes" or level in BY_LEVEL else None, self.robust_k)
             if level in self.excluded:  # excluded measurements: zero weight, no cost
                 w = np.where(self.excluded[level], 0.0, w)
                 rho = np.where(self.excluded[level], 0.0, rho)
@@ -324,22 +319,11 @@ class Graph:
             J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
                 sigma=self.sigmas.kinematic)
-        if self.centres is not None:
-            pose_i, offset, xyz = self.centres
-            e, J_t, J_q = fx.ball_centre_error(theta, q[pose_i], offset, xyz, self.index, self.held, self.chain)
-            J_t = self._with_block(pose_i, J_t, J_q)
-            put("centres", pose_i, self.row["centres"], e, J_t, J_q, sigma=self.sigmas.centre)
-        if self.poses is not None:
-            pose_i, T = self.poses
-            e, J_t, J_q = fx.pose_error(theta, q[pose_i], T, self.index, self.held, self.chain)
-            J_t = self._with_block(pose_i, J_t, J_q)
-            sig = np.array([self.sigmas.pose_rotation] * 3 + [self.sigmas.pose_position] * 3)
-            put("poses", pose_i, self.row["poses"], e, J_t, J_q, sigma=sig)
-        if self.distances is not None:
-            pose_i, offset, length = self.distances
-            e, J_t, J_q = fx.distance_error(theta, q[pose_i], offset, length, self.index, self.held, self.chain)
-            J_t = self._with_block(pose_i, J_t, J_q)
-            put("distances", pose_i, self.row["distances"], e, J_t, J_q, sigma=self.sigmas.distance)
+        for level, terms in self.measurements.items():
+            kind = BY_LEVEL[level]
+            e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
+            J_t = self._with_block(terms.pose, J_t, J_q)
+            put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
         if self.joint_vars:
             nj = self.n_joints
             J_t = None
@@ -363,148 +347,12 @@ class Graph:
     def cost(self, state: State) -> float:
         return self.linearise(state).cost
 
-    # ------------------------------------------------------------------ solving
-    def normal_equations(self, lin: Linearisation):
-        """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
-
-        Formed once per linearisation (kept on ``lin``) by BLAS products over the per-pose blocks.
-        """
-        if "normal" in lin.cache:
-            return lin.cache["normal"]
-        n, mt, P = lin.J_theta.shape
-        Jt2 = lin.J_theta.reshape(-1, P)
-        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
-        g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
-        JzT = lin.J_local.transpose(0, 2, 1)
-        B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
-        D = np.matmul(JzT, lin.J_local)
-        g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
-        # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
-        pad = ~self.local_used
-        D[pad] = 0.0
-        D[:, np.arange(self.nz), np.arange(self.nz)] += pad
-        lin.cache["normal"] = (A, B, D, g_t, g_z)
-        return lin.cache["normal"]
-
-    def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0):
-        """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
-        if damping:
-            A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
-        S = A.copy()
-        rhs = None if g_t is None else g_t.copy()
-        Dinv = np.empty_like(D)
-        idx = np.arange(self.nz)
-        for lo in range(0, len(D), POSE_CHUNK):  # in chunks of poses: no temporaries of N blocks
-            c = slice(lo, lo + POSE_CHUNK)
-            Dc = D[c]
-            if damping:
-                Dc = Dc.copy()
-                Dc[:, idx, idx] += damping * np.maximum(Dc[:, idx, idx], 1e-12)
-            Dinv[c] = np.linalg.inv(Dc) if self.nz else Dc
-            BD = np.matmul(B[c], Dinv[c])
-            S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
-            if rhs is not None:
-                rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
-        return S, rhs, Dinv
-
-    def _reduced_at(self, lin: Linearisation):
-        """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
-        if "reduced" not in lin.cache:
-            A, B, D, _, _ = self.normal_equations(lin)
-            _, _, Dinv = self.reduced(A, B, D)
-            # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
-            # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
-            n, mt, P = lin.J_theta.shape
-            S = lin.prior_J.T @ lin.prior_J
-            for lo in range(0, n, POSE_CHUNK):
-                c = slice(lo, lo + POSE_CHUNK)
-                k = len(lin.r[c])
-                M = np.zeros((k, self.m + self.nz, self.nz + P))
-                M[:, :self.m, :self.nz] = lin.J_local[c]
-                M[:, :mt, self.nz:] = lin.J_theta[c]
-                pad = ~self.local_used[c]
-                M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
-                R = np.linalg.qr(M, mode="r")[:, self.nz:, self.nz:]
-                S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
-            lin.cache["reduced"] = (S, Dinv)
-        return lin.cache["reduced"]
-
-    def step(self, state: State, lin: Linearisation, damping: float):
-        """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
-        A, B, D, g_t, g_z = self.normal_equations(lin)
-        S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping)
-        d_theta = -np.linalg.solve(S, rhs)
-        d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
-        new = state.copy()
-        new.theta = state.theta + d_theta
-        if self.joint_vars:
-            new.q = state.q + d_z[:, :self.n_joints]
-        if len(self.ball_pose):
-            cols = self.ball_col[:, None] + np.arange(3)
-            new.c = state.c + d_z[self.ball_pose[:, None], cols]
-        # The Gauss-Newton model's decrease: -g.d - d.H.d / 2 over all variables (H undamped).
-        g_dot = g_t @ d_theta + np.einsum("nz,nz->", g_z, d_z)
-        Hd_t = A @ d_theta + np.einsum("npz,nz->p", B, d_z)
-        Hd_z = np.matmul(d_theta, B) + np.matmul(D, d_z[:, :, None])[:, :, 0]
-        dHd = d_theta @ Hd_t + np.einsum("nz,nz->", d_z, Hd_z)
-        return new, d_theta, float(-g_dot - 0.5 * dHd)
-
-    def parameter_information(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
-        """The (P, P) information of theta with the per-pose variables marginalised out.
-
-        ``lin``: the linearisation at ``state`` when the caller has it already.
-        """
-        lin = self.linearise(state) if lin is None else lin
-        return self._reduced_at(lin)[0]
-
-    def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
-        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""
-        lin = self.linearise(state) if lin is None else lin
-        if "covariance" not in lin.cache:
-            S = self._reduced_at(lin)[0]
-            lin.cache["covariance"] = np.linalg.inv(0.5 * (S + S.T))
-        return lin.cache["covariance"]
-
     def factor_rows(self, level: str):
         """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
-        width = {"probes": 1, "kinematic": 3, "centres": 3, "poses": 6, "distances": 1,
-                 "joints": self.n_joints}[level]
-        pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
-                "centres": lambda: self.centres[0], "poses": lambda: self.poses[0],
-                "distances": lambda: self.distances[0], "joints": lambda: np.arange(self.n_poses)}[level]()
+        if level in self.measurements:
+            width, pose = BY_LEVEL[level].width, self.measurements[level].pose
+        else:
+            width = {"probes": 1, "kinematic": 3, "joints": self.n_joints}[level]
+            pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
+                    "joints": lambda: np.arange(self.n_poses)}[level]()
         return np.asarray(pose, dtype=int), self.row[level][:, None] + np.arange(width)
-
-    def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
-        """Diagonal of the hat matrix (N, m) of the whitened rows; ``covariance`` is theta's (P, P).
-
-        One minus it is each row's redundancy number (Foerstner): the share of its noise that
-        shows in its residual.
-        """
-        lin = self.linearise(state) if lin is None else lin
-        _, B, _, _, _ = self.normal_equations(lin)
-        _, Dinv = self._reduced_at(lin)
-        St = covariance  # (P, P) = S^-1
-        E = -np.matmul(Dinv, B.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = E @ St  # (N, nz, P)
-        Szz = Dinv + np.matmul(Szt, E.transpose(0, 2, 1))
-        Jt, Jz = lin.J_theta, lin.J_local
-        mt = Jt.shape[1]
-        # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt rows
-        # of a pose depend on theta.
-        h = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
-        h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
-        return h
-
-    def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
-        """Redundancy of each factor level: rows (excluded ones not counted) and the sum of their leverage."""
-        lin = self.linearise(state) if lin is None else lin
-        h = self.row_leverage(state, covariance, lin)
-        out = {}
-        for level in self.row:
-            pose, rows_ = self.factor_rows(level)
-            kept = ~self.excluded.get(level, np.zeros(len(pose), dtype=bool))
-            out[level] = (int(rows_[kept].size), float(h[pose[kept, None], rows_[kept]].sum()))
-        if self.prior is not None:
-            hp = np.einsum("kp,pq,kq->k", lin.prior_J, covariance, lin.prior_J)
-            out["prior"] = (len(hp), float(hp.sum()))
-        return out

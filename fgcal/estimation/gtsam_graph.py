@@ -9,6 +9,7 @@ import numpy as np
 
 from fgcal.estimation.calibrate import CalibrationOptions, _unidentifiable, build_graph
 from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, State
 from fgcal.robots.model import RobotModel
@@ -151,20 +152,12 @@ def nonlinear_graph(graph: Graph, state: State):
                 f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, None)
                 f = f.cloneWithNewNoiseModel(fx.noise_model([sig.probe], robust, k))
             g.add(f)
-    if graph.centres is not None:
-        for i, off, xyz in zip(*graph.centres):
-            f = fx.ball_centre_factor(graph.index, graph.held, off, sig.centre, t_key=t_key, c_measured=xyz, **qargs(i))
-            g.add(f.cloneWithNewNoiseModel(fx.noise_model([sig.centre] * 3, robust, k)) if robust else f)
-    if graph.poses is not None:
-        for i, T in zip(*graph.poses):
-            f = fx.pose_factor(graph.index, graph.held, T, sig.pose_rotation, sig.pose_position, t_key=t_key, **qargs(i))
-            if robust:
-                f = f.cloneWithNewNoiseModel(fx.noise_model([sig.pose_rotation] * 3 + [sig.pose_position] * 3, robust, k))
-            g.add(f)
-    if graph.distances is not None:
-        for i, off, length in zip(*graph.distances):
-            f = fx.distance_factor(graph.index, graph.held, off, length, sig.distance, t_key=t_key, **qargs(i))
-            g.add(f.cloneWithNewNoiseModel(fx.noise_model([sig.distance], robust, k)) if robust else f)
+    for level, terms in graph.measurements.items():
+        kind = BY_LEVEL[level]
+        sigma = kind.sigma(sig)
+        for i, *row in zip(terms.pose.tolist(), *terms.data):
+            f = kind.factor(row, graph.index, graph.held, sigma, t_key=t_key, **qargs(i))
+            g.add(f.cloneWithNewNoiseModel(fx.noise_model(sigma, robust, k)) if robust else f)
     if graph.prior is not None:
         g.add(fx.parameter_prior(t_key, graph.prior[0], graph.prior[1]))
     return g, values

@@ -122,9 +122,9 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
         r = r - np.einsum("nmz,nz->nm", Q, np.einsum("nmz,nm->nz", Q, r))
         J = J - np.einsum("nmz,nzp->nmp", Q, np.einsum("nmz,nmp->nzp", Q, J))
     if "poses" in graph.row:
-        start, unit_scale, pose = graph.row["poses"] + 3, graph.sigmas.pose_position, graph.poses[0]
+        start, unit_scale, pose = graph.row["poses"] + 3, graph.sigmas.pose_position, graph.measurements["poses"].pose
     elif "centres" in graph.row:
-        start, unit_scale, pose = graph.row["centres"], graph.sigmas.centre, graph.centres[0]
+        start, unit_scale, pose = graph.row["centres"], graph.sigmas.centre, graph.measurements["centres"].pose
     else:
         start, unit_scale, pose = None, 1.0, None
     if start is None:

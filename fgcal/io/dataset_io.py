@@ -17,7 +17,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.measurements.dataset import FORMAT, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
+from fgcal.measurements.cells import MAX_DEG, pose_id
+from fgcal.measurements.cells import integer as _integer
+from fgcal.measurements.cells import number as _number
+from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
+from fgcal.measurements.point import POINT
+from fgcal.measurements.pose import POSE
+from fgcal.measurements.types import kinematic_types
 from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
@@ -36,33 +42,7 @@ MAX_JOINTS = 64
 def joint_columns(n: int) -> list[str]:
     """``pose, q1 .. qn``: the header of joints.csv for an ``n``-joint robot."""
     return ["pose"] + [f"q{i}" for i in range(1, n + 1)]
-POINT_COLUMNS = ["pose", "ball", "x", "y", "z"]
-POSE_COLUMNS = ["pose", "x", "y", "z", "qw", "qx", "qy", "qz"]
-DISTANCE_COLUMNS = ["pose", "ball", "length"]
-
-
-# Bounds beyond which a value is a mistake, not a measurement: 1000 km, or a million degrees.
-MAX_MM = 1e9
-MAX_DEG = 1e6
-
-
-def _number(text: str, where: str, what: str, limit: float = MAX_MM) -> float:
-    try:
-        value = float(text)
-    except (TypeError, ValueError):
-        raise DatasetError(f"{where}: {what} is not a number: {short_repr(text)}") from None
-    if not math.isfinite(value):
-        raise DatasetError(f"{where}: {what} is not finite: {short_repr(text)}")
-    if abs(value) > limit:
-        raise DatasetError(f"{where}: {what} = {text} is absurdly large (beyond {limit:g}; a unit mistake?)")
-    return value
-
-
-def _integer(text: str, where: str, what: str) -> int:
-    try:
-        return int(text)
-    except (TypeError, ValueError):
-        raise DatasetError(f"{where}: {what} must be an integer id, got {short_repr(text)}") from None
+POINT_COLUMNS = list(POINT.columns)  # probes.csv has the columns of centres.csv
 
 
 def _table_records(path: Path, columns: list[str], optional=()):
@@ -115,7 +95,8 @@ def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
 
 
 def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> PointObservations:
-    """A ``pose,ball,x,y,z`` file, streamed into compact arrays (memory linear in the rows, small constant)."""
+    """A ``pose,ball,x,y,z`` file (probe points), streamed into compact arrays (memory linear in the
+    rows, small constant): probe files are the largest a dataset has."""
     names = list(balls)
     ball_index = {b: i for i, b in enumerate(names)}
     pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
@@ -149,60 +130,30 @@ def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> Poi
                              np.frombuffer(lines, dtype=np.int64).astype(int))
 
 
-def _distance_table(path: Path, known_poses: set, balls: dict) -> DistanceObservations:
-    """``distances.csv``: ``pose,ball,length`` (mm), one ballbar length per pose and ball."""
-    rows = _read_table(path, DISTANCE_COLUMNS)
-    pose, ball, length, lines, seen = [], [], [], [], {}
-    for line, r in rows:
+def _measurement_table(path: Path, kind, known_poses: set, balls: dict):
+    """The observations of a kinematic measurement type from its file (:mod:`fgcal.measurements.types`).
+
+    One row per pose and ball (or per pose, for types measured once per pose); each row is
+    parsed and checked by the type.
+    """
+    pose, ball, values, lines, seen = [], [], [], [], {}
+    for line, header, cells in _table_records(path, list(kind.columns)):
         where = f"{path}: line {line}"
-        pid = _integer(r["pose"], where, "pose")
-        if pid not in known_poses:
-            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
-        if r["ball"] not in balls:
-            raise DatasetError(f"{where}: unknown ball {short_repr(r['ball'])} (dataset.yaml tool.balls has {', '.join(balls)})")
-        key = (pid, r["ball"])
+        record = dict(zip(header, cells))
+        pid = pose_id(record["pose"], where, known_poses)
+        b, v = kind.parse(where, record, balls)
+        key = (pid, b)
         if key in seen:
-            raise DatasetError(f"{where}: duplicate length of ball {r['ball']} at pose {pid} (first on line {seen[key]})")
+            what = f"{kind.noun} of ball {b} at pose {pid}" if kind.per_ball else f"{kind.noun} {pid}"
+            raise DatasetError(f"{where}: duplicate {what} (first on line {seen[key]})")
         seen[key] = line
-        value = _number(r["length"], where, "length")
-        if value <= 0:
-            raise DatasetError(f"{where}: length must be positive (mm), got {value!r}")
         pose.append(pid)
-        ball.append(r["ball"])
-        length.append(value)
+        ball.append(b)
+        values.append(v)
         lines.append(line)
-    return DistanceObservations(np.array(pose, dtype=int), np.array(ball, dtype=str), np.array(length, dtype=float),
-                                np.array(lines, dtype=int))
-
-
-def _pose_row(where: str, r: dict) -> tuple[int, np.ndarray, np.ndarray]:
-    """``(pose, xyz, unit quaternion)`` of a ``pose,x,y,z,qw,qx,qy,qz`` row; the norm is checked."""
-    pid = _integer(r["pose"], where, "pose")
-    q = np.array([_number(r[c], where, c) for c in ("qw", "qx", "qy", "qz")])
-    norm = np.linalg.norm(q)
-    if abs(norm - 1.0) > 1e-3:
-        raise DatasetError(f"{where}: quaternion (qw, qx, qy, qz) has norm {norm:.6g}, expected 1")
-    return pid, np.array([_number(r[c], where, c) for c in "xyz"]), q / norm
-
-
-def _pose_table(path: Path, known_poses: set) -> PoseObservations:
-    rows = _read_table(path, POSE_COLUMNS)
-    pose, xyz, quat, lines = [], [], [], []
-    seen = {}
-    for line, r in rows:
-        where = f"{path}: line {line}"
-        pid, p, q = _pose_row(where, r)
-        if pid not in known_poses:
-            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
-        if pid in seen:
-            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
-        seen[pid] = line
-        pose.append(pid)
-        xyz.append(p)
-        quat.append(q)
-        lines.append(line)
-    return PoseObservations(np.array(pose, dtype=int), np.array(xyz).reshape(-1, 3), np.array(quat).reshape(-1, 4),
-                            np.array(lines, dtype=int))
+    width = len(values[0]) if values else 0
+    return kind.observations(np.array(pose, dtype=int), np.array(ball, dtype=str),
+                             np.array(values, dtype=float).reshape(len(values), width), np.array(lines, dtype=int))
 
 
 def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
@@ -338,12 +289,9 @@ def load_dataset(directory) -> Dataset:
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
-    if os.path.lexists(directory / "centres.csv"):
-        ds.centres = _point_table(directory / "centres.csv", known, tooling.balls, unique=True)
-    if os.path.lexists(directory / "poses.csv"):
-        ds.poses = _pose_table(directory / "poses.csv", known)
-    if os.path.lexists(directory / "distances.csv"):
-        ds.distances = _distance_table(directory / "distances.csv", known, tooling.balls)
+    for kind in kinematic_types():
+        if os.path.lexists(directory / kind.file):
+            setattr(ds, kind.level, _measurement_table(directory / kind.file, kind, known, tooling.balls))
     if os.path.lexists(directory / "truth.yaml"):
         ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
@@ -360,7 +308,7 @@ def read_targets(path):
     from fgcal.robots.transforms import pose_matrices
 
     path = Path(path)
-    rows = _read_table(path, POSE_COLUMNS, optional=JOINT_COLUMNS[1:])
+    rows = _read_table(path, list(POSE.columns), optional=JOINT_COLUMNS[1:])
     if not rows:
         raise DatasetError(f"{path}: no targets")
     has_q = [c in rows[0][1] for c in JOINT_COLUMNS[1:]]
@@ -369,7 +317,9 @@ def read_targets(path):
     ids, T, seeds, seen = [], [], [], {}
     for line, r in rows:
         where = f"{path}: line {line}"
-        pid, xyz, quat = _pose_row(where, r)
+        pid = _integer(r["pose"], where, "pose")
+        _, values = POSE.parse(where, r, {})
+        xyz, quat = values[:3], values[3:]
         if pid in seen:
             raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
         seen[pid] = line
@@ -429,19 +379,12 @@ def _write_into(ds: Dataset, directory: Path) -> None:
     atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
     write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
               ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
-    for level, name in (("probes", "probes.csv"), ("centres", "centres.csv")):
-        obs = getattr(ds, level)
+    if ds.probes is not None:
+        write_csv(directory / "probes.csv", POINT_COLUMNS, POINT.rows(ds.probes))
+    for kind in kinematic_types():
+        obs = getattr(ds, kind.level, None)
         if obs is not None:
-            write_csv(directory / name, POINT_COLUMNS,
-                      ([int(p), b, *map(float, x)] for p, b, x in zip(obs.pose, obs.ball, obs.xyz)))
-    if ds.poses is not None:
-        quat = ds.poses.quat / np.linalg.norm(ds.poses.quat, axis=1, keepdims=True)
-        write_csv(directory / "poses.csv", POSE_COLUMNS,
-                  ([int(p), *map(float, x), *map(float, qq)] for p, x, qq in zip(ds.poses.pose, ds.poses.xyz, quat)))
-    if ds.distances is not None:
-        d = ds.distances
-        write_csv(directory / "distances.csv", DISTANCE_COLUMNS,
-                  ([int(p), b, float(v)] for p, b, v in zip(d.pose, d.ball, d.length)))
+            write_csv(directory / kind.file, kind.columns, kind.rows(obs))
     if ds.truth is not None:
         truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
         if ds.truth_outliers:

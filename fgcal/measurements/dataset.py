@@ -12,12 +12,14 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.robots.model import Tooling
-from fgcal.robots.transforms import pose_matrices
+from fgcal.measurements.distance import DistanceObservations
+from fgcal.measurements.point import PointObservations
+from fgcal.measurements.pose import PoseObservations
+from fgcal.measurements.types import LEVELS, all_levels
 
 __all__ = ["FORMAT", "LEVELS", "Noise", "PointObservations", "PoseObservations", "DistanceObservations", "Dataset"]
 
 FORMAT = "fgcal-dataset/1"
-LEVELS = ("probes", "centres", "poses", "distances")  # measurement levels, richest first
 
 
 @dataclass(frozen=True)
@@ -53,102 +55,6 @@ class Noise:
     def joint_sigma_deg(self) -> float:
         """Standard deviation of a joint reading (deg): rounding (res / sqrt 12) and repeatability."""
         return float(np.hypot(self.joint_resolution / np.sqrt(12.0), self.repeatability))
-
-
-@dataclass
-class PointObservations:
-    """Measured points, one row each: probe points or ball centres (world, mm).
-
-    Attributes
-    ----------
-    pose : ndarray of int, shape (M,)
-    ball : ndarray of str, shape (M,)
-    xyz : ndarray, shape (M, 3)
-    line : ndarray of int, shape (M,)
-        Line in the source file (0 when made in memory), for error messages.
-    """
-
-    pose: np.ndarray
-    ball: np.ndarray
-    xyz: np.ndarray
-    line: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
-        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-        if not (len(self.pose) == len(self.ball) == len(self.xyz) == len(self.line)):
-            raise ValueError("pose, ball, xyz and line must have the same length")
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask) -> "PointObservations":
-        return PointObservations(self.pose[mask], self.ball[mask], self.xyz[mask], self.line[mask])
-
-
-@dataclass
-class PoseObservations:
-    """Measured tool poses (world): position (mm) and unit quaternion ``(qw, qx, qy, qz)``."""
-
-    pose: np.ndarray
-    xyz: np.ndarray
-    quat: np.ndarray
-    line: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
-        self.quat = np.asarray(self.quat, dtype=float).reshape(-1, 4)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-        if not (len(self.pose) == len(self.xyz) == len(self.quat) == len(self.line)):
-            raise ValueError("pose, xyz, quat and line must have the same length")
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask) -> "PoseObservations":
-        return PoseObservations(self.pose[mask], self.xyz[mask], self.quat[mask], self.line[mask])
-
-    def matrices(self) -> np.ndarray:
-        """The poses as homogeneous transforms ``(K, 4, 4)`` (mm)."""
-        return pose_matrices(self.xyz, self.quat)
-
-
-@dataclass
-class DistanceObservations:
-    """Measured distances (mm), one row each: a telescoping ballbar between a tool ball and a fixed
-    pivot whose position is unknown. The dataset's world frame has its origin at the pivot.
-
-    Attributes
-    ----------
-    pose : ndarray of int, shape (M,)
-    ball : ndarray of str, shape (M,)
-        The tool ball at the bar's moving end.
-    length : ndarray, shape (M,)
-        Centre-to-centre length of the bar (mm).
-    line : ndarray of int, shape (M,)
-    """
-
-    pose: np.ndarray
-    ball: np.ndarray
-    length: np.ndarray
-    line: np.ndarray | None = None
-
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
-        self.length = np.asarray(self.length, dtype=float).reshape(-1)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-        if not (len(self.pose) == len(self.ball) == len(self.length) == len(self.line)):
-            raise ValueError("pose, ball, length and line must have the same length")
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask) -> "DistanceObservations":
-        return DistanceObservations(self.pose[mask], self.ball[mask], self.length[mask], self.line[mask])
 
 
 @dataclass
@@ -228,12 +134,12 @@ class Dataset:
                       pose_ids=self.pose_ids[keep], joints_deg=self.joints_deg[keep], truth=self.truth,
                       truth_outliers=[o for o in self.truth_outliers if o[0] in set(self.pose_ids[keep].tolist())],
                       path=self.path, chain=self.chain)
-        for level in LEVELS:
-            obs = getattr(self, level)
+        for level in all_levels():
+            obs = getattr(self, level, None)
             if obs is not None:
                 setattr(out, level, obs.subset(np.isin(obs.pose, self.pose_ids[keep])))
         return out
 
     def levels(self) -> list[str]:
         """The measurement levels present: a subset of :data:`LEVELS`."""
-        return [lv for lv in LEVELS if getattr(self, lv) is not None]
+        return [lv for lv in all_levels() if getattr(self, lv, None) is not None]

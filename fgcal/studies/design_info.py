@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.errors import ball_centre_error, distance_error, pose_error, probe_error
+from factors.errors import ball_centre_error, probe_error
 
 from fgcal.estimation.calibrate import CalibrationOptions, _sigmas
 from fgcal.measurements.dataset import Dataset, Noise
+from fgcal.measurements.types import LEVELS, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
@@ -33,7 +34,7 @@ from fgcal.studies.simulate import UP, ball_access
 
 __all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information"]
 
-DESIGNED_LEVELS = ("probes", "centres", "poses", "distances")  # all of fgcal.measurements.dataset.LEVELS
+DESIGNED_LEVELS = LEVELS  # every level: each measurement type brings its own rows
 
 
 @dataclass
@@ -138,38 +139,36 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
         blocks_t.append(rows_t)
         blocks_l.append(local)
 
-    if k and ("probes" in layout.levels or "centres" in layout.levels):
+    T = model.forward(x, q)
+    for kind in kinematic_levels(layout.levels):  # each measurement type's own error and noise
+        if kind.per_ball and not k:
+            continue
+        T_m = np.repeat(T, k, axis=0) if kind.per_ball else T
+        q_m = np.repeat(q, k, axis=0) if kind.per_ball else q
+        off = offsets[balls].reshape(-1, 3) if kind.per_ball else np.zeros((n, 3))
+        _, Jt, Jq = kind.error(theta, q_m, kind.design_data(T_m, off), idx, x, model.chain)
+        w = 1.0 / kind.sigma(sig)
+        add((Jt * w[None, :, None]).reshape(n, -1, P), (Jq * w[None, :, None]).reshape(n, -1, nj))
+    if probes:  # probe points on spheres around ball-centre variables tied to the kinematics
         off = offsets[balls].reshape(-1, 3)
-        q_rep = np.repeat(q, k, axis=0)
-        centre, Jt, Jq = ball_centre_error(theta, q_rep, off, np.zeros_like(off), idx, x, model.chain)
+        centre, Jt, Jq = ball_centre_error(theta, np.repeat(q, k, axis=0), off, np.zeros_like(off), idx, x,
+                                           model.chain)
         Jt, Jq = Jt.reshape(n, 3 * k, P), Jq.reshape(n, 3 * k, nj)
-        if "centres" in layout.levels:
-            add(Jt / sig.centre, Jq / sig.centre)
-        if probes:
-            add(Jt / sig.kinematic, Jq / sig.kinematic, -np.eye(3 * k)[None].repeat(n, 0) / sig.kinematic)
-            T = model.forward(x, q)
-            ppb = layout.probes_per_ball
-            pts, cs = [], []
-            for i in range(n):
-                for j, b in enumerate(balls[i]):
-                    c = centre[i * k + j]
-                    dirs = cap_directions(T[i, :3, :3] @ offsets[b] + np.linalg.norm(offsets[b]) * UP, ppb)
-                    pts.append(c + model.tooling.radius * dirs)
-                    cs.append(np.repeat(c[None], ppb, axis=0))
-            _, Jc = probe_error(np.vstack(cs), np.vstack(pts), model.tooling.radius)
-            Jc = Jc.reshape(n, k, ppb, 3) / sig.probe
-            rows_c = np.zeros((n, k, ppb, 3 * k))
-            for j in range(k):
-                rows_c[:, j, :, 3 * j:3 * j + 3] = Jc[:, j]
-            add(np.zeros((n, k * ppb, P)), None, rows_c.reshape(n, k * ppb, 3 * k))
-    if k and "distances" in layout.levels:  # a ballbar from the world origin (its pivot) to each ball
-        off = offsets[balls].reshape(-1, 3)
-        _, Jt, Jq = distance_error(theta, np.repeat(q, k, axis=0), off, np.ones(len(off)), idx, x, model.chain)
-        add(Jt.reshape(n, k, P) / sig.distance, Jq.reshape(n, k, nj) / sig.distance)
-    if "poses" in layout.levels:
-        _, Jt, Jq = pose_error(theta, q, model.forward(x, q), idx, x, model.chain)
-        w = 1.0 / np.array([sig.pose_rotation] * 3 + [sig.pose_position] * 3)
-        add(Jt * w[None, :, None], Jq * w[None, :, None])
+        add(Jt / sig.kinematic, Jq / sig.kinematic, -np.eye(3 * k)[None].repeat(n, 0) / sig.kinematic)
+        ppb = layout.probes_per_ball
+        pts, cs = [], []
+        for i in range(n):
+            for j, b in enumerate(balls[i]):
+                c = centre[i * k + j]
+                dirs = cap_directions(T[i, :3, :3] @ offsets[b] + np.linalg.norm(offsets[b]) * UP, ppb)
+                pts.append(c + model.tooling.radius * dirs)
+                cs.append(np.repeat(c[None], ppb, axis=0))
+        _, Jc = probe_error(np.vstack(cs), np.vstack(pts), model.tooling.radius)
+        Jc = Jc.reshape(n, k, ppb, 3) / sig.probe
+        rows_c = np.zeros((n, k, ppb, 3 * k))
+        for j in range(k):
+            rows_c[:, j, :, 3 * j:3 * j + 3] = Jc[:, j]
+        add(np.zeros((n, k * ppb, P)), None, rows_c.reshape(n, k * ppb, 3 * k))
     if with_joints:
         # the readings as priors on the joint variables (factors.errors.joint_error: Jacobian I)
         add(np.zeros((n, nj, P)), np.broadcast_to(np.diag(1.0 / sigma_q), (n, nj, nj)))

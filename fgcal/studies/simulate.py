@@ -19,12 +19,13 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from fgcal.measurements.dataset import LEVELS, Dataset, DistanceObservations, Noise, PointObservations, PoseObservations
+from fgcal.measurements.dataset import Dataset, Noise, PointObservations
+from fgcal.measurements.types import all_levels, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.robots.ik import BRANCHES, solve_puma_batch
 from fgcal.robots.kinematics import forward, tool_points
 from fgcal.robots.model import RobotModel, Tooling
-from fgcal.robots.transforms import matrix_to_quaternion, quaternion_to_matrix
+from fgcal.robots.transforms import quaternion_to_matrix
 
 __all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
 
@@ -253,21 +254,22 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
 
     Parameters
     ----------
-    q_commanded : array_like, shape (N, 6)
+    q_commanded : array_like, shape (N, n)
         Joint sets the robot is sent to (rad). The arm lands at ``q + N(0, repeatability)``;
         the controller reports ``q`` rounded to ``joint_resolution``.
-    levels : sequence of {"probes", "centres", "poses", "distances"}
-        What to write. Centres carry ``cmm_sigma`` per coordinate; poses carry
-        ``pose_position_sigma`` (mm) and ``pose_orientation_sigma`` (deg) of ``noise``; distances
-        (a ballbar from the world origin to each ball) ``distance_sigma`` (or ``cmm_sigma``).
+    levels : sequence of str
+        What to write: ``"probes"`` and any registered measurement type's level
+        (:mod:`fgcal.measurements.types`), each simulated by its type with its noise from ``noise``.
     outlier_fraction : float
         Fraction of probe points displaced by ``outlier_size`` mm along the surface normal.
 
     Returns
     -------
     pose_ids : ndarray of int, shape (N',)
-    joints_deg : ndarray, shape (N', 6)
-    probes, centres, poses, distances : observations or None
+    joints_deg : ndarray, shape (N', n)
+    probes : PointObservations or None
+    observed : dict of level to observations
+        The other levels' measurements.
     outliers : list of (pose, ball, probe index)
     skipped : list of str
         Poses dropped because fewer than ``n_balls`` balls were reachable on the actual robot.
@@ -284,8 +286,9 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     T = model.forward(slots, q_actual)
     ok, upness, centres = ball_access(T, tooling, volume)
     names = np.array(tooling.names)
-    keep, probe_rows, centre_rows, pose_rows, outliers, skipped = [], [], [], [], [], []
-    distance_rows = []
+    kinds = kinematic_levels(levels)
+    keep, probe_rows, outliers, skipped = [], [], [], []
+    rows = {kind.level: [] for kind in kinds}  # (pose id, ball, values) per measurement
     for i in range(n):
         visible = np.nonzero(ok[i])[0]
         if len(visible) < n_balls:
@@ -305,35 +308,24 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
                         pts[k] += outlier_size * rng.choice([-1.0, 1.0]) * dirs[k]
                         outliers.append((int(ids[i]), str(names[b]), k))
                     probe_rows.append((ids[i], names[b], pts[k]))
-            if "centres" in levels:
-                centre_rows.append((ids[i], names[b], c + rng.normal(size=3) * noise.cmm_sigma))
-            if "distances" in levels:  # a ballbar from the world origin (its pivot) to the ball
-                sd = noise.distance_sigma if noise.distance_sigma is not None else noise.cmm_sigma
-                distance_rows.append((ids[i], names[b], float(np.linalg.norm(c)) + rng.normal() * sd))
-        if "poses" in levels:
-            sp = noise.pose_position_sigma or 0.0
-            so = np.radians(noise.pose_orientation_sigma or 0.0)
-            dR = _small_rotation(rng.normal(size=3) * so)
-            R = dR @ T[i, :3, :3]
-            pose_rows.append((ids[i], T[i, :3, 3] + rng.normal(size=3) * sp, matrix_to_quaternion(R)))
+            for kind in kinds:
+                if kind.per_ball:
+                    values = kind.simulate(T[i:i + 1], tooling.balls[names[b]][None], rng, noise)
+                    rows[kind.level].append((ids[i], names[b], values[0]))
+        for kind in kinds:
+            if not kind.per_ball:
+                rows[kind.level].append((ids[i], "", kind.simulate(T[i:i + 1], np.zeros((1, 3)), rng, noise)[0]))
 
-    def points(rows):
-        if not rows:
-            return None
-        return PointObservations([r[0] for r in rows], [r[1] for r in rows], np.array([r[2] for r in rows]))
-
-    probes = points(probe_rows) if "probes" in levels else None
-    centres_obs = points(centre_rows) if "centres" in levels else None
-    poses = None
-    if "poses" in levels and pose_rows:
-        poses = PoseObservations([r[0] for r in pose_rows], np.array([r[1] for r in pose_rows]),
-                                 np.array([r[2] for r in pose_rows]))
+    probes = None
+    if "probes" in levels and probe_rows:
+        probes = PointObservations([r[0] for r in probe_rows], [r[1] for r in probe_rows],
+                                   np.array([r[2] for r in probe_rows]))
+    observed = {kind.level: kind.observations(np.array([r[0] for r in rows[kind.level]], dtype=int),
+                                              np.array([r[1] for r in rows[kind.level]], dtype=str),
+                                              np.array([r[2] for r in rows[kind.level]]))
+                for kind in kinds if rows[kind.level]}
     keep = np.array(keep, dtype=int)
-    distances = None
-    if "distances" in levels and distance_rows:
-        distances = DistanceObservations([r[0] for r in distance_rows], [r[1] for r in distance_rows],
-                                         [r[2] for r in distance_rows])
-    return ids[keep], reading[keep], probes, centres_obs, poses, distances, outliers, skipped
+    return ids[keep], reading[keep], probes, observed, outliers, skipped
 
 
 def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarray:
@@ -344,15 +336,6 @@ def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarra
     """
     centres = tool_points(model.forward(slots, q), tooling.offsets()).reshape(-1, 3)
     return model.with_world_origin_at(slots, centres.mean(axis=0) - np.array([0.0, 0.0, 300.0]))
-
-
-def _small_rotation(v) -> np.ndarray:
-    angle = np.linalg.norm(v)
-    if angle == 0:
-        return np.eye(3)
-    k = v / angle
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
 @dataclass(frozen=True)
@@ -382,8 +365,8 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
     if model.tooling is None:
         raise FgcalError(f"robot model {model.name} has no tooling (balls) to measure")
     for lv in s.levels:
-        if lv not in LEVELS:
-            raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(LEVELS)})")
+        if lv not in all_levels():
+            raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(all_levels())})")
     if s.n_balls < 1 or s.n_balls > len(model.tooling.balls):
         raise FgcalError(f"--balls must be between 1 and {len(model.tooling.balls)}")
     if s.probes_per_ball < 4 and "probes" in s.levels:
@@ -418,7 +401,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
         if new_robot:  # a given truth keeps its pivot (a verification set of the same set-up)
             truth = _pivot_at_origin(model, truth, q, model.tooling)
         volume = None
-    ids, joints_deg, probes, centres, poses, distances, outliers, skipped = measure(
+    ids, joints_deg, probes, observed, outliers, skipped = measure(
         model, truth, q, rng, model.tooling, noise, volume, s.n_balls, s.probes_per_ball,
         s.outlier_fraction, s.outlier_size, s.levels)
     notes += [f"skipped {m}" for m in skipped]
@@ -427,6 +410,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
                   "outlier_fraction": s.outlier_fraction, "outlier_size_mm": s.outlier_size}
     truth_file = {name: float(v) for name, v in zip(model.slot_names, model.slots_to_file_units(truth))}
     ds = Dataset(robot=robot_ref or model.name, tooling=model.tooling, noise=noise, provenance=provenance,
-                 pose_ids=ids, joints_deg=joints_deg, probes=probes, centres=centres, poses=poses, distances=distances,
-                 truth=truth_file, truth_outliers=outliers)
+                 pose_ids=ids, joints_deg=joints_deg, probes=probes, truth=truth_file, truth_outliers=outliers)
+    for level, obs in observed.items():
+        setattr(ds, level, obs)
     return ds, notes

@@ -174,7 +174,7 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     from fgcal.measurements.dataset import Dataset
 
     def dataset(q):
-        ids, joints, probes, _, _, _, _, skipped = measure(model, truth, q, rng, model.tooling, noise, model.volume)
+        ids, joints, probes, _, _, skipped = measure(model, truth, q, rng, model.tooling, noise, model.volume)
         return Dataset(robot=model.name, tooling=model.tooling, noise=noise, provenance={}, pose_ids=ids,
                        joints_deg=joints, probes=probes)
 
