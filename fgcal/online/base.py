@@ -9,7 +9,8 @@ import numpy as np
 
 import factors as fx
 from fgcal.errors import FgcalError
-from fgcal.estimation.calibrate import WEAK_PRIOR, CalibrationOptions, _sigmas
+from fgcal.estimation.build import _sigmas
+from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.graph import Sigmas
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.centres import _good_centres

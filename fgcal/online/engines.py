@@ -21,7 +21,7 @@ state untouched. No I/O here.
 from __future__ import annotations
 
 from fgcal.errors import FgcalError
-from fgcal.estimation.calibrate import CalibrationOptions
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.base import weak_prior
 from fgcal.online.centres import prefit

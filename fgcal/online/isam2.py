@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 import factors as fx
-from fgcal.estimation.calibrate import CalibrationOptions
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.online.base import _Engine
 from fgcal.online.measurement import UpdateReport
 from fgcal.online.records import PoseData

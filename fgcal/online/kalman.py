@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcal.errors import FgcalError
-from fgcal.estimation.calibrate import CalibrationOptions
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.online.base import _Engine
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData

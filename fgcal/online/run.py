@@ -17,7 +17,7 @@ import numpy as np
 
 from fgcal import __version__
 from fgcal.errors import FgcalError
-from fgcal.estimation.calibrate import CalibrationOptions
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
 from fgcal.io.yamlio import atomic_write_text
 from fgcal.measurements.dataset import Dataset
