@@ -201,6 +201,21 @@ def test_narrow_caps_are_not_refused(puma, engine):
         assert r["max_sigma"] < 0.5
 
 
+def test_isam2_segments_keep_the_estimate(puma, dataset):
+    """40 poses in iSAM2 segments of 10 (each tree started by the last one's marginal) against one
+    whole tree: the running estimates agree to 0.01 sigma and the sigmas to 0.1%."""
+    records = pose_records(dataset)
+    out = []
+    for window in (10, 1000):
+        e = make_engine("isam2", dataset, puma, window=window)
+        assert all(e.update(rec).accepted for rec in records)
+        out.append(e.estimate())
+    (a, A), (b, B) = out
+    sigma = np.sqrt(np.diag(B))
+    assert np.all(np.abs(a - b) / sigma < 0.01)
+    np.testing.assert_allclose(np.sqrt(np.diag(A)), sigma, rtol=1e-3)
+
+
 def test_narrow_cap_centre_covariance_matches_scatter():
     """A ball probed within 8 deg of its cap's axis: the centre linearised at a prediction 0.05 mm
     off scatters over 400 noisy draws as its covariance says (chi-square per draw ~3, coverage),

@@ -23,7 +23,8 @@ class ISAM2Engine(_Engine):
         tree is replaced by a new one whose only factor is the parameters' marginal, a Gaussian at
         the current estimate: each pose's information stays, its linearisation is frozen (as a
         marginalised leaf's would be), and each update's cost and the memory stay bounded (measured
-        at 1000 poses: the running estimate within 0.01 sigma of an unsegmented tree's)."""
+        at 300 poses: the running estimate within 5e-4 sigma of one whole tree's, the sigmas within
+        3e-5)."""
         import gtsam
 
         super().__init__(ds, model, options, names)

@@ -13,6 +13,8 @@ from fgcal.online.records import PoseData
 
 __all__ = ["UpdateReport", "NoiseTracker", "PoseMeasurement"]
 
+REDUNDANCY = 0.5  # a pose's innovation informs the noise factor when this share of it is measurement noise
+
 
 @dataclass
 class UpdateReport:
@@ -66,7 +68,7 @@ class NoiseTracker:
         Si = np.linalg.inv(A + f * R)
         d2, a, b = float(v @ Si @ v), float(np.trace(Si @ A)), float(np.trace(Si @ R))
         self.last = None
-        if f * b >= 0.5 * len(v):
+        if f * b >= REDUNDANCY * len(v):
             self.add(max((d2 - a) / b, 0.0), f * b)
             self.last = self.values[-1]
         return self.factor()
