@@ -11,7 +11,7 @@ import pytest
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.measurements import types
-from fgcal.measurements.base import KinematicMeasurement, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.measurements.dataset import Noise
 from fgcal.report.verify import verify
@@ -20,23 +20,13 @@ from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @dataclass
-class HeightObservations:
+class HeightObservations(ObservationRows):
     pose: np.ndarray
     ball: np.ndarray
     z: np.ndarray
     line: np.ndarray | None = None
 
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
-        self.z = np.asarray(self.z, dtype=float).reshape(-1)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask):
-        return HeightObservations(self.pose[mask], self.ball[mask], self.z[mask], self.line[mask])
+    ROW_SHAPES = {"z": ()}
 
 
 class HeightMeasurement(KinematicMeasurement):
@@ -49,6 +39,7 @@ class HeightMeasurement(KinematicMeasurement):
     per_ball = True
     title = "ball heights"
     noun = "height"
+    noise_components = (NoiseComponent("heights", slice(0, 1), "height"),)
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import ball_centre_error
@@ -57,8 +48,11 @@ class HeightMeasurement(KinematicMeasurement):
         p, J_t, J_q = ball_centre_error(theta, q, offset, np.zeros((len(z), 3)), index, held, chain)
         return p[:, 2:3] - np.asarray(z, dtype=float).reshape(-1, 1), J_t[:, 2:3], J_q[:, 2:3]
 
+    def declared_sigmas(self, noise):
+        return {"height": noise.cmm_sigma}
+
     def sigma(self, sigmas):
-        return np.array([sigmas.centre])
+        return np.array([sigmas.height])
 
     def terms(self, obs, tooling, row_of_pose):
         return Terms(np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int),
@@ -69,7 +63,7 @@ class HeightMeasurement(KinematicMeasurement):
 
     def simulate(self, T, offsets, rng, noise):
         z = tool_points(T, offsets[:, None, :])[:, 0, 2]
-        return (z + rng.normal(size=len(z)) * noise.cmm_sigma)[:, None]
+        return (z + rng.normal(size=len(z)) * HEIGHT_NOISE)[:, None]  # not what the dataset declares
 
     def parse(self, where, record, balls):
         return ball_name(record["ball"], where, balls), np.array([number(record["z"], where, "z")])
@@ -88,6 +82,7 @@ class HeightMeasurement(KinematicMeasurement):
 
 
 HEIGHT = HeightMeasurement()
+HEIGHT_NOISE = 0.03  # mm: three times the declared cmm_sigma
 EXACT_JOINTS = Noise(cmm_sigma=0.01, joint_resolution=0.0)
 
 
@@ -111,7 +106,7 @@ def test_a_registered_type_is_simulated_written_and_read(puma, with_heights, tmp
     q = puma.joints_to_internal(ds.joints_deg[ds.row_of(ds.heights.pose)])
     z_true = np.array([puma.forward(truth, qi[None])[0, :3, :3] @ ds.tooling.balls[b] + puma.forward(truth, qi[None])[0, :3, 3]
                        for qi, b in zip(q, ds.heights.ball)])[:, 2]
-    assert np.std(ds.heights.z - z_true) == pytest.approx(0.01, rel=0.35)
+    assert np.std(ds.heights.z - z_true) == pytest.approx(HEIGHT_NOISE, rel=0.35)
     save_dataset(ds, tmp_path / "h")
     assert (tmp_path / "h" / "heights.csv").read_text().splitlines()[0] == "pose,ball,z"
     back = load_dataset(tmp_path / "h")
@@ -126,7 +121,8 @@ def test_its_rows_in_the_graph_are_its_error_and_jacobian(puma, with_heights):
     lin = graph.linearise(state)
     pose, rows = graph.factor_rows("heights")
     terms = graph.measurements["heights"]
-    sigma = graph.sigmas.centre
+    sigma = graph.sigmas.height
+    assert sigma == EXACT_JOINTS.cmm_sigma  # declared by the type from the dataset's noise
 
     def heights(theta):
         x = graph.params.full(theta, graph.held)
@@ -154,6 +150,12 @@ def test_it_calibrates_in_the_batch_and_in_gtsam(puma, with_heights):
     assert np.all(both.sigma <= centres_only.sigma * (1 + 1e-9)) and np.any(both.sigma < 0.999 * centres_only.sigma)
     assert len(both.residuals["heights_mm"]) == len(ds.heights)
     assert "heights" in both.levels
+    # By default each level's noise is estimated, the new type's too: its 3x noise is found.
+    estimated = calibrate(ds, puma, CalibrationOptions())
+    assert estimated.noise["heights"].used == pytest.approx(HEIGHT_NOISE, rel=0.2)
+    assert estimated.noise["centres"].used == pytest.approx(0.01, rel=0.2)
+    z = (estimated.estimate - truth) / estimated.sigma
+    assert np.sqrt(np.mean(z**2)) < 2.0
     # The GTSAM graph of the same problem has the batch graph's cost.
     from fgcal.estimation.gtsam_graph import nonlinear_graph
 

@@ -14,7 +14,7 @@ from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.posefit import rigid_fit
 from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
-from fgcal.measurements.types import all_levels, kinematic_levels
+from fgcal.measurements.types import all_levels, kinematic_levels, kinematic_types
 from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import to_euler_zyx_trans
@@ -30,7 +30,9 @@ def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=N
     centre = n.centre_sigma if n.centre_sigma is not None else n.cmm_sigma
     pos = n.pose_position_sigma if n.pose_position_sigma is not None else n.cmm_sigma
     rot = np.radians(n.pose_orientation_sigma) if n.pose_orientation_sigma is not None else n.cmm_sigma / 100.0
-    return Sigmas(probe=max(n.cmm_sigma, MIN_SIGMA) * scale.get("probes", 1.0),
+    other = {name: max(value, MIN_SIGMA) * scale.get(kind.level, 1.0)
+             for kind in kinematic_types() for name, value in kind.declared_sigmas(n).items()}
+    return Sigmas(other=tuple(sorted(other.items())), probe=max(n.cmm_sigma, MIN_SIGMA) * scale.get("probes", 1.0),
                   centre=max(centre, MIN_SIGMA) * scale.get("centres", 1.0),
                   pose_position=max(pos, MIN_SIGMA) * scale.get("poses", 1.0),
                   pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses", 1.0),

@@ -15,7 +15,7 @@ linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 
 import numpy as np
@@ -33,7 +33,11 @@ LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
 @dataclass(frozen=True)
 class Sigmas:
-    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact."""
+    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact.
+
+    ``other`` holds ``(field, sigma)`` pairs of measurement types beyond the built-in ones
+    (:meth:`fgcal.measurements.base.KinematicMeasurement.declared_sigmas`); they read as attributes.
+    """
 
     probe: float
     centre: float
@@ -42,6 +46,20 @@ class Sigmas:
     joint: float
     kinematic: float = 1e-4
     distance: float = 0.01
+    other: tuple = ()
+
+    def __getattr__(self, name):  # only for names that are not fields
+        for field_name, value in object.__getattribute__(self, "other"):
+            if field_name == name:
+                return value
+        raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
+
+    def replaced(self, **values) -> "Sigmas":
+        """A copy with the given sigmas changed (fields or ``other`` ones)."""
+        known = {f.name for f in fields(self)}
+        other = dict(self.other)
+        other.update({k: v for k, v in values.items() if k not in known})
+        return replace(self, **{k: v for k, v in values.items() if k in known}, other=tuple(sorted(other.items())))
 
 
 @dataclass
@@ -251,14 +269,15 @@ class Graph(ArrowElimination):
         The last linearisation is remembered: asking again at the same state (and held values,
         noise and excluded measurements) returns it, with the normal equations already formed on it.
         """
-        weights = (repr(self.sigmas), tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items())))
+        # Sigmas are immutable (replaced, never changed): the same object means the same noise.
+        weights = tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
         key = (state.theta, state.q, state.c, self.held)
         last = getattr(self, "_last", None)
-        if (last is not None and last[2] == weights
+        if (last is not None and last[3] is self.sigmas and last[2] == weights
                 and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
             return last[1]
         lin = self._linearise(state)
-        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights)
+        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights, self.sigmas)
         return lin
 
     def _linearise(self, state: State) -> Linearisation:
