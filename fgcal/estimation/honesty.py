@@ -88,8 +88,10 @@ def add_mirrored_caps(ds, truth, n: int, rng, half_angle_deg: float = 8.0) -> li
             break
         pose, ball = keys[k]
         rows = np.nonzero((pr.pose == pose) & (pr.ball == ball))[0]
-        q = ds.joints_rad[ds.row_of([pose])]
-        centre = tool_points(forward(truth, q), np.array([ds.tooling.balls[ball]]))[0, 0]
+        # where the ball was: the fit of its original (well spread) points, not the forward
+        # kinematics at the readings, which the joint noise puts ~0.05 mm away (the new cap would
+        # then disagree with the pose's other balls by ten times its precision along its axis)
+        centre = fit_spheres_checked([pr.xyz[rows]], ds.tooling.radius, max(ds.noise.cmm_sigma, 1e-6))[0].centre
         axis = pr.xyz[rows].mean(axis=0) - centre
         axis /= np.linalg.norm(axis)
         e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])

@@ -218,16 +218,22 @@ def mirror_through_points(points, centres) -> np.ndarray:
 
 
 def _gauss_newton_batch(pts, c, radius, iterations):
+    """Each sphere stops when its own step is below 1e-10 mm (or NaN): its result does not depend
+    on the other spheres of the batch."""
+    c = np.array(c, dtype=float)
+    active = np.arange(len(c))
     for _ in range(iterations):
-        diff = pts - c[:, None, :]
+        p, x = (pts, c) if len(active) == len(c) else (pts[active], c[active])
+        diff = p - x[:, None, :]
         dist = np.linalg.norm(diff, axis=2)
         res = dist - radius
         J = -diff / dist[..., None]
         JtJ = np.einsum("kni,knj->kij", J, J)
         Jtr = np.einsum("kni,kn->ki", J, res)
         step = -np.linalg.solve(JtJ + 1e-12 * np.eye(3), Jtr[..., None])[..., 0]
-        c = c + step
-        if not np.max(np.abs(step)) > 1e-10:  # mm; also stops on NaN
+        c[active] = x + step
+        active = active[np.max(np.abs(step), axis=1) > 1e-10]  # mm; NaN stops too
+        if not len(active):
             break
     return c
 

@@ -14,7 +14,8 @@ log = logging.getLogger("fgcal")
 
 def _cmd_online(args) -> int:
     from fgcal.io.dataset_io import dataset_model, load_dataset
-    from fgcal.online.run import Display, OnlineRun, follow
+    from fgcal.online.display import Display, follow
+    from fgcal.online.run import OnlineRun
     from fgcal.estimation.result import save_result
 
     if args.stdin and args.follow:
@@ -30,7 +31,7 @@ def _cmd_online(args) -> int:
     else:
         ds = load_dataset(args.dataset)
     model = dataset_model(ds)
-    from fgcal.online.run import default_checkpoint
+    from fgcal.online.checkpoint import default_checkpoint
 
     checkpoint = args.checkpoint or default_checkpoint(args.dataset, args.engine, args.out)
     if args.drift and args.engine == "isam2":
@@ -49,7 +50,7 @@ def _cmd_online(args) -> int:
     display = Display(run)
     try:
         if args.stdin:
-            from fgcal.online.run import read_stream
+            from fgcal.online.stream import read_stream
 
             for rec in read_stream(sys.stdin.buffer, ds.tooling.balls, model=model):
                 display.show(run.feed(rec, streamed=True))

@@ -1,0 +1,211 @@
+"""What the online engines share: the screening of a pose (checks, mirror images, the innovation
+gate at the estimated noise, single bad probe points), the journal of what was taken, and the final
+smoothing by the batch solve. No I/O here."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+import factors as fx
+from fgcal.errors import FgcalError
+from fgcal.estimation.build import _sigmas
+from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.graph import Sigmas
+from fgcal.measurements.dataset import Dataset
+from fgcal.online.centres import _good_centres
+from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
+from fgcal.online.records import PoseData, _variant, records_dataset
+from fgcal.robots.model import ParameterSet, RobotModel
+
+__all__ = ["weak_prior"]
+
+log = logging.getLogger(__name__)
+
+
+def weak_prior(params: ParameterSet) -> np.ndarray:
+    """Standard deviations (P,) of the weak prior, internal units."""
+    return WEAK_PRIOR.sigmas(params.names)
+
+
+class _Engine:
+    def __init__(self, ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
+                 names=None):
+        self.ds = ds
+        self.model = model
+        self.options = options
+        self.params = model.parameters() if names is None else ParameterSet(model, tuple(names))
+        self.index = self.params.index  # slot of each parameter (P,) (a property that builds it anew)
+        self.held = model.nominal.copy()
+        self.sigmas: Sigmas = _sigmas(ds, model, options)
+        self.prior_sigma = weak_prior(self.params)
+        self.n_accepted = 0
+        self.noise = NoiseTracker()
+        self.records: list[PoseData] = []  # the accepted poses (as taken: a bad probe point left out)
+        self.seen: dict[int, PoseData] = {}  # every pose fed with measurements, for the final smoothing
+        self._final = None
+        self._kinematics: dict = {}
+
+    def estimate(self):
+        """``(theta (P,), covariance (P, P))`` in internal units."""
+        raise NotImplementedError
+
+    def _current(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _ball_kinematics(self, theta, q, offsets):
+        """``(FK(theta, q) offsets (B, 3), J_theta (B, 3, P), J_q (B, 3, n))``, kept for the last few
+        arguments: the prediction, the innovation and the filter's first linearisation share one."""
+        key = (np.asarray(theta, dtype=float).tobytes(), q.tobytes(), offsets.tobytes())
+        hit = self._kinematics.get(key)
+        if hit is None:
+            if len(self._kinematics) >= 8:
+                self._kinematics.clear()
+            hit = self._kinematics[key] = fx.pose_ball_centres_error(
+                theta, q, offsets, np.zeros_like(offsets), self.index, self.held, self.model.chain)
+        return hit
+
+    def _covariance(self) -> np.ndarray:
+        """The parameters' covariance (P, P) now (before the next pose)."""
+        raise NotImplementedError
+
+    def _prediction(self, rec: PoseData, theta) -> tuple[dict, dict]:
+        """Where ``theta`` puts each probed ball (ball -> xyz, mm), and the standard deviation of
+        that prediction from the parameters' uncertainty (ball -> mm, the root of the trace)."""
+        balls = [b for b, _ in rec.probes]
+        if not balls:
+            return {}, {}
+        h, jt, _ = self._ball_kinematics(theta, rec.q, np.array([self.ds.tooling.balls[b] for b in balls]))
+        var = np.einsum("bip,pq,biq->b", jt, self._covariance(), jt)
+        return dict(zip(balls, h)), dict(zip(balls, np.sqrt(np.maximum(var, 0.0))))
+
+    def _measurement(self, rec: PoseData, flip=(), search: bool = False):
+        """``(PoseMeasurement, None)`` or ``(None, reason)``, at the current estimate's prediction."""
+        sig = self.sigmas
+        parts, ambiguous = [], []
+        if rec.probes:
+            good, ambiguous, reason = _good_centres(rec, self.ds.tooling, self.ds.noise.cmm_sigma,
+                                                    *self._prediction(rec, self._current()), flip=flip,
+                                                    search=search)
+            if good is None:
+                return None, reason
+            parts += [(self.ds.tooling.balls[b], c, cov) for b, c, cov in good]
+        parts += [(self.ds.tooling.balls[b], xyz, np.eye(3) * sig.centre**2) for b, xyz in rec.centres]
+        if not parts and rec.T is None and not rec.distances:
+            return None, "no measurements"
+        taken = {k: v for k, v in (("flip", list(flip)), ("search", search)) if v}
+        return PoseMeasurement(self, rec, parts, ambiguous, taken), None
+
+    def _screen(self, rec: PoseData, theta, cov):
+        """The pose's measurement if it passes the checks and the innovation gate at the current
+        ``theta`` and its covariance ``cov``; else the variant (mirror images of ambiguous balls,
+        then, as the batch solve excludes single probe points, one probe point left out) that
+        passes with the smallest innovation. Returns ``(measurement, record used, noise factor,
+        None)`` or ``(None, rec, f, reason)``."""
+        if rec.measured():
+            self.seen[rec.pose] = rec
+            self._final = None
+
+        def statistic(r, flip=(), search=False):
+            m, why = self._measurement(r, flip, search)
+            if m is None:
+                return None, why, None
+            e, H, R = m(theta)
+            return m, None, (-e, H @ cov @ H.T, R)
+
+        m, reason, vAR = statistic(rec)
+        f = self.noise.observe(*vAR) if vAR is not None else self.noise.factor()
+        if m is not None:
+            reason = NoiseTracker.implausible(vAR[0], vAR[1] + f * vAR[2])
+            if reason is None:
+                return m, rec, f, None
+        # Where the prediction is still poor (early poses), a ball's mirror image may be the
+        # consistent one: search them all, and try them; then single probe points left out. The
+        # passing variant with the smallest innovation is taken.
+        from itertools import combinations
+
+        def best_of(variants):
+            best = None
+            for variant, flip, drop in variants:
+                m_k, _, vAR_k = statistic(variant, flip, search=True)
+                if m_k is None:
+                    continue
+                v, A, R = vAR_k
+                d2 = float(v @ np.linalg.solve(A + f * R, v))
+                if NoiseTracker.implausible(v, A + f * R) is None and (best is None or d2 < best[0]):
+                    if drop is not None:
+                        m_k.taken["drop"] = list(drop)
+                    best = (d2, m_k, variant)
+            return best
+
+        def without_one(rec):
+            for j, (ball, pts) in enumerate(rec.probes):
+                for k in range(len(pts) if len(pts) >= 4 else 0):
+                    yield _variant(rec, {"drop": (j, k)}), (), (j, k)
+
+        searched = self._measurement(rec, search=True)[0] if rec.probes else m
+        amb = searched.ambiguous if searched is not None else []
+        flips = ((rec, flip, None) for n in range(len(amb) + 1) for flip in combinations(amb, n))
+        best = best_of(flips) or best_of(without_one(rec))
+        if best is not None:
+            return best[1], best[2], f, None
+        return None, rec, f, reason
+
+    def _report(self, rec: PoseData, reason=None, m: PoseMeasurement | None = None, f: float = 1.0) -> UpdateReport:
+        """The pose's report (accepted when ``reason`` is None), with what a replay needs: the
+        noise estimate the pose added, and for an accepted pose its noise factor and how it was taken."""
+        journal = {} if self.noise.last is None else {"noise": list(self.noise.last)}
+        if reason is not None:
+            return UpdateReport(rec.pose, False, reason, journal)
+        self.records.append(rec)
+        self.n_accepted += 1
+        self._final = None
+        journal["f"] = f
+        if m is not None:
+            journal.update(m.taken)
+        return UpdateReport(rec.pose, True, "ok", journal)
+
+    def _replayed(self, rec: PoseData, entry: dict, measure: bool = True):
+        """Book-keeping of a journalled pose (noise, poses seen); for an accepted one, the record as
+        taken and (``measure``) its measurement at the current estimate; ``(None, None)`` for a
+        refused one."""
+        self.noise.last = None
+        if entry.get("noise"):
+            self.noise.add(*entry["noise"])
+        if rec.measured():
+            self.seen[rec.pose] = rec
+        self._final = None
+        if not entry["accepted"]:
+            return None, None
+        used = _variant(rec, entry)
+        if not measure:
+            return used, None
+        m, reason = self._measurement(used, entry.get("flip", ()), entry.get("search", False))
+        if m is None:
+            raise FgcalError(f"restoring pose {rec.pose}: {reason}")
+        return used, m
+
+    def _smooth(self):
+        """The final smoothing: one batch solve over every pose fed (weak prior, noise estimated and
+        gross errors excluded as in ``calibrate``), so that the end depends neither on the order
+        the poses came in nor on what the running estimate refused on the way (a pose refused
+        against an early, poor estimate is judged again, as the batch judges it). Returns
+        ``(theta, covariance)`` in internal units, or None while the poses cannot determine the
+        parameters without the prior (the running estimate stands then)."""
+        from dataclasses import replace
+
+        from fgcal.estimation.calibrate import calibrate
+
+        ident = self.model.identifiable_names()
+        names = list(self.params.names)
+        options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
+                          exclude=tuple(n for n in ident if n not in names))
+        try:
+            r = calibrate(records_dataset(self.ds, list(self.seen.values()), self.model), self.model, options)
+        except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
+            log.info("final smoothing skipped: %s", exc)
+            return None
+        if r.names != names:
+            raise FgcalError(f"final smoothing: the batch solve holds {', '.join(h['name'] for h in r.held)}")
+        scale = np.where(self.params.is_angle, np.radians(1.0), 1.0)
+        return self.params.from_file_units(r.estimate), r.covariance * np.outer(scale, scale)

@@ -1,0 +1,130 @@
+"""The Kalman engines over the parameter vector: an iterated EKF (numpy) and filterpy's UKF."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcal.errors import FgcalError
+from fgcal.estimation.options import CalibrationOptions
+from fgcal.online.base import _Engine
+from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
+from fgcal.online.records import PoseData
+
+__all__ = ["FilterState", "KalmanEngine"]
+
+
+@dataclass
+class FilterState:
+    """A filter's state: the parameters ``x`` (P,), their covariance ``P`` (P, P) and the
+    random-walk process noise ``Q`` (P, P) added before each pose (internal units)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    Q: np.ndarray
+
+
+class KalmanEngine(_Engine):
+    """A Kalman filter over the parameter vector: iterated EKF (``ekf``, its update in numpy in
+    filterpy's Joseph form: filterpy's import alone costs more than a thousand updates) or
+    filterpy's unscented filter (``ukf``)."""
+
+    snapshots = True  # the state is small: a resume restores the last snapshot and replays after it
+
+    def __init__(self, ds, model, options=CalibrationOptions(), names=None, kind="ekf", drift=None,
+                 max_iterations=20):
+        super().__init__(ds, model, options, names)
+        if kind not in ("ekf", "ukf"):
+            raise FgcalError(f"unknown filter {kind!r} (ekf, ukf)")
+        self.kind = kind
+        P = len(self.params)
+        self.kf = FilterState(self.params.nominal().copy(), np.diag(self.prior_sigma**2),
+                              np.zeros((P, P)) if drift is None else np.diag(np.asarray(drift, dtype=float) ** 2))
+        self.max_iterations = max_iterations
+        self._ukf = None
+
+    def _current(self) -> np.ndarray:
+        return self.kf.x
+
+    def _covariance(self) -> np.ndarray:
+        return self.kf.P + self.kf.Q
+
+    def update(self, rec: PoseData) -> UpdateReport:
+        x0 = self.kf.x.copy()
+        P0 = self.kf.P + self.kf.Q  # random-walk prediction
+        m, used, f, reason = self._screen(rec, x0, P0)  # f: the measurement noise estimated so far
+        if m is None:
+            return self._report(rec, reason)
+        if self.kind == "ekf":
+            reason = self._iterated_update(m, x0, P0, f)
+            if reason:
+                return self._report(rec, reason)
+        else:
+            self._unscented_update(m, x0, P0, f)
+        return self._report(used, None, m, f)
+
+    def _iterated_update(self, m: PoseMeasurement, x0, P0, f: float) -> str | None:
+        """The iterated EKF's update of ``(x0, P0)`` by ``m`` at noise factor ``f``; a reason when
+        the innovation at the iterated point is implausible (the state is then untouched)."""
+        x = x0.copy()
+        sigma0 = np.sqrt(np.diag(P0))
+        for _ in range(self.max_iterations):
+            e, H, R = m(x)
+            innovation = -e - H @ (x0 - x)
+            PHt = P0 @ H.T
+            S = H @ PHt + f * R
+            K = np.linalg.solve(S, PHt.T).T
+            x_new = x0 + K @ innovation
+            # Relinearise while the step is a noticeable fraction of the prior's spread: the
+            # error of a linearisation that far off is second order, ~1e-2 of a sigma.
+            if np.max(np.abs(x_new - x) / sigma0) < 0.1:
+                break
+            x = x_new
+        reason = NoiseTracker.implausible(innovation, S)
+        if reason:
+            return reason
+        # Joseph form, linearised at the iterated point: symmetric and positive whatever the rounding
+        I_KH = np.eye(len(x0)) - K @ H
+        self.kf.x = x0 + K @ innovation
+        self.kf.P = I_KH @ P0 @ I_KH.T + K @ (f * R) @ K.T
+        return None
+
+    def _unscented_update(self, m: PoseMeasurement, x0, P0, f: float) -> None:
+        from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+        e0, _, R = m(x0)
+        n = len(x0)
+        if self._ukf is None:  # one filter, reused: each pose brings its own hx, R and size
+            points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
+            self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
+                                              hx=None, points=points)
+        ukf = self._ukf
+        ukf.x, ukf.P, ukf.Q = x0.copy(), P0.copy(), np.zeros((n, n))
+        ukf.predict()
+        ukf.update(np.zeros(len(e0)), R=f * R, hx=lambda s: m(s)[0])
+        self.kf.x, self.kf.P = ukf.x.copy(), 0.5 * (ukf.P + ukf.P.T)
+
+    def finish(self) -> None:
+        """The final smoothing (see :meth:`_Engine._smooth`) when the parameters do not drift: the
+        filter's state becomes the smoothed one, whatever the order the poses came in."""
+        if self.seen and self._final is None and not np.any(self.kf.Q):
+            self._final = self._smooth()
+            if self._final is not None:
+                self.kf.x, self.kf.P = self._final[0].copy(), self._final[1].copy()
+
+    def estimate(self):
+        return self.kf.x.copy(), self.kf.P.copy()
+
+    def state(self) -> dict:
+        """The filter's state (a snapshot: its size does not grow with the poses)."""
+        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist()}
+
+    def restore(self, state: dict, journal) -> None:
+        """The state of a snapshot taken after the journalled poses ``journal`` ((record, entry)
+        pairs, in order), whose book-keeping (noise, poses seen and taken) is rebuilt from them."""
+        for rec, entry in journal:
+            used, _ = self._replayed(rec, entry, measure=False)
+            if used is not None:
+                self._report(used, None, None, entry["f"])
+        self.kf.x = np.array(state["x"], dtype=float)
+        self.kf.P = np.array(state["P"], dtype=float)

@@ -1,0 +1,152 @@
+"""One pose's measurement as the online engines use it (one small function per measurement type
+builds its rows), the innovation gate and the noise factor estimated from the innovations."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+import factors as fx
+from fgcal.measurements.spherefit import chi2_quantile
+from fgcal.online.centres import INNOVATION_FALSE_ALARM
+from fgcal.online.records import PoseData
+
+__all__ = ["UpdateReport", "NoiseTracker", "PoseMeasurement"]
+
+REDUNDANCY = 0.5  # a pose's innovation informs the noise factor when this share of it is measurement noise
+
+
+@dataclass
+class UpdateReport:
+    """What an engine did with a pose; ``journal`` holds what a replay of it needs (JSON types)."""
+
+    pose: int
+    accepted: bool
+    reason: str = "ok"
+    journal: dict = field(default_factory=dict)
+
+
+class NoiseTracker:
+    """The measurement noise factor, estimated from the innovations seen so far.
+
+    With innovation covariance ``S = A + f R`` (A: the parameters' share, R: the declared
+    measurement noise with the joints' folded in, f: the current factor), a pose's innovation
+    ``d2 = v' S^-1 v`` has expectation ``tr(S^-1 A) + f_true tr(S^-1 R)``, so each pose gives an
+    estimate of ``f_true``. Poses whose innovation is mostly measurement noise (redundancy
+    ``tr(S^-1 f R)`` at least half their size; early on the weak prior dominates) are pooled by
+    their weighted median, robust to the poses with gross errors. The current pose takes part
+    (rejected ones too), so a wrong start cannot lock itself in. The factor is at least 1: below
+    it (a pessimistic declared noise, or an innovation the linearisation overrates early on)
+    the gate would only get stricter. Gates and updates use ``f R``.
+    """
+
+    def __init__(self, values=()):
+        self.values: list[tuple[float, float]] = []  # (estimate of f, weight), in the order seen
+        self._v = np.empty(0)  # the estimates sorted, and their weights: the median in linear time
+        self._w = np.empty(0)
+        self.last: tuple[float, float] | None = None  # what the last :meth:`observe` added
+        for v, w in values:
+            self.add(v, w)
+
+    def add(self, v: float, w: float) -> None:
+        """Pool one estimate ``v`` of the factor with weight ``w``."""
+        self.values.append((float(v), float(w)))
+        k = int(np.searchsorted(self._v, v, side="right"))
+        self._v = np.insert(self._v, k, v)
+        self._w = np.insert(self._w, k, w)
+
+    def factor(self) -> float:
+        """The weighted median of the estimates so far, at least 1 (1 before any)."""
+        if not len(self._v):
+            return 1.0
+        cum = np.cumsum(self._w)
+        return float(max(self._v[np.searchsorted(cum, 0.5 * cum[-1])], 1.0))
+
+    def observe(self, v, A, R) -> float:
+        """Record innovation ``v`` (A, R as above); returns the factor to gate and update it with."""
+        f = self.factor()
+        Si = np.linalg.inv(A + f * R)
+        d2, a, b = float(v @ Si @ v), float(np.trace(Si @ A)), float(np.trace(Si @ R))
+        self.last = None
+        if f * b >= REDUNDANCY * len(v):
+            self.add(max((d2 - a) / b, 0.0), f * b)
+            self.last = self.values[-1]
+        return self.factor()
+
+    @staticmethod
+    def implausible(v, S) -> str | None:
+        """The gate: a rejection reason when ``v' S^-1 v`` is beyond the chi-square limit."""
+        d2 = float(v @ np.linalg.solve(S, v))
+        if d2 > chi2_quantile(1 - INNOVATION_FALSE_ALARM, len(v)):
+            return f"innovation implausible (chi-square {d2:.3g} for {len(v)} measurements)"
+        return None
+
+
+class PoseMeasurement:
+    """One pose's measurement as the engines use it: ``m(theta)`` gives the stacked residual
+    ``h(theta) - z`` (M,), its Jacobian (M, P) and the declared noise R (M, M) with the joints'
+    noise folded in. One function per measurement type builds its rows (:func:`_centre_rows`,
+    :func:`_pose_rows`, :func:`_distance_rows`).
+
+    Attributes
+    ----------
+    parts : list of (offset (3,), centre (3,), covariance (3, 3))
+        The ball centres taken (fitted or measured), tool-frame offsets and world centres in mm.
+    ambiguous : list of str
+        Balls whose mirror image fits as well (see :func:`_good_centres`).
+    taken : dict
+        How the pose was taken when not as it came: ``flip`` (balls), ``drop`` ([ball index,
+        point index]), ``search`` (the mirror search ran for every ball); what a replay needs.
+    """
+
+    def __init__(self, engine, rec: PoseData, parts, ambiguous=(), taken=None):
+        sig = engine.sigmas
+        self.engine, self.rec, self.parts, self.ambiguous = engine, rec, parts, list(ambiguous)
+        self.taken = taken or {}
+        balls = engine.ds.tooling.balls
+        self.offsets = np.array([p[0] for p in parts]).reshape(-1, 3)
+        self.zs = np.array([p[1] for p in parts]).reshape(-1, 3)
+        self.d_offsets = np.array([balls[b] for b, _ in rec.distances]).reshape(-1, 3)
+        self.d_lengths = np.array([v for _, v in rec.distances], dtype=float)
+        blocks = [p[2] for p in parts]
+        if rec.T is not None:
+            blocks.append(np.diag([sig.pose_rotation**2] * 3 + [sig.pose_position**2] * 3))
+        if len(self.d_lengths):
+            blocks.append(np.eye(len(self.d_lengths)) * sig.distance**2)
+        m = sum(len(b) for b in blocks)
+        self.R0 = np.zeros((m, m))
+        k = 0
+        for block in blocks:
+            self.R0[k:k + len(block), k:k + len(block)] = block
+            k += len(block)
+        self.Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
+
+    def __call__(self, theta):
+        rows = []
+        if len(self.offsets):
+            rows.append(_centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs))
+        if self.rec.T is not None:
+            rows.append(_pose_rows(self.engine, theta, self.rec.q, self.rec.T))
+        if len(self.d_lengths):
+            rows.append(_distance_rows(self.engine, theta, self.rec.q, self.d_offsets, self.d_lengths))
+        e, Jt, Jq = (np.concatenate(x) for x in zip(*rows))
+        return e, Jt, self.R0 + Jq @ self.Rj @ Jq.T  # joint noise folded in
+
+
+def _centre_rows(engine, theta, q, offsets, centres):
+    """Ball centres: rows ``FK(theta, q) offset - centre`` (3 per ball), J_theta, J_q."""
+    h, jt, jq = engine._ball_kinematics(theta, q, offsets)
+    return (h - centres).ravel(), jt.reshape(-1, jt.shape[-1]), jq.reshape(-1, jq.shape[-1])
+
+
+def _pose_rows(engine, theta, q, T):
+    """A measured tool pose: 6 rows (rotation log, rad; position, mm), J_theta, J_q."""
+    e, jt, jq = fx.pose_error(theta, q[None], T[None], engine.index, engine.held, engine.model.chain)
+    return e[0], jt[0], jq[0]
+
+
+def _distance_rows(engine, theta, q, offsets, lengths):
+    """Ballbar lengths: one row per ball (mm), J_theta, J_q."""
+    qs = np.broadcast_to(q, (len(lengths), len(q)))
+    e, jt, jq = fx.distance_error(theta, qs, offsets, lengths, engine.index, engine.held, engine.model.chain)
+    return e[:, 0], jt[:, 0], jq[:, 0]

@@ -1,0 +1,123 @@
+"""One pose's measurements as the online engines take them, and back to a dataset or to JSON."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
+from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
+
+__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json"]
+
+
+@dataclass
+class PoseData:
+    """Everything measured at one pose (file order): joints (rad) and the levels present."""
+
+    pose: int
+    q: np.ndarray
+    probes: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ball, points (n, 3))
+    centres: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ball, xyz (3,))
+    T: np.ndarray | None = None
+    distances: list[tuple[str, float]] = field(default_factory=list)  # (ball, ballbar length mm)
+    # probe index -> (its points, plain SphereFit, its mirror image (3,), narrow cap), from :func:`prefit`
+    fits: dict | None = field(default=None, repr=False, compare=False)
+
+    def measured(self) -> bool:
+        return bool(self.probes or self.centres or self.T is not None or self.distances)
+
+
+def _rows_by_pose(obs, pose_ids):
+    """Row indices of ``obs`` per pose id, in file order: one sort, not one scan per pose."""
+    if obs is None:
+        return {}
+    order = np.argsort(obs.pose, kind="stable")
+    sorted_pose = obs.pose[order]
+    lo = np.searchsorted(sorted_pose, pose_ids, side="left")
+    hi = np.searchsorted(sorted_pose, pose_ids, side="right")
+    return {int(p): order[a:z] for p, a, z in zip(pose_ids, lo, hi)}
+
+
+def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseData]:
+    """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose).
+
+    ``poses``: only these pose ids (the others are not read). Linear in the dataset's size.
+    ``model`` converts the readings (prismatic joints are mm); all revolute without it.
+    """
+    levels = ds.levels() if levels is None else list(levels)
+    ids = np.asarray(ds.pose_ids, dtype=int)
+    keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
+    ids = ids[keep]
+    joints = (model.joints_to_internal(ds.joints_deg) if model is not None else ds.joints_rad)[keep]
+    probes = _rows_by_pose(ds.probes, ids) if "probes" in levels else {}
+    centres = _rows_by_pose(ds.centres, ids) if "centres" in levels else {}
+    pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
+    distance_rows = _rows_by_pose(ds.distances, ids) if "distances" in levels else {}
+    out = []
+    for pid, q in zip(ids.tolist(), joints):
+        rec = PoseData(pid, q)
+        if probes:
+            rows = probes[pid]
+            balls = ds.probes.ball[rows]
+            for b in dict.fromkeys(balls.tolist()):
+                rec.probes.append((b, ds.probes.xyz[rows[balls == b]]))
+        if centres:
+            rec.centres += [(str(ds.centres.ball[i]), ds.centres.xyz[i]) for i in centres[pid]]
+        if pose_rows and len(pose_rows[pid]):
+            i = pose_rows[pid][0]
+            rec.T = pose_matrices(ds.poses.xyz[i], ds.poses.quat[i])
+        if distance_rows:
+            rec.distances += [(str(ds.distances.ball[i]), float(ds.distances.length[i])) for i in distance_rows[pid]]
+        out.append(rec)
+    return out
+
+
+def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Dataset:
+    """A dataset (robot, tool and noise of ``meta``) holding the poses ``records``."""
+    probes = [(r.pose, b, x) for r in records for b, pts in r.probes for x in pts]
+    centres = [(r.pose, b, c) for r in records for b, c in r.centres]
+    poses = [(r.pose, r.T) for r in records if r.T is not None]
+    distances = [(r.pose, b, v) for r in records for b, v in r.distances]
+    q = np.array([r.q for r in records]).reshape(len(records), -1)
+
+    def points(rows):
+        return PointObservations([p for p, _, _ in rows], [b for _, b, _ in rows],
+                                 np.array([x for _, _, x in rows]).reshape(-1, 3)) if rows else None
+
+    return Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
+                   pose_ids=[r.pose for r in records],
+                   joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
+                   probes=points(probes), centres=points(centres),
+                   poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
+                                          matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
+                   if poses else None,
+                   distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
+                                                  [v for _, _, v in distances]) if distances else None,
+                   path=meta.path, chain=meta.chain)
+
+
+def _variant(rec: PoseData, taken: dict) -> PoseData:
+    """The pose as taken (``taken["drop"]``: one probe point left out)."""
+    if not taken.get("drop"):
+        return rec
+    j, k = taken["drop"]
+    out = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances),
+                   None if rec.fits is None else dict(rec.fits))
+    ball, pts = rec.probes[j]
+    out.probes[j] = (ball, np.delete(pts, k, axis=0))
+    return out
+
+
+def record_to_json(rec: PoseData) -> dict:
+    return {"pose": rec.pose, "q": rec.q.tolist(), "probes": [[b, p.tolist()] for b, p in rec.probes],
+            "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist(),
+            "distances": [[b, float(v)] for b, v in rec.distances]}
+
+
+def record_from_json(d: dict) -> PoseData:
+    return PoseData(int(d["pose"]), np.array(d["q"], dtype=float),
+                    [(b, np.array(p, dtype=float)) for b, p in d["probes"]],
+                    [(b, np.array(c, dtype=float)) for b, c in d["centres"]],
+                    None if d["T"] is None else np.array(d["T"], dtype=float),
+                    [(b, float(v)) for b, v in d.get("distances", [])])

@@ -1,0 +1,85 @@
+"""Poses from a stream of text records (``fgcal online --stdin``)."""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from fgcal.online.records import PoseData
+
+__all__ = ["STREAM_FORMAT", "read_stream"]
+
+STREAM_FORMAT = """\
+One record a line, comma-separated (lines starting with # and blank lines are ignored):
+  joints,POSE,q1,...,qn              joint readings (deg; mm for prismatic joints); starts pose POSE
+  probe,POSE,BALL,x,y,z              a probe point (mm, world)
+  centre,POSE,BALL,x,y,z             a ball centre (mm, world)
+  pose,POSE,x,y,z,qw,qx,qy,qz        a measured tool pose (mm, unit quaternion)
+  distance,POSE,BALL,length          a ballbar length from the pivot (world origin) to BALL (mm)
+  end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
+
+
+def read_stream(lines, balls, warn=None, model=None):
+    """Pose records from a stream of lines (:data:`STREAM_FORMAT`), each as soon as it is complete.
+
+    A malformed line is reported through ``warn(message)`` with its line number and skipped; the
+    stream goes on (an operator's typo should not end a measuring session). ``model`` gives the
+    number of joints and their units (six revolute joints without it).
+    """
+    from fgcal.robots.transforms import pose_matrices
+
+    warn = warn or (lambda m: print(m, file=sys.stderr))
+    current: PoseData | None = None
+    n_joints = 6 if model is None else model.n_joints
+    widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "end": 2}
+    for n, raw in enumerate(lines, start=1):
+        if isinstance(raw, bytes):
+            try:
+                raw = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                warn(f"stdin: line {n} skipped: not UTF-8 text (byte {raw[exc.start]:#04x} at column {exc.start + 1})")
+                continue
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        f = [c.strip() for c in line.split(",")]
+        tag = f[0]
+        try:
+            if tag not in widths:
+                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, end)")
+            if len(f) != widths[tag]:
+                raise ValueError(f"{tag} takes {widths[tag] - 1} fields, got {len(f) - 1}")
+            pose = int(f[1])
+            if tag != "joints" and (current is None or current.pose != pose):
+                raise ValueError(f"{tag} for pose {pose} before its joints line")
+            if tag in ("probe", "centre", "distance") and f[2] not in balls:
+                raise ValueError(f"unknown ball {f[2]!r} (dataset.yaml has {', '.join(balls)})")
+            values = [float(v) for v in f[3 if tag in ("probe", "centre", "distance") else 2:]]
+            if not all(np.isfinite(values)):
+                raise ValueError("a number is not finite")
+        except ValueError as exc:
+            warn(f"stdin: line {n} skipped: {exc}")
+            continue
+        if tag == "joints":
+            if current is not None:
+                yield current
+            current = PoseData(pose, np.radians(values) if model is None else model.joints_to_internal(values))
+        elif tag == "probe":
+            pts = dict(current.probes)
+            pts[f[2]] = np.vstack([pts.get(f[2], np.zeros((0, 3))), values])
+            current.probes = list(pts.items())
+        elif tag == "centre":
+            current.centres.append((f[2], np.array(values)))
+        elif tag == "distance":
+            current.distances.append((f[2], float(values[0])))
+        elif tag == "pose":
+            q = np.array(values[3:])
+            if abs(np.linalg.norm(q) - 1) > 1e-3:
+                warn(f"stdin: line {n} skipped: quaternion norm {np.linalg.norm(q):.6g}, expected 1")
+                continue
+            current.T = pose_matrices(values[:3], q)
+        else:  # end
+            yield current
+            current = None
+    if current is not None:
+        yield current
