@@ -23,6 +23,7 @@ import numpy as np
 
 from .dataset import Noise
 from .errors import FgcalError
+from .graph import Sigmas
 from .design_info import Layout, information, layout_from_access
 from .identifiability import analyse_information
 from .model import ParameterSet, RobotModel
@@ -180,10 +181,12 @@ class Candidates:
 
     @classmethod
     def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
-              layout: Layout | None = None, params: ParameterSet | None = None, slots=None):
+              layout: Layout | None = None, params: ParameterSet | None = None, slots=None,
+              sigmas: Sigmas | None = None):
         """Information of every candidate (measured as ``layout`` says; by default the three most
         accessible balls, probed) and the weight of the accuracy at ``q_verify``, linearised at
-        ``slots`` (the nominal by default)."""
+        ``slots`` (the nominal by default); ``sigmas`` (the graph's noise) replaces ``noise``'s
+        declared values, for example with those estimated from a dataset."""
         params = params or model.parameters()
         q = np.atleast_2d(np.asarray(candidates, dtype=float))
         layout = layout if layout is not None else layout_from_access(model, q, ("probes",))
@@ -191,7 +194,7 @@ class Candidates:
         if not usable.any():
             raise FgcalError(f"none of the {len(q)} candidate poses gives a measurement "
                              f"({', '.join(layout.levels)}): no ball is accessible at any of them")
-        info = information(model, q, layout, noise, params, slots)
+        info = information(model, q, layout, noise, params, slots, sigmas)
         W = verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
         scale = deviations.sigmas(params.names)
         dropped = analyse_information(info[usable].sum(axis=0), params.names).redundant
