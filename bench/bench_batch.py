@@ -5,7 +5,7 @@ measured from outside (``os.wait4``: user + system CPU of the whole process, imp
 the files included, and its peak RSS), on a simulated PUMA 560 with the paper's noise (3 balls x
 4 probe points per pose):
 
-  fgcal   ``fgcal.calibrate`` (the factor graph from raw probe points, covariance included)
+  fgcal   ``fgcal.estimation.calibrate`` (the factor graph from raw probe points, covariance included)
   scipy   ``bench/scipy_reference.py``: the same probe-level problem with ``least_squares``
 
 Both must give the same estimates (``max |fgcal - scipy| / sigma`` is printed, goal below 0.01).
@@ -32,7 +32,7 @@ SINGLE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MK
 FGCAL_CASE = """
 import json, sys
 from fgcal import dataset_model, load_dataset
-from fgcal.calibrate import calibrate
+from fgcal.estimation.calibrate import calibrate
 ds = load_dataset(sys.argv[1])
 r = calibrate(ds, dataset_model(ds))
 print(json.dumps({"names": r.names, "estimate": r.estimate.tolist(), "sigma": r.sigma.tolist(),

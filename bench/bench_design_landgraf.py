@@ -36,9 +36,9 @@ def main():
     logging.basicConfig(level=logging.ERROR)  # the held parameters of position-only data, once per calibration
     if not args.series.exists():
         raise SystemExit(f"the Landgraf series is not at {args.series}; pass --series")
-    from fgcal.design_validate import compare_on_held_out
-    from fgcal.landgraf import read_series, series_to_datasets
-    from fgcal.robot_file import model_from_dict
+    from fgcal.studies.design_validate import compare_on_held_out
+    from fgcal.io.landgraf import read_series, series_to_datasets
+    from fgcal.robots.robot_file import model_from_dict
 
     series = read_series(args.series)
     print(f"{'split':>5} {'train':>6} {'held':>5} {'plan mm':>8} {'rand q25':>9} {'median':>8} {'q75':>8} "

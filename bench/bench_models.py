@@ -33,10 +33,10 @@ def default_series() -> Path | None:
 
 
 def run_split(calib, held, model_dict, label, fold_order="random"):
-    from fgcal.calibrate import CalibrationOptions
-    from fgcal.model_select import compare_models
-    from fgcal.robot_file import model_from_dict
-    from fgcal.verify import verify
+    from fgcal.estimation.calibrate import CalibrationOptions
+    from fgcal.estimation.model_select import compare_models
+    from fgcal.robots.robot_file import model_from_dict
+    from fgcal.report.verify import verify
 
     model = model_from_dict(model_dict)
     t0 = time.perf_counter()
@@ -69,7 +69,7 @@ def main():
     if args.series is None or not args.series.exists():
         print("real data not found (../shared/data/landgraf-ur10/Series_B); give --series PATH")
         return 0
-    from fgcal.landgraf import read_series, series_to_datasets
+    from fgcal.io.landgraf import read_series, series_to_datasets
 
     series = read_series(args.series)
     print(f"{args.series}: {len(series.line)} rows")

@@ -15,8 +15,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--trials", type=int, default=40)
     args = ap.parse_args()
-    from fgcal.study import trials_for
-    from fgcal.study_run import run_study
+    from fgcal.studies.study import trials_for
+    from fgcal.studies.study_run import run_study
 
     trials = trials_for("fig13", trials=args.trials, poses=12, seed=7)
     rows = []

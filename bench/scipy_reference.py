@@ -8,7 +8,7 @@ corrections have the readings' prior ``dq / sigma_joint``. ``scipy.optimize.leas
 (``method="trf"``, ``x_scale="jac"``) solves it with an analytic sparse Jacobian (after a fit of the base placement alone); the
 parameters' covariance is the inverse of the Schur complement of the per-pose (6, 6) blocks.
 
-Only the forward kinematics and its Jacobians (``fgcal.kinematics``) and the robot model are
+Only the forward kinematics and its Jacobians (``fgcal.robots.kinematics``) and the robot model are
 taken from fgcal; the files are read with numpy. Run on a dataset folder:
 ``python bench/scipy_reference.py DATASET`` prints the estimate and sigmas (file units) as JSON.
 """
@@ -38,8 +38,8 @@ def solve(path):
     from scipy.optimize import least_squares
     from scipy.sparse import csr_matrix
 
-    from fgcal.kinematics import jacobians
-    from fgcal.robot_file import load_model
+    from fgcal.robots.kinematics import jacobians
+    from fgcal.robots.robot_file import load_model
 
     meta, pose_ids, q_deg, (p_pose, p_ball, p_xyz) = read_dataset(path)
     model = load_model(meta["robot"])

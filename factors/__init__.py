@@ -7,12 +7,14 @@ directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as 
 * ball centre (variable or measured) at the forward kinematics times the ball's offset,
 * measured tool pose against the forward kinematics,
 * a ballbar length from the world origin (its pivot) to a tool ball,
-* joint readings as priors on joint variables, and a prior on the parameters.
+* joint readings as priors on joint variables, and a prior on the parameters;
+* :func:`~factors.gtsam_factors.kinematic_factor`: any error of (theta, q) with its Jacobians as a factor
+  (fgcal's measurement types build theirs with it).
 """
 from .errors import (ball_centre_error, distance_error, joint_error, pose_ball_centres_error, pose_error, probe_error,
                      slots_of)
 
-_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior", "noise_model",
+_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior", "kinematic_factor", "noise_model",
                 "parameter_prior", "pose_factor", "probe_factor", "probes_factor", "theta_key")
 
 
@@ -26,5 +28,5 @@ def __getattr__(name):
 
 
 __all__ = ["distance_error", "distance_factor", "ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
-           "centre_key", "joint_key", "joint_prior", "noise_model", "parameter_prior", "pose_factor",
+           "centre_key", "joint_key", "joint_prior", "kinematic_factor", "noise_model", "parameter_prior", "pose_factor",
            "probe_factor", "probes_factor", "theta_key"]

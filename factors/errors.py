@@ -3,7 +3,7 @@
 Each returns the *unwhitened* error and its Jacobians with respect to its variables. The
 kinematic parameters are a vector ``theta`` (P,) in internal units (mm, rad), placed into the
 37-slot chain by ``index`` (P,) over ``held`` (S,), the values of the slots not estimated. Each kinematic error
-takes the robot's ``chain`` (:class:`fgcal.kinematics.Chain`; the all-revolute chain of
+takes the robot's ``chain`` (:class:`fgcal.robots.kinematics.Chain`; the all-revolute chain of
 ``held``'s size by default). Joint variables ``q`` are the readings (rad, or mm for prismatic
 joints); points are mm (world).
 """
@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.kinematics import jacobians
-from fgcal.transforms import so3_left_jacobian_inverse, so3_log
+from fgcal.robots.kinematics import jacobians
+from fgcal.robots.transforms import so3_left_jacobian_inverse, so3_log
 
 __all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_ball_centres_error", "pose_error", "distance_error",
            "joint_error"]
@@ -58,7 +58,7 @@ def ball_centre_error(theta, q, offset, centre, index, held, chain=None):
     centre : array_like, shape (M, 3)
         The ball-centre variable, or a measured centre (mm, world).
     index, held : see :func:`slots_of`.
-    chain : fgcal.kinematics.Chain, optional
+    chain : fgcal.robots.kinematics.Chain, optional
         The robot's chain; the all-revolute chain of ``held``'s size by default.
 
     Returns

@@ -140,7 +140,7 @@ def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int
     return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)), keys, error)
 
 
-def _kinematic_factor(error_fn, noise, index, held, *, t_key: int, q_key: int | None, q_fixed, chain):
+def kinematic_factor(error_fn, noise, index, held, *, t_key: int, q_key: int | None, q_fixed, chain):
     """A factor on (theta, q) whose error is ``error_fn(theta, q (1, n), index, held, chain)`` ->
     ``(e (1, m), J_theta (1, m, P), J_q (1, m, n))``; joints are the variable ``q_key`` or ``q_fixed``."""
     if (q_key is None) == (q_fixed is None):
@@ -166,7 +166,7 @@ def pose_factor(index, held, T_measured, sigma_rot: float, sigma_pos: float, *, 
                 q_key: int | None = None, q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
     """A measured tool pose (4, 4) against FK(theta, q): error ``[rotation (rad); position (mm)]``."""
     T_measured = np.array(T_measured, dtype=float).reshape(1, 4, 4)
-    return _kinematic_factor(lambda theta, q, i, h, c: pose_error(theta, q, T_measured, i, h, c),
+    return kinematic_factor(lambda theta, q, i, h, c: pose_error(theta, q, T_measured, i, h, c),
                              noise_model([sigma_rot] * 3 + [sigma_pos] * 3, robust), index, held, t_key=t_key,
                              q_key=q_key, q_fixed=q_fixed, chain=chain)
 
@@ -176,7 +176,7 @@ def distance_factor(index, held, offset, length: float, sigma: float, *, t_key: 
     """A ballbar length (mm) from the world origin (the pivot) to the tool ball at ``offset`` (3,)."""
     offset = np.array(offset, dtype=float).reshape(1, 3)
     length = np.array([float(length)])
-    return _kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, length, i, h, c),
+    return kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, length, i, h, c),
                              noise_model([sigma], robust), index, held, t_key=t_key, q_key=q_key, q_fixed=q_fixed,
                              chain=chain)
 

@@ -8,7 +8,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from fgcal.robot_file import load_model
+from fgcal.robots.robot_file import load_model
 
 
 @pytest.fixture(scope="session")

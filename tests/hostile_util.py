@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.cli import main
-from fgcal.dataset import Noise
-from fgcal.dataset_io import save_dataset
-from fgcal.simulate import SimulationSettings, simulate
+from fgcal.measurements.dataset import Noise
+from fgcal.io.dataset_io import save_dataset
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from fgcal.accuracy import (accuracy_stats, flag_poses, held_parameter_cost, predicted_position_sigma,
+from fgcal.report.accuracy import (accuracy_stats, flag_poses, held_parameter_cost, predicted_position_sigma,
                             round_to_sigma, tolerance_verdict, verification_joints)
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.kinematics import forward
-from fgcal.model import SLOT_NAMES, slots_from_file_units
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.verify import verify
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.report.verify import verify
 
 
 @pytest.fixture(scope="module")
@@ -133,7 +133,7 @@ def test_verify_position_only_data(ur10):
     """A tracker reflector (one ball): verify compares the points; orientation is null."""
     from dataclasses import replace
 
-    from fgcal.model import Tooling
+    from fgcal.robots.model import Tooling
 
     model = replace(ur10, tooling=Tooling(0.0, {"R": np.array([30.0, 0.0, 50.0])}))
     rng = np.random.default_rng(154)

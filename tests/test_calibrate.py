@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 
 import factors as fx
-from fgcal.baseline import two_stage
-from fgcal.calibrate import (CalibrationOptions, build_graph, calibrate, gtsam_covariance, levenberg_marquardt,
+from fgcal.estimation.baseline import two_stage
+from fgcal.estimation.calibrate import (CalibrationOptions, build_graph, calibrate, gtsam_covariance, levenberg_marquardt,
                              nonlinear_graph)
-from fgcal.dataset import Noise
+from fgcal.measurements.dataset import Noise
 from fgcal.errors import FgcalError
-from fgcal.kinematics import forward
-from fgcal.model import SLOT_NAMES, slots_from_file_units
-from fgcal.result import load_result, save_result
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.transforms import pose_difference
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.estimation.result import load_result, save_result
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.robots.transforms import pose_difference
 
 EXACT = Noise(cmm_sigma=0.0, joint_resolution=0.0)
 
@@ -113,7 +113,7 @@ def test_redundant_parameter_is_held_and_named(puma):
 def test_position_only_holds_what_it_cannot_see(puma):
     from dataclasses import replace
 
-    from fgcal.model import Tooling
+    from fgcal.robots.model import Tooling
     tracker = replace(puma, tooling=Tooling(6.35, {"R": np.array([10.0, 20.0, 40.0])}))  # one reflector
     ds, _ = simulate(tracker, np.random.default_rng(73), SimulationSettings(n_poses=30, levels=("centres",),
                                                                             n_balls=1, noise=EXACT))
@@ -125,7 +125,7 @@ def test_position_only_holds_what_it_cannot_see(puma):
     truth = slots_from_file_units(_truth_of(ds, SLOT_NAMES))
     q = ds.joints_rad
     ball = ds.tooling.balls[ds.centres.ball[0]]
-    from fgcal.kinematics import tool_points
+    from fgcal.robots.kinematics import tool_points
     np.testing.assert_allclose(tool_points(forward(r.slot_vector(), q), ball), tool_points(forward(truth, q), ball),
                                atol=1e-6)
 

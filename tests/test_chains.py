@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.model import ParameterSet
-from fgcal.robot_file import model_from_dict
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.dataset import Noise
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.robots.model import ParameterSet
+from fgcal.robots.robot_file import model_from_dict
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.measurements.dataset import Noise
 from plain_dh import Rx, Rz, Trans, euler
 
 TOOLING = {"radius": 6.35, "balls": {"A": [60, 0, 30], "B": [0, 60, 30], "C": [-60, 0, 30], "D": [0, -90, 30]}}
@@ -144,9 +144,9 @@ def test_verify_position_only_reports_point_errors():
     """A single tracker reflector: verify reports point errors and no orientation (DESIGN.md 6)."""
     from dataclasses import replace
 
-    from fgcal.model import Tooling
-    from fgcal.robot_file import load_model
-    from fgcal.verify import verify
+    from fgcal.robots.model import Tooling
+    from fgcal.robots.robot_file import load_model
+    from fgcal.report.verify import verify
 
     model = replace(load_model("ur10"), tooling=Tooling(0.0, {"R": np.array([10.0, 20.0, 80.0])}))
     settings = SimulationSettings(n_poses=40, n_balls=1, levels=("centres",), noise=Noise(0.01, 0.0))
@@ -168,7 +168,7 @@ def test_gtsam_engine_and_export_give_the_batch_solution(puma):
     import gtsam
 
     import factors as fx
-    from fgcal.calibrate import to_gtsam
+    from fgcal.estimation.calibrate import to_gtsam
 
     ds, _ = simulate(puma, np.random.default_rng(11), SimulationSettings(n_poses=8))
     batch = calibrate(ds, puma, CalibrationOptions())
@@ -189,8 +189,8 @@ def test_ballbar_only_dataset_calibrates_with_its_pivot(puma, tmp_path):
     """A telescoping ballbar from an unknown pivot to one tool ball: the world origin is the pivot, so
     the base's translation is the pivot (estimated); what distances cannot see (the base's rotation about
     the pivot, the tool's orientation) is held and named."""
-    from fgcal.dataset_io import load_dataset, save_dataset
-    from fgcal.verify import verify
+    from fgcal.io.dataset_io import load_dataset, save_dataset
+    from fgcal.report.verify import verify
 
     settings = SimulationSettings(n_poses=60, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.0))
     train, _ = simulate(puma, np.random.default_rng(21), settings)
@@ -216,7 +216,7 @@ def test_export_writes_the_identified_deltas(puma, tmp_path):
     import subprocess
     import sys
 
-    from fgcal.result import save_result
+    from fgcal.estimation.result import save_result
 
     ds, _ = simulate(puma, np.random.default_rng(12), SimulationSettings(n_poses=10))
     result = calibrate(ds, puma, CalibrationOptions(exclude=("j2.beta",)))
@@ -238,7 +238,7 @@ def test_online_engines_take_a_ballbar_and_a_prismatic_arm(puma, engine):
     """Every engine accepts ballbar lengths and a chain with a prismatic joint and ends at the batch
     solve of the same poses (within 0.1 sigma). A ballbar's pivot is unknown at the start, so the
     running estimate refuses most lengths until the final smoothing judges them again."""
-    from fgcal.online import make_engine, pose_records
+    from fgcal.online.engines import make_engine, pose_records
 
     cases = [(puma, SimulationSettings(n_poses=40, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.01))),
              (model_from_dict(PRISMATIC), SimulationSettings(n_poses=30, levels=("centres",), noise=Noise(0.01, 0.01)))]
@@ -258,7 +258,7 @@ def test_online_engines_take_a_ballbar_and_a_prismatic_arm(puma, engine):
 def test_design_from_a_ballbar_dataset(puma):
     """`design --dataset` plans for a ballbar (linearised with the pivot fitted to the lengths): the plan
     predicts better than the median random set of the same size from the same candidates."""
-    from fgcal.design_dataset import design_from_dataset
+    from fgcal.studies.design_dataset import design_from_dataset
 
     settings = SimulationSettings(n_poses=200, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.01))
     ds, _ = simulate(puma, np.random.default_rng(41), settings)

@@ -6,13 +6,13 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.calibrate import calibrate
-from fgcal.compensate import Frame, base_transform, compensate_targets, tcp_matrix
-from fgcal.dataset_io import write_csv
-from fgcal.kinematics import forward, jacobians
-from fgcal.result import save_result
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.transforms import matrix_to_quaternion
+from fgcal.estimation.calibrate import calibrate
+from fgcal.robots.compensate import Frame, base_transform, compensate_targets, tcp_matrix
+from fgcal.io.dataset_io import write_csv
+from fgcal.robots.kinematics import forward, jacobians
+from fgcal.estimation.result import save_result
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.robots.transforms import matrix_to_quaternion
 
 from conftest import random_joints
 
@@ -88,7 +88,7 @@ def test_cli_partial_success_writes_the_reachable_targets(ur10, ur10_result, tmp
 
 
 def test_puma_without_seeds_stays_in_one_branch(puma):
-    from fgcal.ik import BRANCHES, solve_puma_batch
+    from fgcal.robots.ik import BRANCHES, solve_puma_batch
     q = random_joints(puma, 200, seed=165)
     branch = BRANCHES[2]
     T = forward(puma.nominal, q)

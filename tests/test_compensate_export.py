@@ -5,16 +5,16 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from fgcal.calibrate import calibrate
-from fgcal.compensate import compensate
-from fgcal.dataset_io import write_csv
-from fgcal.kinematics import forward
-from fgcal.model import SLOT_NAMES, slots_from_file_units
-from fgcal.result import save_result
-from fgcal.robot_file import load_model
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.transforms import matrix_to_quaternion, pose_difference
-from fgcal.urdf import to_urdf
+from fgcal.estimation.calibrate import calibrate
+from fgcal.robots.compensate import compensate
+from fgcal.io.dataset_io import write_csv
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.estimation.result import save_result
+from fgcal.robots.robot_file import load_model
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.robots.transforms import matrix_to_quaternion, pose_difference
+from fgcal.robots.urdf import to_urdf
 
 from conftest import random_joints
 
@@ -66,7 +66,7 @@ def test_urdf_reproduces_the_calibrated_kinematics(puma, calibrated):
 def _inside(puma, n, seed):
     """Well-conditioned joint sets: near a singularity (elbow straight, wrist centre on the shoulder
     axis, q5 = 0) or a joint limit, a target of the nominal robot may be out of the calibrated robot's reach."""
-    from fgcal.kinematics import jacobians
+    from fgcal.robots.kinematics import jacobians
     q = random_joints(puma, 20 * n, seed=seed)
     J = jacobians(puma.nominal, q).pose_joints * np.array([1, 1, 1, 100, 100, 100.0])[None, :, None]
     ok = np.linalg.svd(J, compute_uv=False)[:, -1] > 50.0

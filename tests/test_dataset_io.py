@@ -4,10 +4,10 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.dataset import Noise
-from fgcal.dataset_io import load_dataset, save_dataset
+from fgcal.measurements.dataset import Noise
+from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.errors import DatasetError
-from fgcal.simulate import SimulationSettings, simulate
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @pytest.fixture(scope="module")

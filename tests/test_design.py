@@ -4,12 +4,12 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.calibrate import calibrate
-from fgcal.dataset import Noise
-from fgcal.design import Candidates, candidate_pool, design_plan, indices, pose_information, random_design_values
-from fgcal.kinematics import forward
-from fgcal.simulate import SimulationSettings, ball_access, simulate
-from fgcal.study import run_trial, trials_for
+from fgcal.estimation.calibrate import calibrate
+from fgcal.measurements.dataset import Noise
+from fgcal.studies.design import Candidates, candidate_pool, design_plan, indices, pose_information, random_design_values
+from fgcal.robots.kinematics import forward
+from fgcal.studies.simulate import SimulationSettings, ball_access, simulate
+from fgcal.studies.study import run_trial, trials_for
 
 NOISE = Noise(0.01, 0.01)
 
@@ -77,8 +77,8 @@ def test_cli_design(tmp_path):
 
 def test_rank_update_scores_equal_the_direct_inverse(puma):
     """The fast ``pred`` score (Woodbury, rank-r updates) equals trace(W inv(T +- info_k)) directly."""
-    from fgcal.design import _low_rank, _pred_update, _scores
-    from fgcal.design_info import information, layout_from_access
+    from fgcal.studies.design import _low_rank, _pred_update, _scores
+    from fgcal.studies.design_info import information, layout_from_access
 
     pool = candidate_pool(puma, 60, np.random.default_rng(122))
     for level in ("poses", "centres"):

@@ -6,17 +6,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.calibrate import calibrate
-from fgcal.dataset import Noise
-from fgcal.dataset_io import save_dataset
-from fgcal.design import candidate_pool
-from fgcal.design_dataset import dataset_layout, design_from_dataset, load_plan, save_plan
-from fgcal.design_info import information
-from fgcal.design_validate import compare_on_held_out
+from fgcal.estimation.calibrate import calibrate
+from fgcal.measurements.dataset import Noise
+from fgcal.io.dataset_io import save_dataset
+from fgcal.studies.design import candidate_pool
+from fgcal.studies.design_dataset import dataset_layout, design_from_dataset, load_plan, save_plan
+from fgcal.studies.design_info import information
+from fgcal.studies.design_validate import compare_on_held_out
 from fgcal.errors import FgcalError
-from fgcal.model import slots_from_file_units
-from fgcal.robot_file import model_from_dict, model_to_dict, save_model
-from fgcal.simulate import SimulationSettings, simulate
+from fgcal.robots.model import slots_from_file_units
+from fgcal.robots.robot_file import model_from_dict, model_to_dict, save_model
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 NOISE = Noise(0.01, 0.01)
 _REL = Path("shared/data/landgraf-ur10/Series_B/measurements_joint_configurations.csv")
@@ -137,7 +137,7 @@ def test_landgraf_plan_against_random_sets():
     does not robustly beat their median (measured on split 0 with 40 sets: pred plan 0.4673 mm,
     random median 0.4536 mm, quartiles 0.4436-0.4716; on split 2 the plan beats 90%), so only
     what holds is asserted: the plan calibrates about as well as typical random sets."""
-    from fgcal.landgraf import read_series, series_to_datasets
+    from fgcal.io.landgraf import read_series, series_to_datasets
 
     calib, held, model_dict, _ = series_to_datasets(read_series(SERIES), str(SERIES), holdout=0.3,
                                                     rng=np.random.default_rng(0))

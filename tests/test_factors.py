@@ -5,9 +5,9 @@ import pytest
 from gtsam.utils.numerical_derivative import numericalDerivative11
 
 import factors
-from fgcal.kinematics import forward
-from fgcal.model import SLOT_IS_ANGLE
-from fgcal.transforms import quaternion_to_matrix
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_IS_ANGLE
+from fgcal.robots.transforms import quaternion_to_matrix
 
 from conftest import random_joints
 
@@ -126,7 +126,7 @@ def test_robust_noise_models():
 def test_distance_factor(puma, seed, robot):
     """A ballbar length: both blocks (parameters, joint variables), on the PUMA and on a chain with a
     prismatic joint and a coupling."""
-    from fgcal.robot_file import model_from_dict
+    from fgcal.robots.robot_file import model_from_dict
     from test_chains import PRISMATIC
 
     model = puma if robot == "puma" else model_from_dict(dict(PRISMATIC, coupling={

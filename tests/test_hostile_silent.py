@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from fgcal.dataset_io import load_dataset, save_dataset
+from fgcal.io.dataset_io import load_dataset, save_dataset
 
 from hostile_util import call, copy_dataset, one_line_error, small_dataset
 

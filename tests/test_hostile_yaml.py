@@ -4,9 +4,9 @@ import resource
 
 import pytest
 
-from fgcal.dataset_io import load_dataset
+from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import FgcalError
-from fgcal.yamlio import read_yaml
+from fgcal.io.yamlio import read_yaml
 
 from hostile_util import call, copy_dataset, one_line_error, run_cli, small_dataset
 

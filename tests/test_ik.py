@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from fgcal.ik import BRANCHES, IKError, solve_numeric, solve_puma
-from fgcal.kinematics import forward
-from fgcal.model import SLOT_IS_ANGLE
+from fgcal.robots.ik import BRANCHES, IKError, solve_numeric, solve_puma
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_IS_ANGLE
 
 from conftest import random_joints
 

@@ -13,14 +13,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fgcal.dataset_io import dataset_model, load_dataset
-from fgcal.kinematics import forward
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.model import SLOT_NAMES, slot, slots_to_file_units
-from fgcal.result import load_result
-from fgcal.robot_file import load_model
-from fgcal.table_io import ColumnSpec, read_measurements
-from fgcal.transforms import to_euler_zyx_trans
+from fgcal.io.dataset_io import dataset_model, load_dataset
+from fgcal.robots.kinematics import forward
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.robots.model import SLOT_NAMES, slot, slots_to_file_units
+from fgcal.estimation.result import load_result
+from fgcal.robots.robot_file import load_model
+from fgcal.io.table_io import ColumnSpec, read_measurements
+from fgcal.robots.transforms import to_euler_zyx_trans
 
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]
 SIGMA_MM, SIGMA_DEG = 0.02, 0.005
@@ -169,7 +169,7 @@ def test_quaternion_orders_and_euler_conventions_agree(tmp_path, order):
 
 def test_tum_trajectory_joined_with_a_joint_log(tmp_path):
     """evo's TUM format (s, m, xyzw) plus a 50 Hz joint log: nearest reading within the tolerance, others named."""
-    from fgcal.tum import read_tum_with_joint_log
+    from fgcal.io.tum import read_tum_with_joint_log
 
     rng = np.random.default_rng(153)
     _, truth, q, T = simulated_ur10(rng, 12)
@@ -200,7 +200,7 @@ def test_tum_trajectory_joined_with_a_joint_log(tmp_path):
 
 def test_landgraf_series_without_std_columns(tmp_path):
     """Series A has no measurement-std columns: read with the default noise, same poses as with them."""
-    from fgcal.landgraf import read_series, series_to_datasets
+    from fgcal.io.landgraf import read_series, series_to_datasets
 
     _, _, q, T = simulated_ur10(np.random.default_rng(154), 10)
     eul = Rotation.from_matrix(T[:, :3, :3]).as_euler("XYZ", degrees=True)
@@ -223,7 +223,7 @@ def test_landgraf_series_without_std_columns(tmp_path):
     ("a;b;c\n1,5;2;3\n", (";", True)), ("a;b;c\n1.5;2;3\n", (";", False)), ("a,b,c\n1.5,2,3\n", (",", False)),
     ("a\tb\tc\n1,5\t2\t3\n", ("\t", True)), ("a b  c\n1.5 2 3\n", (" ", False)), ("a b c\n1,5 2 3\n", (" ", True))])
 def test_delimiter_and_decimal_comma_are_detected(text, expected):
-    from fgcal.table_io import detect_format
+    from fgcal.io.table_io import detect_format
 
     assert detect_format(text.splitlines()) == expected
 
@@ -251,7 +251,7 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path, capsys):
 @pytest.mark.parametrize("points", [False, True])
 def test_base_and_tool_fits_recover_exact_data(points):
     """Noise-free data of the nominal links: the fitted base and tool reproduce the simulated ones."""
-    from fgcal.initial import fit_base_and_point, fit_base_and_tool
+    from fgcal.estimation.initial import fit_base_and_point, fit_base_and_tool
 
     model, truth, q, _ = simulated_ur10(np.random.default_rng(155), 30)
     nominal_links = model.nominal.copy()
@@ -279,7 +279,7 @@ def test_group_columns_keep_repeats_on_one_side_of_the_holdout(tmp_path):
                       group=("goal",))
     m = read_measurements(tmp_path / "g.csv", spec)
     np.testing.assert_array_equal(m.groups(), goal)
-    from fgcal.importer import to_datasets
+    from fgcal.io.importer import to_datasets
 
     r = to_datasets(m, "ur10", holdout=0.3, rng=np.random.default_rng(0))
     line_goal = dict(zip(m.line, goal))

@@ -3,19 +3,19 @@
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, build_graph, calibrate
-from fgcal.dataset import Dataset, Noise, PoseObservations
+from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
+from fgcal.measurements.dataset import Dataset, Noise, PoseObservations
 from fgcal.errors import ModelError
-from fgcal.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
-from fgcal.joint_errors import (JointErrorBlock, JointErrorSpec, ModelKind, commands_for, corrected_joints,
+from fgcal.estimation.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
+from fgcal.estimation.joint_errors import (JointErrorBlock, JointErrorSpec, ModelKind, commands_for, corrected_joints,
                                 outside_region)
-from fgcal.kinematics import forward
-from fgcal.model_select import compare_models
-from fgcal.result import load_result, save_result
-from fgcal.robot_file import load_model, model_from_dict, model_to_dict
-from fgcal.simulate import draw_truth
-from fgcal.transforms import matrix_to_quaternion
-from fgcal.model import Tooling
+from fgcal.robots.kinematics import forward
+from fgcal.estimation.model_select import compare_models
+from fgcal.estimation.result import load_result, save_result
+from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
+from fgcal.studies.simulate import draw_truth
+from fgcal.robots.transforms import matrix_to_quaternion
+from fgcal.robots.model import Tooling
 
 UR10 = load_model("ur10")
 LOW = np.radians([-170, -170, -160, -170, -170, -170])
@@ -76,7 +76,7 @@ def _simulate(rng, n, phi_true=None, spec=None, sigma_pos=0.02, sigma_rot=0.002,
     T = forward(truth, q_act)
     T[:, :3, 3] += rng.normal(0, sigma_pos, (n, 3))
     w = rng.normal(0, np.radians(sigma_rot), (n, 3))
-    from fgcal.transforms import rot
+    from fgcal.robots.transforms import rot
 
     for i in range(n):
         T[i, :3, :3] = rot(0, w[i, 0]) @ rot(1, w[i, 1]) @ rot(2, w[i, 2]) @ T[i, :3, :3]
@@ -140,8 +140,8 @@ def test_save_load_keeps_the_block(tmp_path):
     assert back.joint_errors["names"] == r.joint_errors["names"] and back.names == r.names
     q = UR10.joints_to_internal(ds.joints_deg[:5])
     np.testing.assert_allclose(corrected_joints(back, q), corrected_joints(r, q), atol=1e-15)
-    from fgcal.report import write_report
-    from fgcal.verify import verify
+    from fgcal.report.document import write_report
+    from fgcal.report.verify import verify
 
     write_report(back, tmp_path / "report", verify(back, ds, UR10).to_dict())
     md = (tmp_path / "report" / "report.md").read_text()
@@ -183,7 +183,7 @@ def test_cli_calibrate_model_compensate_and_export(tmp_path):
     import subprocess
     import sys
 
-    from fgcal.dataset_io import save_dataset
+    from fgcal.io.dataset_io import save_dataset
 
     rng = np.random.default_rng(21)
     ds, truth = _simulate(rng, 90, PHI, SPEC)
@@ -203,7 +203,7 @@ def test_cli_calibrate_model_compensate_and_export(tmp_path):
     # compensate: commands whose corrected joints put the calibrated model on the targets
     q_goal = rng.uniform(LOW, HIGH, (3, 6)) * 0.5
     T = forward(r.slot_vector(), q_goal)
-    from fgcal.transforms import matrix_to_quaternion as m2q
+    from fgcal.robots.transforms import matrix_to_quaternion as m2q
 
     lines = ["pose,x,y,z,qw,qx,qy,qz,q1,q2,q3,q4,q5,q6"]
     for i, (Ti, qi) in enumerate(zip(T, q_goal)):
@@ -224,7 +224,7 @@ def test_cli_calibrate_model_compensate_and_export(tmp_path):
 
 
 def test_folds_keep_repeated_configurations_together():
-    from fgcal.model_select import FoldOrder, _folds, _groups
+    from fgcal.estimation.model_select import FoldOrder, _folds, _groups
 
     rng = np.random.default_rng(5)
     q = rng.uniform(-3, 3, (40, 6))

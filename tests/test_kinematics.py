@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 import yaml
 
-from fgcal.kinematics import forward, jacobians
-from fgcal.model import SLOT_IS_ANGLE, SLOT_NAMES
-from fgcal.resources import builtin_robot_path
-from fgcal.transforms import so3_log
+from fgcal.robots.kinematics import forward, jacobians
+from fgcal.robots.model import SLOT_IS_ANGLE, SLOT_NAMES
+from fgcal.io.resources import builtin_robot_path
+from fgcal.robots.transforms import so3_log
 
 from conftest import random_joints
 from plain_dh import fk
@@ -19,7 +19,7 @@ def test_puma_tool_origin_at_zero(puma):
 @pytest.mark.parametrize("name", ["puma560", "ur10", "ur5"])
 def test_fk_matches_plain_dh_table(name):
     """The model file's raw table (6-link UR tables before folding) through plain 4x4 DH."""
-    from fgcal.robot_file import load_model
+    from fgcal.robots.robot_file import load_model
 
     model = load_model(name)
     raw = yaml.safe_load(builtin_robot_path(name).read_text())

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.dataset import Noise
-from fgcal.honesty import SCENARIOS, add_gross_errors, run_scenario, summarise
-from fgcal.model import SLOT_NAMES, slots_from_file_units
-from fgcal.result import load_result, save_result
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.uncertainty import verdict
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.measurements.dataset import Noise
+from fgcal.estimation.honesty import SCENARIOS, add_gross_errors, run_scenario, summarise
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.estimation.result import load_result, save_result
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.report.uncertainty import verdict
 
 
 def _truth(ds):
@@ -112,8 +112,8 @@ SERIES = next((p for p in (root / "shared" / "data" / "landgraf-ur10" / "Series_
 def test_real_scatter_matches_the_reported_sigmas():
     """Landgraf Series B in five disjoint subsets (repeated goals kept together): the scatter of the
     estimates over the subsets, in units of the reported sigmas, has a median near 1."""
-    from fgcal.landgraf import read_series, series_to_datasets
-    from fgcal.robot_file import model_from_dict
+    from fgcal.io.landgraf import read_series, series_to_datasets
+    from fgcal.robots.robot_file import model_from_dict
 
     series = read_series(SERIES)
     calib, _, model_dict, _ = series_to_datasets(series, str(SERIES))

@@ -7,11 +7,11 @@ import time
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.dataset_io import load_dataset, save_dataset
-from fgcal.online import make_engine, pose_records
-from fgcal.online_run import OnlineRun, read_checkpoint
-from fgcal.simulate import SimulationSettings, simulate
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.io.dataset_io import load_dataset, save_dataset
+from fgcal.online.engines import make_engine, pose_records
+from fgcal.online.run import OnlineRun, read_checkpoint
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +178,7 @@ def test_online_ends_at_the_batch_in_any_order_with_mirrored_fits(puma, engine):
     """Three balls re-probed on narrow caps whose plain sphere fit lands on the mirror image: the
     engines take the centre near the kinematic prediction, and forward or reversed they end at
     the batch solve of the same data (the final smoothing)."""
-    from fgcal.honesty import Scenario, online_agreement
+    from fgcal.estimation.honesty import Scenario, online_agreement
 
     for seed, reverse in ((3001, False), (3002, True)):
         r = online_agreement(puma, engine, seed, reverse, Scenario(mirrored=3))
@@ -189,7 +189,7 @@ def test_online_ends_at_the_batch_in_any_order_with_mirrored_fits(puma, engine):
 def test_gate_uses_the_estimated_noise(puma):
     """The arm lands 0.01 deg off its readings (not declared): the innovations grow, the estimated
     noise factor follows them and no valid pose is refused."""
-    from fgcal.honesty import SCENARIOS, scenario_dataset
+    from fgcal.estimation.honesty import SCENARIOS, scenario_dataset
 
     ds, _, _, _ = scenario_dataset(puma, SCENARIOS["repeatability 0.01 deg undeclared"], 3003)
     e = make_engine("ekf", ds, puma)
@@ -198,7 +198,7 @@ def test_gate_uses_the_estimated_noise(puma):
     assert e.noise.factor() > 3.0  # the declared noise is far too small for these innovations
 def test_resume_from_snapshot_and_torn_journal_is_identical(puma, dataset, tmp_path, monkeypatch):
     """A crash in mid-write (a torn last journal line) after a snapshot resumes to the same numbers."""
-    import fgcal.online_run as orun
+    import fgcal.online.run as orun
 
     monkeypatch.setattr(orun, "SNAPSHOT_EVERY", 7)
     whole = OnlineRun(dataset, puma, "ekf", tmp_path / "a.ck")
@@ -241,7 +241,7 @@ def test_checkpoint_is_locked_and_never_over_an_input(puma, dataset, tmp_path):
 
 
 def test_default_checkpoint_belongs_to_dataset_and_output(tmp_path):
-    from fgcal.online_run import default_checkpoint
+    from fgcal.online.run import default_checkpoint
 
     a = default_checkpoint(tmp_path / "x" / "d", "ekf")
     b = default_checkpoint(tmp_path / "y" / "d", "ekf")  # same folder name, another dataset
@@ -251,7 +251,7 @@ def test_default_checkpoint_belongs_to_dataset_and_output(tmp_path):
 
 
 def test_stream_skips_undecodable_lines():
-    from fgcal.online_run import read_stream
+    from fgcal.online.run import read_stream
 
     warnings = []
     lines = [b"joints,1,0,0,0,0,0,0\n", b"probe,1,A,1,2,\xff3\n", b"probe,1,A,1,2,3\n", b"end,1\n"]

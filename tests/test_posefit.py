@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from fgcal.posefit import check_homogeneous, homogeneity_errors, nearest_rotation, paper_pose, rigid_fit
-from fgcal.transforms import quaternion_to_matrix, so3_log
+from fgcal.measurements.posefit import check_homogeneous, homogeneity_errors, nearest_rotation, paper_pose, rigid_fit
+from fgcal.robots.transforms import quaternion_to_matrix, so3_log
 
 TOOL = np.array([[60.0, 0, 0], [0, 60, 0], [-60, 0, 0]])
 ALL_BALLS = np.array([[60.0, 0, 0], [0, 60, 0], [-60, 0, 0], [0, -90, 0], [0, 0, 40]])

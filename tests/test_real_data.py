@@ -6,12 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.dataset_io import load_dataset
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import DatasetError
-from fgcal.landgraf import read_series, series_to_datasets
-from fgcal.robot_file import model_from_dict
-from fgcal.verify import verify
+from fgcal.io.landgraf import read_series, series_to_datasets
+from fgcal.robots.robot_file import model_from_dict
+from fgcal.report.verify import verify
 
 # shared/ sits beside the checkout (or beside the worktrees' directory)
 SERIES = next((p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
@@ -54,8 +54,8 @@ def test_held_out_accuracy_matches_the_reference(series, tmp_path_factory):
         # the estimated noise says what no geometric model explains: far above the tracker's own
         assert r.levels["poses"].sigma > 5 * calib.noise.pose_position_sigma
         if seed == 0:
-            from fgcal.report import write_report
-            from fgcal.uncertainty import verdict
+            from fgcal.report.document import write_report
+            from fgcal.report.uncertainty import verdict
             v = verify(r, held, model).to_dict()
             assert any("no geometric model explains" in line for line in verdict(r, v))
             write_report(r, tmp_path_factory.mktemp("ur10-report"), v)
@@ -111,7 +111,7 @@ def test_import_skips_rows_with_missing_values(tmp_path):
 @needs_data
 def test_models_beyond_geometry_held_out(series):
     """Issue 13: per model, the held-out error on goals never seen; the map must gain at least 40%."""
-    from fgcal.model_select import compare_models
+    from fgcal.estimation.model_select import compare_models
 
     calib, held, model_dict, _ = series_to_datasets(series, str(SERIES), holdout=0.3, rng=np.random.default_rng(0))
     model = model_from_dict(model_dict)  # the imported model carries the UR10's published inertials
@@ -131,7 +131,7 @@ def test_models_beyond_geometry_held_out(series):
         assert 5 < p.estimate < 30 and p.sigma < 0.2 * p.estimate  # urad/Nm, well identified
     ranges = results["compliance+map"].joint_errors["joint_ranges_deg"]
     assert len(ranges) == 6 and all(lo < hi for lo, hi in ranges)
-    from fgcal.uncertainty import verdict
+    from fgcal.report.uncertainty import verdict
 
     lines = verdict(results["compliance+map"])
     assert any("Recommended: compliance+map" in line and "held-out" in line for line in lines)

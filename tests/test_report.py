@@ -5,13 +5,13 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.plots import plot_convergence, plot_correlation, plot_poses, plot_residuals, plot_sigmas
-from fgcal.report import write_report
-from fgcal.result import save_result
-from fgcal.simulate import SimulationSettings, simulate
-from fgcal.accuracy import round_to_sigma
-from fgcal.uncertainty import parameter_table, verdict
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.report.plots import plot_convergence, plot_correlation, plot_poses, plot_residuals, plot_sigmas
+from fgcal.report.document import write_report
+from fgcal.estimation.result import save_result
+from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.report.accuracy import round_to_sigma
+from fgcal.report.uncertainty import parameter_table, verdict
 
 
 @pytest.fixture(scope="module")

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from fgcal.errors import ModelError
-from fgcal.kinematics import forward
-from fgcal.model import SLOT_IS_ANGLE
-from fgcal.robot_file import load_model, save_model
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_IS_ANGLE
+from fgcal.robots.robot_file import load_model, save_model
 
 from conftest import random_joints
 
@@ -33,7 +33,7 @@ def test_unknown_model_name():
     (("[-160, 160]", "[160, -160]"), r"joint_limits\[0\]: min must be below max"),
 ])
 def test_bad_model_file(tmp_path, edit, pattern):
-    from fgcal.resources import builtin_robot_path
+    from fgcal.io.resources import builtin_robot_path
     text = builtin_robot_path("puma560").read_text()
     assert edit[0] in text
     (tmp_path / "bad.yaml").write_text(text.replace(edit[0], edit[1], 1))

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.calibrate import calibrate
-from fgcal.report import write_report
-from fgcal.simulate import SimulationSettings, simulate
+from fgcal.estimation.calibrate import calibrate
+from fgcal.report.document import write_report
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 TOOL = Path(__file__).resolve().parents[1] / "tools" / "screenshot_report.py"
 sys.path.insert(0, str(TOOL.parent))

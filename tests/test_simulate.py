@@ -1,11 +1,11 @@
 import numpy as np
 import pytest
 
-from fgcal.dataset import Noise
-from fgcal.dataset_io import load_dataset, save_dataset
+from fgcal.measurements.dataset import Noise
+from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.errors import FgcalError
-from fgcal.kinematics import forward
-from fgcal.simulate import SimulationSettings, ball_access, simulate
+from fgcal.robots.kinematics import forward
+from fgcal.studies.simulate import SimulationSettings, ball_access, simulate
 
 from plain_dh import fk_from_truth
 
@@ -50,8 +50,8 @@ def test_paper_plan_has_48_poses_within_limits_and_volume(puma):
 def test_random_plan_respects_limits_and_access(puma):
     ds, _ = simulate(puma, np.random.default_rng(13), SimulationSettings(n_poses=30, noise=EXACT))
     assert ds.n_poses == 30 and puma.in_limits(ds.joints_rad).all()
-    x = np.array([ds.truth[n] for n in __import__("fgcal.model", fromlist=["SLOT_NAMES"]).SLOT_NAMES])
-    from fgcal.model import slots_from_file_units
+    x = np.array([ds.truth[n] for n in __import__("fgcal.robots.model", fromlist=["SLOT_NAMES"]).SLOT_NAMES])
+    from fgcal.robots.model import slots_from_file_units
     ok, _, _ = ball_access(forward(slots_from_file_units(x), ds.joints_rad), puma.tooling, puma.volume)
     assert np.all(ok.sum(axis=1) >= 3)
 
@@ -74,7 +74,7 @@ def test_noise_has_the_requested_size(puma):
 
 
 def test_truth_deviates_as_requested(puma):
-    from fgcal.model import SLOT_NAMES, slots_to_file_units
+    from fgcal.robots.model import SLOT_NAMES, slots_to_file_units
     devs = []
     for seed in range(40):
         ds, _ = simulate(puma, np.random.default_rng(seed), SimulationSettings(n_poses=1))

@@ -6,8 +6,8 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, build_graph, levenberg_marquardt
-from fgcal.simulate import SimulationSettings, simulate
+from fgcal.estimation.calibrate import CalibrationOptions, build_graph, levenberg_marquardt
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 HEAVY = ("gtsam", "scipy.optimize", "scipy.stats", "matplotlib", "filterpy")
 
@@ -18,7 +18,7 @@ def _loaded(code: str) -> list[str]:
     return [m for m in json.loads(out) if m in HEAVY]
 
 
-@pytest.mark.parametrize("code", ["import fgcal", "import fgcal.calibrate",
+@pytest.mark.parametrize("code", ["import fgcal", "import fgcal.estimation.calibrate",
                                   "import fgcal.cli\ntry:\n    fgcal.cli.main(['--version'])\nexcept SystemExit:\n    pass"])
 def test_imports_load_nothing_unused(code):
     assert _loaded(code) == []
@@ -27,10 +27,10 @@ def test_imports_load_nothing_unused(code):
 def test_calibrate_path_loads_nothing_unused(tmp_path, puma):
     """A whole calibration of probe data: no GTSAM (the covariance is the solve's), no scipy.optimize/stats."""
     ds, _ = simulate(puma, np.random.default_rng(5), SimulationSettings(n_poses=8))
-    from fgcal.dataset_io import save_dataset
+    from fgcal.io.dataset_io import save_dataset
 
     save_dataset(ds, tmp_path / "d")
-    code = ("from fgcal import load_dataset, dataset_model\nfrom fgcal.calibrate import calibrate\n"
+    code = ("from fgcal import load_dataset, dataset_model\nfrom fgcal.estimation.calibrate import calibrate\n"
             f"ds = load_dataset({str(tmp_path / 'd')!r})\nr = calibrate(ds, dataset_model(ds))\nassert r.converged")
     assert _loaded(code) == []
 
@@ -73,8 +73,8 @@ def test_normal_equations_match_the_dense_jacobian(puma):
 
 def test_batched_sphere_fits_of_measure_match_one_by_one(puma):
     """measure_probes fits all balls at once: the same centres, covariances and verdicts as ball by ball."""
-    from fgcal.measure import measure_probes
-    from fgcal.spherefit import fit_sphere
+    from fgcal.measurements.measure import measure_probes
+    from fgcal.measurements.spherefit import fit_sphere
 
     ds, _ = simulate(puma, np.random.default_rng(8), SimulationSettings(n_poses=15, outlier_fraction=0.05))
     m = measure_probes(ds)

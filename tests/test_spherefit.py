@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from fgcal.spherefit import algebraic_sphere, default_threshold, fit_sphere
+from fgcal.measurements.spherefit import algebraic_sphere, default_threshold, fit_sphere
 
 CENTRE = np.array([612.0, 233.0, 471.0])
 R = 6.35

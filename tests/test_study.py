@@ -5,8 +5,8 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.study import RESULT_COLUMNS, run_trial, trials_for
-from fgcal.study_run import read_rows, run_study, study_figures
+from fgcal.studies.study import RESULT_COLUMNS, run_trial, trials_for
+from fgcal.studies.study_run import read_rows, run_study, study_figures
 
 
 def test_trial_is_reproducible_and_sane():

@@ -6,13 +6,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal.dataset import Dataset, Noise, PointObservations, PoseObservations
-from fgcal.identifiability import identification_jacobian
-from fgcal.model import ParameterSet, Tooling
-from fgcal.robot_file import load_model, model_from_dict, model_to_dict
-from fgcal.transforms import matrix_to_quaternion, rot
-from fgcal.urdf import export_urdf, to_urdf
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
+from fgcal.estimation.identifiability import identification_jacobian
+from fgcal.robots.model import ParameterSet, Tooling
+from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
+from fgcal.robots.transforms import matrix_to_quaternion, rot
+from fgcal.robots.urdf import export_urdf, to_urdf
 
 yourdfpy = pytest.importorskip("yourdfpy", reason="yourdfpy (test extra) checks FK independently")
 

@@ -1,0 +1,6 @@
+"""``python -m fgcal.cli``."""
+import sys
+
+from fgcal.cli import main
+
+sys.exit(main())

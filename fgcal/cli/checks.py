@@ -1,0 +1,208 @@
+"""Checks the command line makes before any long computation: option values and output paths.
+
+Every check raises :class:`~fgcal.errors.FgcalError` with one line naming the option or path.
+Output paths are checked before the work starts (a typo in ``--out`` fails at once, not after
+the solve), and an output may never replace a file the same run reads.
+"""
+from __future__ import annotations
+
+import argparse
+import errno
+import math
+import os
+import stat
+from pathlib import Path
+
+from fgcal.errors import FgcalError
+
+__all__ = ["parameter_names", "finite_float", "nonnegative_float", "positive_float", "positive_int", "nonnegative_int",
+           "check_output_file", "check_output_dir", "dataset_inputs", "os_error_message"]
+
+DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
+
+
+MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
+MAX_BATCH_ROWS = 250_000  # measurement rows of one batch graph (calibrate, check) within about 1 GB
+
+
+def _float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text[:40]!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"not a finite number: {text[:40]!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """An argparse type: a finite number."""
+    return _float(text)
+
+
+def nonnegative_float(text: str) -> float:
+    """An argparse type: a finite number >= 0."""
+    value = _float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    value = _float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
+    return value
+
+
+def _int(text: str, minimum: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text[:40]!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be at least {minimum}: {text!r}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    return _int(text, 1)
+
+
+def nonnegative_int(text: str) -> int:
+    """An argparse type: an integer >= 0."""
+    return _int(text, 0)
+
+
+def parameter_names(model, text: str | None, option: str) -> tuple[str, ...]:
+    """The comma-separated parameter names of ``option``, each checked against ``model``.
+
+    ``--exclude`` names must be among the parameters estimated by default; ``--extra`` names
+    must be geometric slots of the model.
+    """
+    from fgcal.robots.model import SLOT_NAMES
+
+    if not text:
+        return ()
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise FgcalError(f"{option} {text!r}: no parameter name")
+    known = list(getattr(model, "slot_names", SLOT_NAMES))
+    pool = model.identifiable_names() if option == "--exclude" else known
+    bad = [n for n in names if n not in pool]
+    if bad:
+        what = ("not among the estimated parameters" if option == "--exclude" and all(n in known for n in bad)
+                else "unknown parameter name(s)")
+        raise FgcalError(f"{option}: {', '.join(b[:30] for b in bad[:5])}: {what}; "
+                         f"{'estimated' if option == '--exclude' else 'known'}: {', '.join(pool)}")
+    return names
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(os.path.abspath(a)) == Path(os.path.abspath(b))
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    c, p = Path(os.path.realpath(child)), Path(os.path.realpath(parent))
+    return c == p or p in c.parents
+
+
+def dataset_inputs(directory, robot: str | None = None) -> list[Path]:
+    """The files a run reads from a dataset directory (and its model file, when it names one)."""
+    directory = Path(directory)
+    files = [directory / n for n in DATASET_FILES]
+    if robot and (robot.endswith((".yaml", ".yml")) or "/" in robot):
+        files.append(Path(robot) if Path(robot).is_absolute() else directory / robot)
+    return files
+
+
+def _existing(path: Path, option: str):
+    """``os.stat`` of ``path``, None when nothing is there; a dangling or looping link is an error."""
+    if not os.path.lexists(path):
+        return None
+    try:
+        return os.stat(path)
+    except OSError as exc:
+        raise FgcalError(f"{option} {path}: {exc.strerror or exc}") from None
+
+
+def _writable_dir(folder: Path, option: str, target: Path) -> None:
+    try:
+        st = os.stat(folder)
+    except FileNotFoundError:
+        raise FgcalError(f"{option} {target}: folder {folder} does not exist") from None
+    except OSError as exc:
+        raise FgcalError(f"{option} {target}: folder {folder}: {exc.strerror or exc}") from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise FgcalError(f"{option} {target}: {folder} is not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise FgcalError(f"{option} {target}: folder {folder} is not writable")
+
+
+def check_output_file(path, inputs=(), option: str = "--out") -> Path:
+    """Check that ``path`` can be written as a file and replaces none of ``inputs``.
+
+    The folder must exist and be writable; ``path`` must not be a folder or a special file.
+    """
+    path = Path(path)
+    if str(path) in ("", ".") or path.name in ("", ".", ".."):
+        raise FgcalError(f"{option} {path}: not a file name")
+    st = _existing(path, option)
+    if st is not None:
+        if stat.S_ISDIR(st.st_mode):
+            raise FgcalError(f"{option} {path}: is a folder; give a file name")
+        if not stat.S_ISREG(st.st_mode):
+            raise FgcalError(f"{option} {path}: not a regular file (a device, FIFO or socket)")
+    _writable_dir(path.parent, option, path)
+    for src in inputs:
+        if src is not None and os.path.lexists(src) and _same(path, Path(src)):
+            raise FgcalError(f"{option} {path}: is an input of this run ({src}); refusing to overwrite it")
+    return path
+
+
+def check_output_dir(path, inputs=(), option: str = "--out", must_be_new: bool = False, force: bool = False) -> Path:
+    """Check that the folder ``path`` can be created (or written) and is not an input's folder.
+
+    ``must_be_new``: ``path`` is replaced as a whole, so it must not exist unless ``force``.
+    ``inputs`` are files or folders the run reads; ``path`` may neither be, nor contain, nor
+    lie inside an input folder, nor contain an input file when it is replaced.
+    """
+    path = Path(path)
+    if str(path) in ("", ".") and must_be_new:
+        raise FgcalError(f"{option} {path}: not a new folder name")
+    st = _existing(path, option)
+    if st is not None:
+        if not stat.S_ISDIR(st.st_mode):
+            raise FgcalError(f"{option} {path}: exists and is not a folder")
+        if must_be_new and not force:
+            raise FgcalError(f"{path}: already exists (use --force to replace it)")
+        if not must_be_new and not os.access(path, os.W_OK | os.X_OK):
+            raise FgcalError(f"{option} {path}: folder is not writable")
+    ancestor = path.parent if must_be_new or not os.path.lexists(path) else path
+    while not os.path.lexists(ancestor) and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if ancestor != path:
+        _writable_dir(ancestor, option, path)
+    for src in inputs:
+        if src is None or not os.path.lexists(src):
+            continue
+        src = Path(src)
+        if src.is_dir() and (_inside(path, src) or _inside(src, path)):
+            raise FgcalError(f"{option} {path}: overlaps the input folder {src}; choose another folder")
+        if must_be_new and not src.is_dir() and _inside(src, path):
+            raise FgcalError(f"{option} {path}: would replace the input {src}; choose another folder")
+    return path
+
+
+def os_error_message(exc: OSError) -> str:
+    """One line for an operating-system error: the file(s) and what the system said."""
+    what = exc.strerror or str(exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+        what += " (the disk is full or a file-size limit was reached; nothing was half-written)"
+    names = [str(n) for n in (exc.filename, exc.filename2) if n is not None]
+    return f"{' -> '.join(names)}: {what}" if names else what

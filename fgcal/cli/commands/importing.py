@@ -1,0 +1,137 @@
+"""``fgcal import csv|tum|landgraf``: measurement files of other tools to fgcal datasets (thin CLI layer)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from fgcal.cli.checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
+from fgcal.errors import FgcalError
+
+__all__ = ["add_import_parser"]
+
+DELIMITERS = {"tab": "\t", "space": " ", "semicolon": ";", "comma": ","}
+
+
+def _columns(text: str | None):
+    return None if text is None else tuple(c.strip() for c in text.split(",") if c.strip())
+
+
+def _delimiter(text: str | None):
+    if text is None:
+        return None
+    d = DELIMITERS.get(text.lower(), text.replace("\\t", "\t"))
+    if len(d) != 1:
+        raise FgcalError(f"--delimiter {text!r}: one character, or tab, space, semicolon, comma")
+    return d
+
+
+def _measurements(args):
+    from fgcal.io.table_io import ColumnSpec, read_measurements
+
+    if args.format == "landgraf":
+        from fgcal.io.landgraf import CITATION, read_series
+
+        return read_series(args.file), "ur10", "ur10-landgraf", {"citation": CITATION}
+    if args.format == "tum":
+        from fgcal.io.tum import read_tum_with_joint_log
+
+        m = read_tum_with_joint_log(args.file, args.joint_log, _columns(args.joints), args.time_column,
+                                    args.joint_unit, args.max_time_difference, args.length_unit,
+                                    _delimiter(args.delimiter), True if args.decimal_comma else None)
+        return m, args.robot, None, {"joint_log": str(args.joint_log), "joints": list(_columns(args.joints)),
+                                     "time_column": args.time_column, "max_time_difference": args.max_time_difference}
+    spec = ColumnSpec(joints=_columns(args.joints), joint_unit=args.joint_unit, point=_columns(args.point),
+                      pose=_columns(args.pose), quaternion_order=args.quaternion_order,
+                      euler_convention=args.euler_convention, rotation_unit=args.rotation_unit,
+                      length_unit=args.length_unit, group=_columns(args.group), delimiter=_delimiter(args.delimiter),
+                      decimal_comma=True if args.decimal_comma else None)
+    return read_measurements(args.file, spec), args.robot, None, {"columns": spec.describe()}
+
+
+def _cmd_import(args) -> int:
+    from fgcal.io.importer import to_datasets
+
+    if not 0 <= args.holdout < 1:
+        raise FgcalError("--holdout is a fraction from 0 to below 1")
+    inputs = [args.file, getattr(args, "joint_log", None)]
+    check_output_dir(args.out, inputs, option="OUT", must_be_new=True, force=args.force)
+    if args.holdout > 0:
+        check_output_dir(args.out.with_name(args.out.name + "-holdout"), inputs, option="OUT-holdout",
+                         must_be_new=True, force=args.force)
+    m, robot, name, settings = _measurements(args)
+    for s in m.skipped:
+        print(f"skipped {args.file}: {s}")
+    result = to_datasets(m, robot, position_only=args.position_only, holdout=args.holdout,
+                         rng=np.random.default_rng(args.seed), position_sigma=args.sigma,
+                         orientation_sigma=args.orientation_sigma, joint_resolution=args.joint_resolution, name=name,
+                         provenance={"importer": f"fgcal import {args.format}", **settings})
+    written = result.save(args.out, overwrite=args.force)
+    kind = "positions" if result.calibration.centres is not None else "full poses"
+    print(f"wrote {written[0]}: {result.calibration.n_poses} poses ({kind}); {len(m.skipped)} row(s) skipped; "
+          f"base and tool fitted to the data (RMS {result.rms:.3g} mm) in {written[0] / 'robot.yaml'}")
+    if len(written) > 1:
+        print(f"wrote {written[1]}: {result.holdout.n_poses} held-out poses (repeated measurements kept on one side)")
+    return 0
+
+
+def _common(p: argparse.ArgumentParser, robot: bool = True) -> None:
+    p.add_argument("file", type=Path)
+    p.add_argument("out", type=Path, help="dataset directory to write (OUT-holdout too with --holdout)")
+    if robot:
+        p.add_argument("--robot", required=True, help="built-in model name or model file of the measured robot")
+    p.add_argument("--position-only", action="store_true", help="keep only the measured positions (centres.csv)")
+    p.add_argument("--holdout", type=finite_float, default=0.0,
+                   help="fraction of the rows (of the groups) to write to OUT-holdout for verification (default 0)")
+    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the held-out draw")
+    p.add_argument("--sigma", type=positive_float, default=None,
+                   help="position noise per axis, mm (default: the file's std columns, else 0.02)")
+    p.add_argument("--orientation-sigma", type=positive_float, default=None,
+                   help="orientation noise, deg (default: the file's std columns, else 0.01)")
+    p.add_argument("--joint-resolution", type=nonnegative_float, default=0.0, help="joint reading resolution, deg (default 0)")
+    p.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    p.set_defaults(func=_cmd_import)
+
+
+def _table_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--delimiter", default=None, help="field separator: a character or tab, space, semicolon, "
+                                                     "comma (default: detected)")
+    p.add_argument("--decimal-comma", action="store_true", help="numbers like 12,5 (default: detected)")
+
+
+def add_import_parser(sub) -> None:
+    """Add ``import`` with its formats to the ``fgcal`` subcommands."""
+    i = sub.add_parser("import", help="turn a tracker export or another tool's file into an fgcal dataset")
+    formats = i.add_subparsers(dest="format", required=True)
+
+    c = formats.add_parser("csv", help="any table of joints plus a measured point or pose per row")
+    _common(c)
+    c.add_argument("--joints", required=True, help="joint columns in chain order, comma-separated")
+    c.add_argument("--joint-unit", choices=("deg", "rad"), required=True)
+    what = c.add_mutually_exclusive_group(required=True)
+    what.add_argument("--point", help="X,Y,Z columns of a measured point (a tracker reflector)")
+    what.add_argument("--pose", help="X,Y,Z,R1,R2,R3[,R4] columns: position and Euler angles or a quaternion")
+    c.add_argument("--quaternion-order", choices=("wxyz", "xyzw"), default=None,
+                   help="order of the 4 quaternion columns (default: from names ending in w, x, y, z)")
+    c.add_argument("--euler-convention", default=None,
+                   help="axes of 3 Euler angle columns: XYZ (intrinsic, upper case) or zyx (extrinsic, lower case)")
+    c.add_argument("--rotation-unit", choices=("deg", "rad"), default="deg", help="unit of Euler angles (default deg)")
+    c.add_argument("--length-unit", choices=("mm", "m"), default="mm", help="unit of positions (default mm)")
+    c.add_argument("--group", default=None,
+                   help="columns whose equal values mark repeats of one configuration (kept together by --holdout)")
+    _table_options(c)
+
+    t = formats.add_parser("tum", help="a TUM trajectory (timestamp tx ty tz qx qy qz qw) plus a joint log")
+    _common(t)
+    t.add_argument("--joint-log", type=Path, required=True, help="table with a time column and the joint columns")
+    t.add_argument("--joints", required=True, help="joint columns of the log in chain order, comma-separated")
+    t.add_argument("--joint-unit", choices=("deg", "rad"), default="rad", help="default rad (as ROS logs them)")
+    t.add_argument("--time-column", default="time", help="time column of the joint log (default time)")
+    t.add_argument("--max-time-difference", type=positive_float, default=0.01,
+                   help="largest time between a pose and its joint reading (default 0.01, timestamp units)")
+    t.add_argument("--length-unit", choices=("mm", "m"), default="m", help="unit of TUM positions (default m)")
+    _table_options(t)
+
+    lg = formats.add_parser("landgraf", help="the UR10 laser-tracker series of Landgraf et al. (2021)")
+    _common(lg, robot=False)

@@ -1,0 +1,26 @@
+"""``fgcal study``: the command's body (its options are in :func:`fgcal.cli.build_parser`)."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+
+from fgcal.cli.checks import check_output_dir
+
+log = logging.getLogger("fgcal")
+
+
+def _cmd_study(args) -> int:
+    from fgcal.studies.study import trials_for
+    from fgcal.studies.study_run import run_study, study_figures, summary, write_figures
+
+    trials = trials_for(args.name, trials=args.trials, poses=args.poses, seed=args.seed)
+    out = check_output_dir(args.out or Path(f"study-{args.name}"))
+    t0 = __import__("time").perf_counter()
+    rows = run_study(trials, out, workers=args.workers, scheduler=args.scheduler)
+    elapsed = __import__("time").perf_counter() - t0
+    paths = write_figures(study_figures(args.name, rows), out)
+    print(summary(args.name, rows))
+    print(f"{out / 'trials.csv'} ({len(rows)} rows; this run {elapsed:.1f} s); figures: "
+          + ", ".join(p.name for p in paths))
+    return 0

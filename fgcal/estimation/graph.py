@@ -1,0 +1,495 @@
+"""The calibration problem as a factor graph over parameters, joints and ball centres.
+
+Variables: the parameter vector ``theta`` (P), each pose's joints ``q_i`` (n, rad or mm; only when
+the readings carry noise) and each probed ball's centre ``c_ib`` (3, mm). Factors (see the
+``factors`` package): probe points on spheres around ``c_ib``; ``c_ib`` at the forward
+kinematics (a tight "kinematic" factor whose sigma is the unmodelled error); measured centres
+and poses against the forward kinematics; joint readings as priors on ``q_i``; an optional prior
+on ``theta``.
+
+Every pose's variables touch only that pose's factors and ``theta``: the graph is an arrow.
+:class:`Graph` evaluates all factors at once with the batched error functions and stores the
+whitened Jacobian in per-pose blocks (padded to equal size), so a Gauss-Newton step eliminates
+the per-pose variables in one batched Schur complement. :func:`fgcal.estimation.gtsam_graph.to_gtsam` turns the same
+linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+import factors.errors as fx
+from fgcal.measurements.types import BY_LEVEL, kinematic_levels
+from fgcal.robots.kinematics import jacobians
+from fgcal.robots.model import ParameterSet
+
+__all__ = ["Sigmas", "Graph", "State", "LEVELS"]
+
+POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
+LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
+
+
+@dataclass(frozen=True)
+class Sigmas:
+    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact."""
+
+    probe: float
+    centre: float
+    pose_position: float
+    pose_rotation: float
+    joint: float
+    kinematic: float = 1e-4
+    distance: float = 0.01
+
+
+@dataclass
+class State:
+    """The variables: ``theta`` (P,), ``q`` (N, n) rad/mm, ``c`` (Nb, 3) mm."""
+
+    theta: np.ndarray
+    q: np.ndarray
+    c: np.ndarray
+
+    def copy(self) -> "State":
+        return State(self.theta.copy(), self.q.copy(), self.c.copy())
+
+
+@dataclass
+class Linearisation:
+    """Whitened residuals and Jacobians in per-pose blocks at one state.
+
+    Attributes
+    ----------
+    r : ndarray, shape (N, m)
+    J_theta : ndarray, shape (N, m_theta, P)
+        The first ``m_theta`` rows of each pose (the others do not depend on theta).
+    J_local : ndarray, shape (N, m, nz)
+    prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
+    cost : float
+        Half the (robust) sum of squares.
+    weights : dict of level to ndarray
+        Robust weights per factor.
+    """
+
+    r: np.ndarray
+    J_theta: np.ndarray
+    J_local: np.ndarray
+    prior_r: np.ndarray
+    prior_J: np.ndarray
+    cost: float
+    raw: dict = field(default_factory=dict)
+    cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
+
+
+def _robust(s, kind, k):
+    """Weights and costs of whitened factor norms ``s`` under a robust loss."""
+    if kind is None:
+        return np.ones_like(s), 0.5 * s**2
+    if kind == "huber":
+        w = np.where(s <= k, 1.0, k / np.maximum(s, 1e-300))
+        return w, np.where(s <= k, 0.5 * s**2, k * (s - 0.5 * k))
+    if kind == "cauchy":
+        return 1.0 / (1.0 + (s / k) ** 2), 0.5 * k**2 * np.log1p((s / k) ** 2)
+    raise ValueError(f"unknown robust loss {kind!r}")
+
+
+class Graph:
+    """The factor graph of one dataset, laid out for batched evaluation.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        Estimated parameters; the other slots are held at ``held``.
+    held : ndarray, shape (37,)
+    readings : ndarray, shape (N, n)
+        Joint readings (rad).
+    sigmas : Sigmas
+    probes : tuple (pose_index (Mp,), ball_var (Mp,), xyz (Mp, 3)) or None
+        ``ball_var`` indexes ``ball_pose``/``ball_offset``.
+    ball_pose, ball_offset : ndarray, shapes (Nb,), (Nb, 3)
+        The ball-centre variables: their pose index and tool-frame offset.
+    radius : float
+    measurements : dict of level to Terms, optional
+        The kinematic measurements (ball centres, poses, ballbar lengths, ...), each a
+        :class:`fgcal.measurements.base.Terms` of its type in :mod:`fgcal.measurements.types`.
+    prior : tuple (mean (P,), sigma (P,)) or None
+    robust : {None, "huber", "cauchy"}, robust_k : float
+    joint_errors : ndarray, shape (N, n, K), optional
+        ``G`` of a joint-error block (:mod:`fgcal.estimation.joint_errors`) whose K parameters follow the
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[-K:]``.
+    """
+
+    def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
+                 ball_offset=None, radius=0.0, measurements=None, prior=None, robust=None,
+                 robust_k=None, joint_errors=None):
+        self.params = params
+        self.index = params.index
+        self.held = np.asarray(held, dtype=float)
+        self.chain = params.model.chain
+        self.n_joints = nj = params.model.n_joints
+        self.readings = np.asarray(readings, dtype=float).reshape(-1, nj)
+        self.sigmas = sigmas
+        self.radius = float(radius)
+        self.robust = robust
+        self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
+        self.prior = prior
+        self.excluded = {}  # level -> bool mask over its factors (set by the outlier handling)
+        self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
+        # --- joint-error block (fgcal.estimation.joint_errors): theta = [geometry (n_geo), phi (K)]
+        self.n_geo = len(self.index)
+        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
+        self.K = 0 if self.G is None else self.G.shape[2]
+        n = len(self.readings)
+        self.n_poses = n
+        nb = 0 if ball_pose is None else len(ball_pose)
+        self.ball_pose = np.zeros(0, dtype=int) if ball_pose is None else np.asarray(ball_pose, dtype=int)
+        self.ball_offset = np.zeros((0, 3)) if ball_offset is None else np.asarray(ball_offset, dtype=float)
+        self.probes = probes
+        measurements = measurements or {}
+        unknown = set(measurements) - set(BY_LEVEL)
+        if unknown:
+            raise ValueError(f"unknown measurement level(s) {', '.join(sorted(unknown))}")
+        # In registry order: the row layout does not depend on the caller's dict order.
+        self.measurements = {t.level: measurements[t.level] for t in kinematic_levels(measurements)}
+
+        # Local variable columns: [q (n, if variables)] then 3 per ball variable of the pose.
+        qdim = nj if self.joint_vars else 0
+        balls_per_pose = np.bincount(self.ball_pose, minlength=n) if nb else np.zeros(n, dtype=int)
+        order = np.argsort(self.ball_pose, kind="stable")
+        self._balls_by_pose = order
+        self.ball_slot = np.empty(nb, dtype=int)
+        self.ball_slot[order] = np.arange(nb) - np.searchsorted(self.ball_pose[order], self.ball_pose[order])
+        # Each pose's ball offsets, padded: the kinematics of a pose's balls is one evaluation.
+        self.pose_offsets = np.zeros((n, int(balls_per_pose.max()) if nb else 0, 3))
+        self.pose_offsets[self.ball_pose, self.ball_slot] = self.ball_offset
+        self.ball_col = qdim + 3 * self.ball_slot
+        self.nz = qdim + 3 * (int(balls_per_pose.max()) if nb else 0)
+        self.local_used = np.zeros((n, self.nz), dtype=bool)
+        self.local_used[:, :qdim] = True
+        self.local_used[self.ball_pose[:, None], self.ball_col[:, None] + np.arange(3)] = True
+
+        # Rows per pose, in this order: kinematic, centres, poses (the rows that depend on theta,
+        # so that J_theta holds only the first ``m_theta`` rows of each pose), probes, joints.
+        rows = np.zeros(n, dtype=int)
+
+        def take(pose_index, width):
+            pose_index = np.asarray(pose_index, dtype=int)
+            # Rows already taken by earlier measurements of the same pose, in input order.
+            order = np.argsort(pose_index, kind="stable")
+            sorted_p = pose_index[order]
+            first = np.searchsorted(sorted_p, sorted_p)
+            start = np.empty(len(pose_index), dtype=int)
+            start[order] = rows[sorted_p] + width * (np.arange(len(sorted_p)) - first)
+            rows[:] += width * np.bincount(pose_index, minlength=n)
+            return start
+
+        self.row = {}
+        self.level_rows = {}
+        if nb:
+            self.row["kinematic"] = take(self.ball_pose, 3)
+        for level, terms in self.measurements.items():
+            self.row[level] = take(terms.pose, BY_LEVEL[level].width)
+        if self.joint_vars and self.K:  # the joint-error block enters the joint rows
+            self.row["joints"] = take(np.arange(n), nj)
+        self.m_theta = int(rows.max()) if n else 0
+        if probes is not None:
+            self.row["probes"] = take(probes[0], 1)
+        if self.joint_vars and not self.K:
+            self.row["joints"] = take(np.arange(n), nj)
+        self.m = int(rows.max()) if n else 0
+        self.rows_per_pose = rows
+
+    @cached_property
+    def ball_rows(self) -> list:
+        """Per pose, each ball's ``(ball variable, its probe and kinematic rows)`` (for GTSAM factors)."""
+        n, nb, probes = self.n_poses, len(self.ball_pose), self.probes
+        ball_rows = [[] for _ in range(n)]
+        per_ball = {j: [] for j in range(nb)}
+        if probes is not None:
+            for j, start in zip(probes[1], self.row["probes"]):
+                per_ball[int(j)].append(int(start))
+        if nb:
+            for j, start in enumerate(self.row["kinematic"]):
+                per_ball[j] += [int(start), int(start) + 1, int(start) + 2]
+        for j, rws in per_ball.items():
+            ball_rows[self.ball_pose[j]].append((j, np.array(sorted(rws), dtype=int)))
+        return ball_rows
+
+    @cached_property
+    def pose_rows(self) -> list:
+        """Per pose, the rows that touch only theta and q (kinematic measurements, joints)."""
+        pose_rows = [[] for _ in range(self.n_poses)]
+        for level in [*self.measurements, "joints"]:
+            if level in self.row:
+                pose, rows_ = self.factor_rows(level)
+                for p, r in zip(pose.tolist(), rows_):
+                    pose_rows[p] += r.tolist()
+        return [np.array(r, dtype=int) for r in pose_rows]
+
+    # ------------------------------------------------------------------ evaluation
+    def initial_state(self, theta, centres_guess=None) -> State:
+        c = np.zeros((len(self.ball_pose), 3)) if centres_guess is None else np.asarray(centres_guess, dtype=float)
+        return State(np.asarray(theta, dtype=float).copy(), self.readings.copy(), c.copy())
+
+    def joints(self, state: State) -> np.ndarray:
+        if self.joint_vars:
+            return state.q
+        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:]
+
+    def _with_block(self, pose, J_t, J_q):
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
+        if not self.K:
+            return J_t
+        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else np.einsum("nmj,njk->nmk", J_q, self.G[pose])
+        return np.concatenate([J_t, extra], axis=2)
+
+    def linearise(self, state: State) -> Linearisation:
+        """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.
+
+        The last linearisation is remembered: asking again at the same state (and held values,
+        noise and excluded measurements) returns it, with the normal equations already formed on it.
+        """
+        weights = (repr(self.sigmas), tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items())))
+        key = (state.theta, state.q, state.c, self.held)
+        last = getattr(self, "_last", None)
+        if (last is not None and last[2] == weights
+                and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
+            return last[1]
+        lin = self._linearise(state)
+        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights)
+        return lin
+
+    def _linearise(self, state: State) -> Linearisation:
+        n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K, self.nz
+        theta = state.theta[:self.n_geo]
+        r = np.zeros((n, m))
+        Jt = np.zeros((n, mt, P))
+        Jz = np.zeros((n, m, nz))
+        q = self.joints(state)
+        cost = 0.0
+        raw = {}
+
+        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0):
+            nonlocal cost
+            width = e.shape[1]
+            ew = e / sigma
+            s = np.linalg.norm(ew, axis=1)
+            w, rho = _robust(s, self.robust if level == "probes" or level in BY_LEVEL else None, self.robust_k)
+            if level in self.excluded:  # excluded measurements: zero weight, no cost
+                w = np.where(self.excluded[level], 0.0, w)
+                rho = np.where(self.excluded[level], 0.0, rho)
+            raw[level] = (e, s, w)
+            cost += float(rho.sum())
+            sw = np.sqrt(w)[:, None] / sigma
+            rows_ = start[:, None] + np.arange(width)
+            r[pose[:, None], rows_] = e * sw
+            if J_t is not None:
+                Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
+            if J_q is not None and self.joint_vars:
+                Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
+            if J_c is not None:
+                cols = c_col[:, None] + np.arange(3)
+                Jz[pose[:, None, None], rows_[:, :, None], cols[:, None, :]] = J_c * sw[:, :, None]
+
+        if self.probes is not None:
+            pose_i, ball_var, xyz = self.probes
+            e, Jc = fx.probe_error(state.c[ball_var], xyz, self.radius)
+            put("probes", pose_i, self.row["probes"], e, J_c=Jc, c_col=self.ball_col[ball_var],
+                sigma=self.sigmas.probe)
+        if len(self.ball_pose):
+            # One kinematics evaluation per pose for all of its balls, in chunks of poses (the
+            # chain's intermediate arrays are ~20 times the Jacobians' size).
+            x = fx.slots_of(theta, self.index, self.held)
+            nb = len(self.ball_pose)
+            pts, J_t, J_q = np.empty((nb, 3)), np.empty((nb, 3, self.n_geo)), np.empty((nb, 3, q.shape[1]))
+            order = self._balls_by_pose
+            for lo in range(0, n, POSE_CHUNK):
+                a, z = np.searchsorted(self.ball_pose[order], [lo, lo + POSE_CHUNK])
+                sel = order[a:z]
+                jac = jacobians(x, q[lo:lo + POSE_CHUNK], offsets=self.pose_offsets[lo:lo + POSE_CHUNK],
+                                chain=self.chain)
+                b, k = self.ball_pose[sel] - lo, self.ball_slot[sel]
+                pts[sel] = jac.points[b, k]
+                J_t[sel] = jac.point_slots[b, k][:, :, self.index]
+                J_q[sel] = jac.point_joints[b, k]
+                del jac
+            J_t = self._with_block(self.ball_pose, J_t, J_q)
+            J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
+            put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
+                sigma=self.sigmas.kinematic)
+        for level, terms in self.measurements.items():
+            kind = BY_LEVEL[level]
+            e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
+            J_t = self._with_block(terms.pose, J_t, J_q)
+            put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
+        if self.joint_vars:
+            nj = self.n_joints
+            J_t = None
+            if self.K:  # the joint variable is the reading plus the block's correction
+                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:])
+                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G], axis=2)
+            else:
+                e = fx.joint_error(state.q, self.readings)
+            put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
+                sigma=self.sigmas.joint)
+        prior_r = np.zeros(0)
+        prior_J = np.zeros((0, P))
+        if self.prior is not None:
+            mean, sig = self.prior
+            prior_r = (state.theta - mean) / sig
+            prior_J = np.diag(1.0 / sig)
+            raw["prior"] = (state.theta - mean, np.abs(prior_r), np.ones(P))
+            cost += 0.5 * float(prior_r @ prior_r)
+        return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw)
+
+    def cost(self, state: State) -> float:
+        return self.linearise(state).cost
+
+    # ------------------------------------------------------------------ solving
+    def normal_equations(self, lin: Linearisation):
+        """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
+
+        Formed once per linearisation (kept on ``lin``) by BLAS products over the per-pose blocks.
+        """
+        if "normal" in lin.cache:
+            return lin.cache["normal"]
+        n, mt, P = lin.J_theta.shape
+        Jt2 = lin.J_theta.reshape(-1, P)
+        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+        g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
+        JzT = lin.J_local.transpose(0, 2, 1)
+        B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
+        D = np.matmul(JzT, lin.J_local)
+        g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
+        # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
+        pad = ~self.local_used
+        D[pad] = 0.0
+        D[:, np.arange(self.nz), np.arange(self.nz)] += pad
+        lin.cache["normal"] = (A, B, D, g_t, g_z)
+        return lin.cache["normal"]
+
+    def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0):
+        """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
+        if damping:
+            A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
+        S = A.copy()
+        rhs = None if g_t is None else g_t.copy()
+        Dinv = np.empty_like(D)
+        idx = np.arange(self.nz)
+        for lo in range(0, len(D), POSE_CHUNK):  # in chunks of poses: no temporaries of N blocks
+            c = slice(lo, lo + POSE_CHUNK)
+            Dc = D[c]
+            if damping:
+                Dc = Dc.copy()
+                Dc[:, idx, idx] += damping * np.maximum(Dc[:, idx, idx], 1e-12)
+            Dinv[c] = np.linalg.inv(Dc) if self.nz else Dc
+            BD = np.matmul(B[c], Dinv[c])
+            S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
+            if rhs is not None:
+                rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
+        return S, rhs, Dinv
+
+    def _reduced_at(self, lin: Linearisation):
+        """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
+        if "reduced" not in lin.cache:
+            A, B, D, _, _ = self.normal_equations(lin)
+            _, _, Dinv = self.reduced(A, B, D)
+            # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
+            # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
+            n, mt, P = lin.J_theta.shape
+            S = lin.prior_J.T @ lin.prior_J
+            for lo in range(0, n, POSE_CHUNK):
+                c = slice(lo, lo + POSE_CHUNK)
+                k = len(lin.r[c])
+                M = np.zeros((k, self.m + self.nz, self.nz + P))
+                M[:, :self.m, :self.nz] = lin.J_local[c]
+                M[:, :mt, self.nz:] = lin.J_theta[c]
+                pad = ~self.local_used[c]
+                M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
+                R = np.linalg.qr(M, mode="r")[:, self.nz:, self.nz:]
+                S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
+            lin.cache["reduced"] = (S, Dinv)
+        return lin.cache["reduced"]
+
+    def step(self, state: State, lin: Linearisation, damping: float):
+        """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
+        A, B, D, g_t, g_z = self.normal_equations(lin)
+        S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping)
+        d_theta = -np.linalg.solve(S, rhs)
+        d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
+        new = state.copy()
+        new.theta = state.theta + d_theta
+        if self.joint_vars:
+            new.q = state.q + d_z[:, :self.n_joints]
+        if len(self.ball_pose):
+            cols = self.ball_col[:, None] + np.arange(3)
+            new.c = state.c + d_z[self.ball_pose[:, None], cols]
+        # The Gauss-Newton model's decrease: -g.d - d.H.d / 2 over all variables (H undamped).
+        g_dot = g_t @ d_theta + np.einsum("nz,nz->", g_z, d_z)
+        Hd_t = A @ d_theta + np.einsum("npz,nz->p", B, d_z)
+        Hd_z = np.matmul(d_theta, B) + np.matmul(D, d_z[:, :, None])[:, :, 0]
+        dHd = d_theta @ Hd_t + np.einsum("nz,nz->", d_z, Hd_z)
+        return new, d_theta, float(-g_dot - 0.5 * dHd)
+
+    def parameter_information(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
+        """The (P, P) information of theta with the per-pose variables marginalised out.
+
+        ``lin``: the linearisation at ``state`` when the caller has it already.
+        """
+        lin = self.linearise(state) if lin is None else lin
+        return self._reduced_at(lin)[0]
+
+    def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
+        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""
+        lin = self.linearise(state) if lin is None else lin
+        if "covariance" not in lin.cache:
+            S = self._reduced_at(lin)[0]
+            lin.cache["covariance"] = np.linalg.inv(0.5 * (S + S.T))
+        return lin.cache["covariance"]
+
+    def factor_rows(self, level: str):
+        """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
+        if level in self.measurements:
+            width, pose = BY_LEVEL[level].width, self.measurements[level].pose
+        else:
+            width = {"probes": 1, "kinematic": 3, "joints": self.n_joints}[level]
+            pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
+                    "joints": lambda: np.arange(self.n_poses)}[level]()
+        return np.asarray(pose, dtype=int), self.row[level][:, None] + np.arange(width)
+
+    def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
+        """Diagonal of the hat matrix (N, m) of the whitened rows; ``covariance`` is theta's (P, P).
+
+        One minus it is each row's redundancy number (Foerstner): the share of its noise that
+        shows in its residual.
+        """
+        lin = self.linearise(state) if lin is None else lin
+        _, B, _, _, _ = self.normal_equations(lin)
+        _, Dinv = self._reduced_at(lin)
+        St = covariance  # (P, P) = S^-1
+        E = -np.matmul(Dinv, B.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
+        Szt = E @ St  # (N, nz, P)
+        Szz = Dinv + np.matmul(Szt, E.transpose(0, 2, 1))
+        Jt, Jz = lin.J_theta, lin.J_local
+        mt = Jt.shape[1]
+        # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt rows
+        # of a pose depend on theta.
+        h = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
+        h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
+        return h
+
+    def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
+        """Redundancy of each factor level: rows (excluded ones not counted) and the sum of their leverage."""
+        lin = self.linearise(state) if lin is None else lin
+        h = self.row_leverage(state, covariance, lin)
+        out = {}
+        for level in self.row:
+            pose, rows_ = self.factor_rows(level)
+            kept = ~self.excluded.get(level, np.zeros(len(pose), dtype=bool))
+            out[level] = (int(rows_[kept].size), float(h[pose[kept, None], rows_[kept]].sum()))
+        if self.prior is not None:
+            hp = np.einsum("kp,pq,kq->k", lin.prior_J, covariance, lin.prior_J)
+            out["prior"] = (len(hp), float(hp.sum()))
+        return out

@@ -1,0 +1,163 @@
+"""The calibration problem in GTSAM's own terms: a ``gtsam.NonlinearFactorGraph`` of the
+``factors`` package, GTSAM's Levenberg-Marquardt on it, and ``gtsam.Marginals`` as a cross-check
+of the batched solve's covariance. Slower than :mod:`fgcal.estimation.calibrate`'s batched solve (every custom
+factor is a Python callback), the same answer; the graph is for users to extend. No I/O here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fgcal.estimation.calibrate import CalibrationOptions, _unidentifiable, build_graph
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import BY_LEVEL
+from fgcal.errors import FgcalError
+from fgcal.estimation.graph import Graph, State
+from fgcal.robots.model import RobotModel
+
+__all__ = ["nonlinear_graph", "to_gtsam", "gtsam_levenberg_marquardt", "gtsam_covariance"]
+
+
+def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
+    """GTSAM's Levenberg-Marquardt on the graph of :func:`nonlinear_graph`; ``(state, iterations, converged)``."""
+    import gtsam
+
+    import factors as fx
+
+    g, values = nonlinear_graph(graph, state)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setRelativeErrorTol(float(tolerance))
+    params.setAbsoluteErrorTol(0.0)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(g, values, params)
+    solved = optimizer.optimize()
+    out = state.copy()
+    out.theta = np.asarray(solved.atVector(fx.theta_key()), dtype=float)
+    if graph.joint_vars:
+        out.q = np.array([solved.atVector(fx.joint_key(i)) for i in range(graph.n_poses)]).reshape(state.q.shape)
+    if len(graph.ball_pose):
+        out.c = np.array([solved.atVector(fx.centre_key(j)) for j in range(len(graph.ball_pose))])
+    iterations = int(optimizer.iterations())
+    return out, iterations, iterations < max_iterations
+
+
+def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):
+    """The whole calibration problem as a ``gtsam.NonlinearFactorGraph`` and its initial ``gtsam.Values``.
+
+    Keys (see the ``factors`` package): ``factors.theta_key()`` the parameter vector (in the
+    order of the returned names, internal units mm/rad), ``factors.joint_key(i)`` pose i's joint
+    variables, ``factors.centre_key(j)`` ball-centre variable j. Add your own factors and optimise
+    with any GTSAM optimiser.
+
+    Returns
+    -------
+    graph : gtsam.NonlinearFactorGraph
+    values : gtsam.Values
+    names : list of str
+        The parameters of ``theta_key()``; parameters the data cannot identify are left out (held).
+    pose_ids : ndarray of int
+        The dataset pose id of each joint key index.
+    """
+    names = model.parameters(extra=options.extra, exclude=options.exclude).names
+    graph, state, pose_ids = build_graph(ds, model, names, options)
+    redundant = _unidentifiable(graph, state)
+    if redundant:
+        graph, state, pose_ids = build_graph(ds, model, [n for n in names if n not in redundant], options)
+    g, values = nonlinear_graph(graph, state)
+    return g, values, list(graph.params.names), pose_ids
+
+
+def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
+    """Covariance of theta from ``gtsam.Marginals`` on the graph linearised at ``state``.
+
+    A cross-check of :meth:`Graph.covariance` (the inverse of the solve's Schur complement),
+    which :func:`calibrate` uses. The whitened rows become ``gtsam.JacobianFactor``s: per ball, its probe and kinematic rows
+    over (theta, q_i, c_ib); per pose, its centre, pose and joint rows over (theta, q_i).
+    """
+    import gtsam
+
+    import factors as fx
+
+    lin = graph.linearise(state) if lin is None else lin
+    J_theta = np.zeros((graph.n_poses, graph.m, len(state.theta)))
+    J_theta[:, :graph.m_theta] = lin.J_theta
+    gfg = gtsam.GaussianFactorGraph()
+    t_key = fx.theta_key()
+    qdim = graph.n_joints if graph.joint_vars else 0
+    unit = {}
+
+    def add(keys_blocks, b):
+        if len(b) not in unit:
+            unit[len(b)] = gtsam.noiseModel.Unit.Create(len(b))
+        args = []
+        for k, B in keys_blocks:
+            args += [k, np.ascontiguousarray(B)]
+        gfg.add(gtsam.JacobianFactor(*args, np.ascontiguousarray(b), unit[len(b)]))
+
+    for i in range(graph.n_poses):
+        q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
+        for j, rows in graph.ball_rows[i]:
+            col = graph.ball_col[j]
+            add([(t_key, J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
+                -lin.r[i, rows])
+        rows = graph.pose_rows[i]
+        if len(rows):
+            add([(t_key, J_theta[i, rows])] + q_block(rows), -lin.r[i, rows])
+    if len(lin.prior_r):
+        add([(t_key, lin.prior_J)], -lin.prior_r)
+    sol = gtsam.VectorValues()
+    sol.insert(t_key, np.zeros(len(state.theta)))
+    for i in range(graph.n_poses if qdim else 0):
+        sol.insert(fx.joint_key(i), np.zeros(qdim))
+    for j in range(len(graph.ball_pose)):
+        sol.insert(fx.centre_key(j), np.zeros(3))
+    return gtsam.Marginals(gfg, sol).marginalCovariance(t_key)
+
+
+def nonlinear_graph(graph: Graph, state: State):
+    """The same problem as a ``gtsam.NonlinearFactorGraph`` of the ``factors`` package, with values.
+
+    GTSAM's own optimisers and ``gtsam.Marginals`` work on it directly; it is slower than the
+    batched solve (each custom factor is called from C++ with a copy of all values) but is the
+    reference the batched solve is tested against.
+    """
+    import gtsam
+
+    import factors as fx
+
+    if graph.K:
+        raise FgcalError("the GTSAM reference graph covers the geometric model only (no joint-error block)")
+    g = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    t_key = fx.theta_key()
+    values.insert(t_key, np.asarray(state.theta, dtype=float))
+    sig = graph.sigmas
+    robust = graph.robust
+    k = graph.robust_k
+
+    def qargs(i):
+        return ({"q_key": fx.joint_key(i)} if graph.joint_vars else {"q_fixed": graph.readings[i]}) | {"chain": graph.chain}
+
+    if graph.joint_vars:
+        for i in range(graph.n_poses):
+            values.insert(fx.joint_key(i), np.asarray(state.q[i], dtype=float))
+            g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
+    for j in range(len(graph.ball_pose)):
+        values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
+        g.add(fx.ball_centre_factor(graph.index, graph.held, graph.ball_offset[j], sig.kinematic, t_key=t_key,
+                                    c_key=fx.centre_key(j), **qargs(graph.ball_pose[j])))
+    if graph.probes is not None:
+        for j, xyz in zip(graph.probes[1], graph.probes[2]):
+            f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, robust)
+            if robust:
+                f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, None)
+                f = f.cloneWithNewNoiseModel(fx.noise_model([sig.probe], robust, k))
+            g.add(f)
+    for level, terms in graph.measurements.items():
+        kind = BY_LEVEL[level]
+        sigma = kind.sigma(sig)
+        for i, *row in zip(terms.pose.tolist(), *terms.data):
+            f = kind.factor(row, graph.index, graph.held, sigma, t_key=t_key, **qargs(i))
+            g.add(f.cloneWithNewNoiseModel(fx.noise_model(sigma, robust, k)) if robust else f)
+    if graph.prior is not None:
+        g.add(fx.parameter_prior(t_key, graph.prior[0], graph.prior[1]))
+    return g, values

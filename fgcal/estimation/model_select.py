@@ -1,0 +1,361 @@
+"""Choosing a model beyond geometry by cross-validation on the training poses.
+
+For each candidate model (:class:`~fgcal.estimation.joint_errors.ModelKind`) the training poses are split
+into K folds (repeated configurations kept in one fold); each fold is predicted by the model fitted
+to the others. The fits are linear least squares on the problem linearised at the geometric
+solution, with the readings taken as exact, so that a whole grid of error maps (number of
+harmonics x prior strength) costs one linearisation. The map's size and prior are chosen by the
+cross-validated error; the recommended model is the simplest whose cross-validated error is within
+noise (two standard errors of the per-pose difference) of the best. The chosen models are then
+calibrated with the full factor graph (:func:`fgcal.estimation.calibrate.calibrate`). No I/O here.
+"""
+from __future__ import annotations
+
+import logging
+import re
+from dataclasses import asdict, dataclass, field, replace
+from enum import Enum
+
+import numpy as np
+
+from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
+from fgcal.measurements.dataset import Dataset
+from fgcal.estimation.gravity import Payload, gravity_torques, model_inertials
+from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
+from fgcal.robots.model import RobotModel
+
+__all__ = ["FoldOrder", "ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_validate", "compare_models",
+           "HARMONICS_GRID", "SIGMA_GRID"]
+
+log = logging.getLogger(__name__)
+
+HARMONICS_GRID = (1, 2, 3, 4, 6, 8, 10, 12, 15, 18, 22, 26, 30)
+CORRELATION_LIMIT = 0.9
+COMPLIANCE_RESOLUTION = 1.0  # urad/Nm: a compliance known no better than this is not identified (arms: ~5-20)
+SIGMA_GRID = tuple(float(s) for s in np.geomspace(1e-6, 3e-4, 8))  # rad
+
+
+@dataclass
+class ModelScore:
+    """One model's scores (errors in ``unit``; the mean over poses of the position error norm)."""
+
+    model: str
+    spec: dict
+    n_parameters: int
+    cv_error: float
+    cv_standard_error: float
+    heldout_error: float | None = None
+    unit: str = "mm"
+    condition_number: float | None = None
+    correlations: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+
+@dataclass
+class ModelSelection:
+    """The candidates' scores and the recommendation."""
+
+    scores: list
+    recommended: str
+    folds: int
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        return {"scores": [asdict(s) for s in self.scores], "recommended": self.recommended, "folds": self.folds,
+                "reason": self.reason}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ModelSelection":
+        return cls([ModelScore(**s) for s in d["scores"]], d["recommended"], int(d["folds"]), d.get("reason", ""))
+
+    def score(self, model) -> ModelScore:
+        return next(s for s in self.scores if s.model == ModelKind(model).value)
+
+
+@dataclass
+class CVProblem:
+    """The linearised training problem, per pose.
+
+    Attributes
+    ----------
+    r : ndarray, shape (N, m)
+        Whitened residuals at the geometric solution.
+    J : ndarray, shape (N, m, P)
+        Whitened Jacobian w.r.t. the geometry and every candidate joint-error parameter.
+    metric_rows : ndarray of int, shape (N, 3)
+        Rows holding each pose's measured position; ``metric_scale`` turns them into mm.
+    names : list of str
+        Column names: the geometry's (``n_geometric``) then the block's.
+    groups : ndarray of int, shape (N,)
+        Repeated configurations share a group.
+    """
+
+    r: np.ndarray
+    J: np.ndarray
+    metric_rows: np.ndarray
+    metric_scale: float
+    names: list
+    n_geometric: int
+    groups: np.ndarray
+    unit: str = "mm"
+
+
+def _groups(q_rad, resolution_deg: float = 0.1) -> np.ndarray:
+    keys = {}
+    return np.array([keys.setdefault(tuple(k), len(keys)) for k in np.round(np.degrees(q_rad) / resolution_deg)])
+
+
+def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: JointErrorSpec,
+               options: CalibrationOptions = CalibrationOptions()) -> CVProblem:
+    """Linearise the training data at ``geometric_result`` over the geometry and ``spec_max``'s block."""
+    geo_names = list(geometric_result.names)
+    names = geo_names + spec_max.names(model.n_joints)
+    opts = replace(options, joint_noise=False, robust=None, prior="none", joint_errors=spec_max)
+    scale = {k: float(v) for k, v in (geometric_result.options.get("noise_scale") or {}).items()}
+    graph, state, _ = build_graph(ds, model, names, opts, scale=scale)
+    graph.held = geometric_result.slot_vector(model)
+    state.theta = graph.params.take(graph.held)
+    lin = graph.linearise(state)
+    r, J = lin.r, lin.J_theta
+    if graph.nz:  # project out per-pose variables (ball centres): what remains sees theta only
+        Q, _ = np.linalg.qr(lin.J_local)
+        r = r - np.einsum("nmz,nz->nm", Q, np.einsum("nmz,nm->nz", Q, r))
+        J = J - np.einsum("nmz,nzp->nmp", Q, np.einsum("nmz,nmp->nzp", Q, J))
+    if "poses" in graph.row:
+        start, unit_scale, pose = graph.row["poses"] + 3, graph.sigmas.pose_position, graph.measurements["poses"].pose
+    elif "centres" in graph.row:
+        start, unit_scale, pose = graph.row["centres"], graph.sigmas.centre, graph.measurements["centres"].pose
+    else:
+        start, unit_scale, pose = None, 1.0, None
+    if start is None:
+        rows = np.tile(np.arange(3), (graph.n_poses, 1))
+        unit = "sigma"
+    else:
+        first = np.full(graph.n_poses, -1)
+        first[pose[::-1]] = start[::-1]  # the first measured position of each pose
+        rows = first[:, None] + np.arange(3)
+        unit = "mm"
+    return CVProblem(r, J, rows, float(unit_scale), names, len(geo_names), _groups(graph.readings), unit)
+
+
+class FoldOrder(str, Enum):
+    """How poses are dealt into folds: at random, or in contiguous blocks of the poses' order
+    (pose ids in time order: each fold is then a stretch of the session, which tests the models
+    against drift, as a later verification set would)."""
+
+    RANDOM = "random"
+    BLOCKED = "blocked"
+
+
+def _folds(groups, k: int, rng, order: FoldOrder = FoldOrder.RANDOM) -> np.ndarray:
+    unique = np.unique(groups)  # group ids number the groups in order of first appearance
+    fold_of_group = np.empty(unique.max() + 1, dtype=int)
+    if FoldOrder(order) is FoldOrder.BLOCKED:
+        fold_of_group[unique] = np.arange(len(unique)) * k // len(unique)
+    else:
+        fold_of_group[rng.permutation(unique)] = np.arange(len(unique)) % k
+    return fold_of_group[groups]
+
+
+class _FoldSums:
+    """Normal equations per fold, over all columns, so that any column subset is cheap."""
+
+    def __init__(self, prob: CVProblem, fold: np.ndarray, k: int):
+        self.prob, self.fold, self.k = prob, fold, k
+        P = prob.J.shape[2]
+        self.A = np.zeros((k, P, P))
+        self.b = np.zeros((k, P))
+        for f in range(k):
+            Jf = prob.J[fold == f].reshape(-1, P)
+            self.A[f] = Jf.T @ Jf
+            self.b[f] = Jf.T @ prob.r[fold == f].reshape(-1)
+        self.A_all, self.b_all = self.A.sum(0), self.b.sum(0)
+
+    def held_out_errors(self, cols, prior_sigma) -> np.ndarray:
+        """(N,) error of each pose predicted by the fit to the other folds (columns ``cols``)."""
+        prob = self.prob
+        cols = np.asarray(cols)
+        lam = np.where(np.isfinite(prior_sigma), 1.0 / np.asarray(prior_sigma) ** 2, 0.0)
+        err = np.zeros(len(prob.r))
+        for f in range(self.k):
+            A = (self.A_all - self.A[f])[np.ix_(cols, cols)]
+            b = (self.b_all - self.b[f])[cols]
+            d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+            As = A / np.outer(d, d) + np.diag(lam / d**2) + 1e-10 * np.eye(len(cols))
+            x = -np.linalg.solve(As, b / d) / d
+            sel = np.nonzero(self.fold == f)[0]
+            pred = prob.r[sel] + prob.J[sel][:, :, cols] @ x  # (n_f, m)
+            pos = np.take_along_axis(pred, prob.metric_rows[sel], axis=1) * prob.metric_scale
+            err[sel] = np.linalg.norm(pos, axis=1)
+        return err
+
+
+def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GRID, sigma_grid=SIGMA_GRID,
+                   order: FoldOrder = FoldOrder.RANDOM):
+    """Per-pose cross-validated errors of the candidate models.
+
+    Returns
+    -------
+    dict
+        ``{"geometric": (err (N,), spec_kw), "compliance": ..., "compliance+map": ...}``; ``spec_kw``
+        holds the chosen ``harmonics`` and ``map_sigma`` for the map.
+    """
+    fold = _folds(prob.groups, folds, rng, order)
+    sums = _FoldSums(prob, fold, folds)
+    geo = list(range(prob.n_geometric))
+    comp = [i for i, n in enumerate(prob.names) if n.endswith(".compliance")]
+    inf = [np.inf] * len(geo)
+    comp_sigma = [JointErrorSpec().compliance_sigma] * len(comp)
+    out = {ModelKind.GEOMETRIC.value: (sums.held_out_errors(geo, inf), {}),
+           ModelKind.COMPLIANCE.value: (sums.held_out_errors(geo + comp, inf + comp_sigma), {})}
+    best = None
+    for h in harmonics_grid:
+        mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and int(re.search(r"(\d+)$", n).group(1)) <= h]
+        if not mp:
+            continue
+        for s in sigma_grid:
+            e = sums.held_out_errors(geo + comp + mp, inf + comp_sigma + [s] * len(mp))
+            if best is None or e.mean() < best[0].mean():
+                best = (e, {"harmonics": int(h), "map_sigma": float(s)})
+    if best is not None:
+        out[ModelKind.COMPLIANCE_MAP.value] = best
+    return out
+
+
+def _recommend(errors: dict) -> tuple[str, str]:
+    """The simplest model whose mean error is within two standard errors of the best's."""
+    kinds = [k for k in (m.value for m in ModelKind) if k in errors]
+    best = min(kinds, key=lambda k: errors[k].mean())
+    for k in kinds:
+        d = errors[k] - errors[best]
+        se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else 0.0
+        if d.mean() <= 2 * se:
+            why = "the best" if k == best else (f"within noise of {best} ({d.mean():.3g} above, standard error "
+                                                f"{se:.2g})")
+            return k, f"{k}: the simplest model within noise of the best cross-validated error ({why})"
+    return best, best
+
+
+def _identifiability(result, torques, q_deg) -> tuple[dict, list]:
+    """Strongest correlation of each added parameter, and warnings for weakly identified compliances."""
+    names = result.names
+    corr = result.correlation()
+    out, warnings = {}, []
+    for i, n in enumerate(names):
+        if not (n.endswith(".compliance") or n.startswith("map.")):
+            continue
+        c = np.abs(corr[i].copy())
+        c[i] = 0.0
+        j = int(np.nanargmax(c))
+        out[n] = {"partner": names[j], "correlation": float(corr[i, j])}
+        if n.endswith(".compliance"):
+            jn = int(n[1:].split(".")[0]) - 1
+            p = result.parameters[i]
+            span, tspan = float(np.ptp(q_deg[:, jn])), float(np.ptp(torques[:, jn]))
+            if abs(c[j]) > CORRELATION_LIMIT or p.sigma > COMPLIANCE_RESOLUTION:
+                warnings.append(f"{n}: joint {jn + 1} spans only {span:.1f} deg (gravity torque spread "
+                                f"{tspan:.0f} N m) in these poses: too narrow to identify its compliance "
+                                f"({p.estimate:.3g} +/- {p.sigma:.2g} urad/Nm, correlation {corr[i, j]:+.2f} "
+                                f"with {names[j]})")
+    return out, warnings
+
+
+def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
+                   up_to: ModelKind = ModelKind.COMPLIANCE_MAP, verification: Dataset | None = None,
+                   folds: int = 5, rng=None, payload: Payload = Payload(), harmonics_grid=HARMONICS_GRID,
+                   sigma_grid=SIGMA_GRID, fold_order: FoldOrder = FoldOrder.RANDOM):
+    """Calibrate the models up to ``up_to``, score them, and recommend one.
+
+    Parameters
+    ----------
+    ds : Dataset
+        Training poses (cross-validation never sees ``verification``).
+    model : RobotModel
+        Needs ``inertials`` for the compliance models.
+    options : CalibrationOptions
+        For every final calibration (its ``joint_errors`` is replaced per model).
+    up_to : ModelKind
+    verification : Dataset, optional
+        Held-out poses: each model's mean position error there is reported.
+    folds : int
+    rng : numpy.random.Generator
+        Draws the folds.
+    fold_order : FoldOrder
+        ``random`` (default) or ``blocked`` (contiguous stretches of the poses in id order).
+    payload : Payload
+        Load on the tool (kg, mm), for the gravity torques.
+
+    Returns
+    -------
+    results : dict of str to CalibrationResult
+        One per model; each result's ``joint_errors["selection"]`` holds the comparison.
+    selection : ModelSelection
+    """
+    from fgcal.report.verify import verify
+
+    up_to = ModelKind(up_to)
+    rng = np.random.default_rng(0) if rng is None else rng
+    if folds < 2 or folds > ds.n_poses:
+        from fgcal.errors import FgcalError
+
+        raise FgcalError(f"{ds.path or 'dataset'}: {folds} cross-validation folds for {ds.n_poses} poses "
+                         "(need 2 <= folds <= poses)")
+    base = replace(options, joint_errors=None)
+    results = {ModelKind.GEOMETRIC.value: calibrate(ds, model, base)}
+    geo = results[ModelKind.GEOMETRIC.value]
+    specs = {ModelKind.GEOMETRIC.value: None}
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(np.array(geo.pose_ids))])
+    torques = np.zeros_like(q)
+    if up_to.order >= ModelKind.COMPLIANCE.order:
+        inertials = model_inertials(model)
+        if inertials is None:
+            from fgcal.errors import ModelError
+
+            raise ModelError(f"robot model {model.name}: the compliance models need its links' masses and centres "
+                             "of mass (an 'inertials:' block in the model file)")
+        torques = gravity_torques(geo.slot_vector(model), q, inertials, payload, model.chain)
+        revolute = np.asarray(model.joint_is_angle, dtype=bool)
+        joints = tuple(j for j in compliance_joints(torques) if revolute[j - 1])  # prismatic: no torsion
+        map_joints = () if revolute.all() else tuple(int(j) + 1 for j in np.nonzero(revolute)[0])
+        spec_max = JointErrorSpec(compliance=joints, payload=payload, map_joints=map_joints,
+                                  harmonics=max(harmonics_grid) if up_to is ModelKind.COMPLIANCE_MAP else 0)
+        prob = cv_problem(ds, model, geo, spec_max, options)
+        cv = cross_validate(prob, folds, rng, harmonics_grid if spec_max.harmonics else (), sigma_grid, fold_order)
+        log.info("cross-validation: %s", {k: round(float(v[0].mean()), 4) for k, v in cv.items()})
+        specs[ModelKind.COMPLIANCE.value] = JointErrorSpec(compliance=joints, payload=payload)
+        if ModelKind.COMPLIANCE_MAP.value in cv:
+            specs[ModelKind.COMPLIANCE_MAP.value] = JointErrorSpec(compliance=joints, payload=payload,
+                                                                   map_joints=map_joints,
+                                                                   **cv[ModelKind.COMPLIANCE_MAP.value][1])
+        unit = prob.unit
+    else:
+        geo_names = list(geo.names)
+        prob = cv_problem(ds, model, geo, JointErrorSpec(), options) if geo_names else None
+        cv = cross_validate(prob, folds, rng, (), sigma_grid, fold_order)
+        unit = prob.unit
+    # The added models are weighted as the cross-validation weighted them: with the geometric
+    # model's noise estimate (re-estimating it would change the map's prior strength relative to the data).
+    fixed = replace(options, estimate_noise=False, noise_scale=geo.options.get("noise_scale") or options.noise_scale)
+    for kind, spec in specs.items():
+        if spec is not None:
+            results[kind] = calibrate(ds, model, replace(fixed, joint_errors=spec))
+            log.info("calibrated %s (%d parameters)", kind, len(results[kind].parameters))
+    errors = {k: v[0] for k, v in cv.items() if k in specs}
+    recommended, reason = _recommend(errors)
+    scores = []
+    for kind, res in results.items():
+        e = errors[kind]
+        score = ModelScore(kind, specs[kind].to_dict() if specs[kind] else {}, len(res.parameters), float(e.mean()),
+                           float(e.std(ddof=1) / np.sqrt(len(e))), unit=unit,
+                           condition_number=float(res.condition_number))
+        if specs[kind] is not None:
+            score.correlations, score.warnings = _identifiability(res, torques, np.degrees(q))
+            for w in score.warnings:
+                log.warning("%s", w)
+        if verification is not None:
+            score.heldout_error = float(verify(res, verification, model).after.position_mm.mean())
+        scores.append(score)
+    selection = ModelSelection(scores, recommended, folds, reason)
+    for res in results.values():
+        res.joint_errors = {**res.joint_errors, "selection": selection.to_dict()}
+    return results, selection

@@ -1,0 +1,249 @@
+"""The noise model estimated from the data: variance components and gross errors.
+
+Each measurement level (probe points, measured centres, measured poses' positions and
+rotations, joint readings) is a *variance component*: its sigma is scaled until the sum of its
+squared whitened residuals equals its redundancy, the sum over its rows of one minus the row's
+leverage (Foerstner's redundancy numbers; iterated, this is Helmert's/Foerstner's variance
+component estimation). A component is estimated only where its redundancy reaches
+:data:`MIN_REDUNDANCY`; below that the declared sigma stays and the result says so.
+
+Gross errors are found by data snooping: each measurement's squared residual over its
+redundancy, in units of the level's robust (median) scale, is tested against the chi-square
+quantile of :data:`OUTLIER_ALPHA` (or of :data:`FAMILY_ALPHA` over the level's count, if
+stricter: a good measurement excluded costs accuracy); per pose and round the worst one is
+excluded and the solve is repeated. Every exclusion is named (pose, ball, line of the file).
+
+Pure functions of a :class:`~fgcal.estimation.graph.Graph` and its linearisation; no I/O.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from enum import Enum
+
+import numpy as np
+from scipy import special
+
+__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "MIN_REDUNDANCY", "OUTLIER_ALPHA",
+           "components", "update_sigmas", "find_outliers", "fit_test", "scaled_inverse"]
+
+log = logging.getLogger(__name__)
+
+MIN_REDUNDANCY = 5.0  # below this a variance factor is too uncertain (its relative sigma sqrt(2/r) > 0.6)
+OUTLIER_ALPHA = float(special.erfc(4.0 / np.sqrt(2.0)))  # a single-coordinate residual beyond 4 sigma (6.3e-5) ...
+FAMILY_ALPHA = 0.01  # ... or below 1% false alarms over a level's measurements, whichever is stricter
+MAX_OUTLIER_FRACTION = 0.05  # more than this in a level is a heavy-tailed distribution, not gross errors
+SCALE_LIMITS = (1e-2, 1e3)  # an estimated sigma stays within these multiples of the declared one
+
+
+class NoiseMode(str, Enum):
+    """Where the measurement noise comes from."""
+
+    ESTIMATED = "estimated"  # from the residuals, per level, where the redundancy allows
+    DECLARED = "declared"  # dataset.yaml's values only
+
+
+class OutlierMode(str, Enum):
+    """What happens to gross errors."""
+
+    EXCLUDE = "exclude"  # detect by data snooping, exclude and name them
+    NONE = "none"  # keep every measurement
+
+
+# Variance components: name -> (graph level, columns of its factor rows, Sigmas field, unit, to unit).
+COMPONENTS = {
+    "probes": ("probes", slice(0, 1), "probe", "mm", 1.0),
+    "centres": ("centres", slice(0, 3), "centre", "mm", 1.0),
+    "poses": ("poses", slice(3, 6), "pose_position", "mm", 1.0),
+    "poses_rotation": ("poses", slice(0, 3), "pose_rotation", "deg", float(np.degrees(1.0))),
+    "distances": ("distances", slice(0, 1), "distance", "mm", 1.0),
+    "joints": ("joints", slice(0, None), "joint", "deg", float(np.degrees(1.0))),  # revolute joints: deg
+}
+MEASUREMENT_LEVELS = ("probes", "centres", "poses", "distances")
+
+
+@dataclass
+class LevelNoise:
+    """One variance component: declared and estimated sigma, and the test of the declared one.
+
+    Attributes
+    ----------
+    declared, used : float
+        Sigma in ``unit`` from dataset.yaml, and the one the covariance is computed with.
+    estimated : float or None
+        Sigma estimated from the residuals; None when the redundancy is too small (``note``).
+    redundancy : float
+        Sum of the redundancy numbers of the component's rows.
+    variance_factor : float
+        Squared residuals over redundancy at the *declared* sigma: ``(estimated / declared)**2``.
+    p_value : float
+        Two-sided chi-square test of the declared sigma (small: the declared noise is wrong).
+    """
+
+    unit: str
+    declared: float
+    used: float
+    estimated: float | None
+    redundancy: float
+    variance_factor: float
+    p_value: float
+    note: str = ""
+
+
+@dataclass
+class Outlier:
+    """A measurement excluded as a gross error, so that it can be re-measured.
+
+    ``index`` is its row among the level's measurements (0-based, file order), ``line`` its line
+    in the file (0 when made in memory); ``statistic`` is its residual in sigmas of the level's
+    scale, corrected for its redundancy.
+    """
+
+    level: str
+    pose: int
+    ball: str | None
+    index: int
+    line: int
+    residual: float
+    unit: str
+    statistic: float
+
+
+def scaled_inverse(S) -> np.ndarray:
+    """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first."""
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
+
+
+def components(graph, lin, h) -> dict[str, tuple[float, float]]:
+    """Per variance component: (sum of squared whitened residuals, redundancy), kept rows only.
+
+    ``h`` (N, m) is the rows' leverage (:meth:`fgcal.estimation.graph.Graph.row_leverage`).
+    """
+    out = {}
+    for name, (level, cols, _, _, _) in COMPONENTS.items():
+        if level not in graph.row:
+            continue
+        pose, rows = graph.factor_rows(level)
+        kept = ~graph.excluded.get(level, np.zeros(len(pose), dtype=bool))
+        rows = rows[kept][:, cols]
+        p = pose[kept, None]
+        out[name] = (float(np.sum(lin.r[p, rows] ** 2)), float(np.sum(1.0 - h[p, rows])))
+    return out
+
+
+def update_sigmas(sigmas, comps, declared, tolerance: float = 0.01):
+    """Rescale each estimable component by the square root of its variance factor.
+
+    Returns ``(new sigmas, changed)``; ``changed`` is False when every factor is within
+    ``tolerance`` of 1 (converged).
+    """
+    changed = False
+    new = {}
+    for name, (ssq, red) in comps.items():
+        field = COMPONENTS[name][2]
+        current = np.asarray(getattr(sigmas, field), dtype=float)  # per joint for the joints
+        if red < MIN_REDUNDANCY or np.any(current <= 0):
+            continue
+        f = ssq / red
+        if not np.isfinite(f) or abs(f - 1.0) < tolerance:
+            continue
+        decl = np.asarray(getattr(declared, field), dtype=float)
+        value = np.clip(current * np.sqrt(f), SCALE_LIMITS[0] * decl, SCALE_LIMITS[1] * decl)
+        if np.any(value != current):
+            new[field] = value if value.ndim else float(value)
+            changed = True
+    return replace(sigmas, **new), changed
+
+
+def _factor_statistics(graph, lin, h, level):
+    """Per factor of ``level``: sum of squared whitened residuals over their redundancy numbers."""
+    pose, rows = graph.factor_rows(level)
+    r2 = lin.r[pose[:, None], rows] ** 2
+    red = np.maximum(1.0 - h[pose[:, None], rows], 1e-9)
+    # lin.r carries zero for excluded rows: recompute their residuals from raw for naming
+    e, s, _ = lin.raw[level]
+    excluded = graph.excluded.get(level, np.zeros(len(pose), dtype=bool))
+    t = np.where(excluded, s**2 / red.mean(axis=1), np.sum(r2 / red, axis=1))
+    return pose, t, rows.shape[1], red.mean(axis=1)
+
+
+def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.ndarray]:
+    """Gross errors to exclude next: at most one per pose, the worst beyond the test's limit.
+
+    Returns ``{level: indices of its factors}`` (only new ones). A level where more than
+    :data:`MAX_OUTLIER_FRACTION` would be excluded is left alone (logged): its residuals are
+    heavy-tailed rather than a few gross errors.
+    """
+    best = {}  # pose -> (ratio, level, index)
+    for level in MEASUREMENT_LEVELS:
+        if level not in graph.row:
+            continue
+        pose, t, width, _ = _factor_statistics(graph, lin, h, level)
+        excluded = graph.excluded.get(level, np.zeros(len(pose), dtype=bool))
+        if np.sum(~excluded) < 10:
+            continue
+        scale = np.median(t[~excluded]) / float(special.chdtri(width, 0.5))  # robust variance factor
+        if not scale > 0:
+            continue
+        ratio = t / scale / special.chdtri(width, min(alpha, FAMILY_ALPHA / len(pose)))
+        ratio[excluded] = 0.0
+        if np.sum(excluded) + np.sum(ratio > 1) > MAX_OUTLIER_FRACTION * len(pose):
+            log.info("%s: %d residuals beyond the outlier limit: heavy tails, none excluded", level,
+                     int(np.sum(ratio > 1)))
+            continue
+        for k in np.nonzero(ratio > 1)[0]:
+            if ratio[k] > best.get(int(pose[k]), (0.0,))[0]:
+                best[int(pose[k])] = (float(ratio[k]), level, int(k))
+    out: dict[str, list[int]] = {}
+    for _, level, k in best.values():
+        out.setdefault(level, []).append(k)
+    return {lv: np.array(sorted(ks), dtype=int) for lv, ks in out.items()}
+
+
+def name_outliers(graph, lin, h, ds, pose_ids) -> list[Outlier]:
+    """The excluded measurements with their pose, ball and line in the file."""
+    out = []
+    for level, mask in graph.excluded.items():
+        if not mask.any():
+            continue
+        pose, t, width, _ = _factor_statistics(graph, lin, h, level)
+        kept = ~mask
+        scale = np.median(t[kept]) / float(special.chdtri(width, 0.5)) if kept.any() else 1.0
+        e = lin.raw[level][0]
+        obs = getattr(ds, level)
+        for k in np.nonzero(mask)[0]:
+            resid = float(np.abs(e[k, 0])) if level == "probes" else float(np.linalg.norm(
+                e[k, 3:] if level == "poses" else e[k]))
+            out.append(Outlier(level, int(pose_ids[pose[k]]), str(obs.ball[k]) if level != "poses" else None,
+                               int(k), int(obs.line[k]), resid, "mm", float(np.sqrt(t[k] / scale / width))))
+    return sorted(out, key=lambda o: (o.pose, o.level, o.index))
+
+
+def fit_test(ssq: float, redundancy: float) -> float:
+    """Two-sided p-value of ``ssq`` (sum of squared whitened residuals) against chi-square(redundancy)."""
+    if redundancy <= 0:
+        return float("nan")
+    return float(min(1.0, 2 * min(special.chdtr(redundancy, ssq), special.chdtrc(redundancy, ssq))))
+
+
+def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNoise]:
+    """The noise table of a finished solve: ``comps`` at the final ``sigmas``."""
+    out = {}
+    for name, (ssq, red) in comps.items():
+        _, _, field, unit, k = COMPONENTS[name]
+        used = float(np.max(getattr(sigmas, field)))  # joints: the largest (one scale for all of them)
+        decl = float(np.max(getattr(declared, field)))
+        ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")
+        vf_declared = ssq / red * ratio2 if red > 0 else float("nan")
+        estimable = red >= MIN_REDUNDANCY
+        if mode is NoiseMode.DECLARED:
+            note = "declared (--noise declared)"
+        elif not estimable:
+            note = f"declared: redundancy {red:.3g} is too small to estimate it (needs {MIN_REDUNDANCY:g})"
+        else:
+            note = "estimated"
+        estimated = float(decl * np.sqrt(vf_declared) * k) if estimable and np.isfinite(vf_declared) else None
+        out[name] = LevelNoise(unit, float(decl * k), float(used * k), estimated, float(red), float(vf_declared),
+                               fit_test(ssq * ratio2, red), note)
+    return out

@@ -1,0 +1,259 @@
+"""Calibration results (``fgcal-result/1``, JSON): a typed dataclass, saved and loaded atomically."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fgcal.errors import FgcalError
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.estimation.noise import LevelNoise, Outlier
+from fgcal.io.yamlio import atomic_write_text
+
+__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "CalibrationResult", "save_result", "load_result"]
+
+FORMAT = "fgcal-result/1"
+MAX_RESULT_BYTES = 1 << 30
+
+
+@dataclass
+class ParameterEstimate:
+    """One identified parameter in file units (mm or deg)."""
+
+    name: str
+    unit: str
+    nominal: float
+    estimate: float
+    sigma: float
+
+
+@dataclass
+class LevelSummary:
+    """Residuals of one measurement level after the solve.
+
+    ``rms`` is in ``unit`` (mm; for poses the position part, with ``rms_rotation_deg`` beside);
+    ``sigma`` is the noise assumed; ``variance_factor`` is the sum of squared whitened residuals
+    over the level's redundancy: near 1 when the assumed noise is right.
+    """
+
+    n: int
+    rms: float
+    unit: str
+    sigma: float
+    variance_factor: float
+    redundancy: float
+    rms_rotation_deg: float | None = None
+    sigma_rotation_deg: float | None = None
+
+
+@dataclass
+class ResidualSummary:
+    """RMS residual of one level over ``n`` measurements (``unit``; poses also in rotation)."""
+
+    n: int
+    rms: float
+    unit: str
+    rms_rotation_deg: float | None = None
+
+
+@dataclass
+class CalibrationResult:
+    """What a calibration found, and how far to trust it.
+
+    Attributes
+    ----------
+    robot : str
+        Model reference as the dataset named it.
+    n_poses : int
+    parameters : list of ParameterEstimate
+        The identified parameters in DESIGN.md order.
+    covariance : ndarray, shape (P, P)
+        Joint covariance in file units.
+    slots : dict of str to float
+        All 37 slots of the calibrated chain (file units), held ones included.
+    held : list of dict
+        Parameters the data could not identify: ``{"name", "value", "reason"}``.
+    levels : dict of str to LevelSummary
+    singular_values : list of float
+        Of the information matrix scaled to unit diagonal (square roots of its eigenvalues).
+    residuals : dict of str to list of float
+        Unwhitened residuals at the solution, per level: ``probes_mm`` (signed distance off the
+        sphere), ``centres_mm`` and ``poses_position_mm`` (per coordinate), ``poses_rotation_deg``
+        (per rotation-vector component), ``joints_deg`` (joint minus reading).
+    tool_xyz : list of [x, y, z]
+        Calibrated tool origin at each pose used (mm, world), for plots of where the poses were.
+    robot_model : dict
+        The nominal robot model (``fgcal-robot/1`` as a mapping), so a result stands on its own.
+    joint_errors : dict
+        The non-geometric joint-error block, if any (:mod:`fgcal.estimation.joint_errors`): ``spec``,
+        ``names``, ``map_terms``, ``joint_ranges_deg`` (the region a map is valid in), ``validity``
+        and, after a model comparison, ``selection`` (:mod:`fgcal.estimation.model_select`). Empty for the
+        geometric model.
+    noise_mode : str
+        ``estimated`` (each level's noise from the residuals where the redundancy allows) or
+        ``declared``.
+    noise : dict of str to LevelNoise
+        Per variance component (``probes``, ``centres``, ``poses``, ``poses_rotation``, ``joints``):
+        declared, estimated and used sigma, redundancy, and the test of the declared sigma.
+    outliers : list of Outlier
+        Measurements excluded as gross errors (pose, ball, line of the file).
+    fit_test : dict
+        Global test of the declared noise: ``statistic`` (sum of squared residuals at the declared
+        sigmas), ``redundancy``, ``p_value``.
+    at_readings : dict of str to ResidualSummary
+        Residuals with the joints at their readings (before the joint variables moved): the
+        training error a user of the readings sees. ``levels`` holds those after they moved.
+    """
+
+    robot: str
+    n_poses: int
+    parameters: list[ParameterEstimate]
+    covariance: np.ndarray
+    slots: dict[str, float]
+    held: list[dict] = field(default_factory=list)
+    levels: dict[str, LevelSummary] = field(default_factory=dict)
+    iterations: int = 0
+    converged: bool = True
+    cost: float = 0.0
+    singular_values: list[float] = field(default_factory=list)
+    condition_number: float = float("nan")
+    pose_ids: list[int] = field(default_factory=list)
+    options: dict = field(default_factory=dict)
+    dataset: str | None = None
+    fgcal_version: str = ""
+    residuals: dict[str, list[float]] = field(default_factory=dict)
+    tool_xyz: list[list[float]] = field(default_factory=list)
+    robot_model: dict = field(default_factory=dict)
+    joint_errors: dict = field(default_factory=dict)
+    noise_mode: str = "declared"
+    noise: dict[str, LevelNoise] = field(default_factory=dict)
+    outliers: list[Outlier] = field(default_factory=list)
+    fit_test: dict = field(default_factory=dict)
+    at_readings: dict[str, ResidualSummary] = field(default_factory=dict)
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.parameters]
+
+    @property
+    def estimate(self) -> np.ndarray:
+        return np.array([p.estimate for p in self.parameters])
+
+    @property
+    def sigma(self) -> np.ndarray:
+        return np.array([p.sigma for p in self.parameters])
+
+    def slot_vector(self, model=None) -> np.ndarray:
+        """The calibrated slot vector (S,) in internal units (mm, rad), in ``model``'s slot order.
+
+        ``model`` is the result's own (:meth:`model`) by default.
+        """
+        names = (model or self.model()).slot_names if (model is not None or self.robot_model) else SLOT_NAMES
+        missing = [n for n in names if n not in self.slots]
+        if missing:
+            raise FgcalError(f"result of {self.robot}: no value for slot(s) {', '.join(missing[:5])} of "
+                             f"{(model.name if model is not None else self.robot)}: a result of another robot model?")
+        return slots_from_file_units(np.array([self.slots[n] for n in names]))
+
+    def model(self):
+        """The robot model (nominal) the result was computed with."""
+        from fgcal.robots.robot_file import load_model, model_from_dict
+
+        cached = self.__dict__.get("_model")
+        if cached is None:
+            cached = (model_from_dict(self.robot_model, source=f"result of {self.robot}") if self.robot_model
+                      else load_model(self.robot))
+            self.__dict__["_model"] = cached
+        return cached
+
+    def correlation(self) -> np.ndarray:
+        s = np.sqrt(np.diag(self.covariance))
+        return self.covariance / np.outer(s, s)
+
+    def to_dict(self) -> dict:
+        d = {"format": FORMAT, "robot": self.robot, "n_poses": self.n_poses,
+             "parameters": [asdict(p) for p in self.parameters],
+             "covariance": np.asarray(self.covariance).tolist()}
+        for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
+                    "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model",
+                    "joint_errors"):
+            d[key] = getattr(self, key)
+        d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
+        d["noise_mode"], d["fit_test"] = self.noise_mode, self.fit_test
+        d["noise"] = {k: asdict(v) for k, v in self.noise.items()}
+        d["outliers"] = [asdict(o) for o in self.outliers]
+        d["at_readings"] = {k: asdict(v) for k, v in self.at_readings.items()}
+        return d
+
+
+def _json_safe(obj):
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None if math.isnan(obj) else ("Infinity" if obj > 0 else "-Infinity")
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer)):
+        return _json_safe(obj.item())
+    return obj
+
+
+def _float(v):
+    return float("nan") if v is None else (float(v) if not isinstance(v, str) else float(v.replace("Infinity", "inf")))
+
+
+def save_result(result: CalibrationResult, path) -> None:
+    """Write ``result`` as ``fgcal-result/1`` JSON, atomically."""
+    atomic_write_text(path, json.dumps(_json_safe(result.to_dict()), indent=1) + "\n")
+
+
+def load_result(path) -> CalibrationResult:
+    """Read and check a result file; a malformed one raises ``FgcalError`` naming the file."""
+    from fgcal.io.yamlio import read_text_file
+
+    path = Path(path)
+    text = read_text_file(path, FgcalError, max_bytes=MAX_RESULT_BYTES)
+    try:
+        d = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FgcalError(f"{path}: not a JSON result file ({exc.msg}, line {exc.lineno})") from None
+    except RecursionError:
+        raise FgcalError(f"{path}: not a result file (JSON nested too deep)") from None
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        raise FgcalError(f"{path}: format {d.get('format') if isinstance(d, dict) else None!r} is not {FORMAT!r}")
+    try:
+        params = [ParameterEstimate(**p) for p in d["parameters"]]
+        cov = np.array(d["covariance"], dtype=float).reshape(len(params), len(params))
+        slots = {k: float(v) for k, v in d["slots"].items()}
+        bad = [k for k, v in slots.items() if not math.isfinite(v)]
+        bad += [p.name for p in params if not (isinstance(p.estimate, (int, float)) and math.isfinite(p.estimate))]
+        if bad:
+            raise ValueError(f"{', '.join(map(str, bad[:3]))}: not a finite number")
+        levels = {k: LevelSummary(**v) for k, v in d.get("levels", {}).items()}
+        cond = d.get("condition_number")
+        cond = float("inf") if cond == "Infinity" else (float("nan") if cond is None else float(cond))
+        result = CalibrationResult(
+            robot=str(d["robot"]), n_poses=int(d["n_poses"]), parameters=params, covariance=cov, slots=slots,
+            held=list(d.get("held", [])), levels=levels, iterations=int(d.get("iterations", 0)),
+            converged=bool(d.get("converged", True)), cost=float(d.get("cost", 0.0)),
+            singular_values=[float(v) for v in d.get("singular_values", [])], condition_number=cond,
+            pose_ids=[int(v) for v in d.get("pose_ids", [])], options=dict(d.get("options", {})),
+            dataset=d.get("dataset"), fgcal_version=str(d.get("fgcal_version", "")),
+            residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
+            tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
+            robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}),
+            noise_mode=str(d.get("noise_mode", "declared")),
+            noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
+            outliers=[Outlier(**o) for o in d.get("outliers", [])],
+            fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},
+            at_readings={k: ResidualSummary(**v) for k, v in d.get("at_readings", {}).items()})
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+        raise FgcalError(f"{path}: malformed result: {exc}") from None
+    try:
+        result.slot_vector()  # every slot of the result's own model has a value
+    except FgcalError as exc:
+        raise FgcalError(f"{path}: malformed result: {exc}") from None
+    return result

@@ -1,0 +1,4 @@
+"""Input and output: dataset files, tables, importers of other tools' formats, YAML, bundled data.
+
+Nothing is imported here: import the modules themselves (no side effects, no heavy imports).
+"""

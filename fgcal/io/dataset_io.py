@@ -1,0 +1,425 @@
+"""Reading and writing dataset directories (DESIGN.md section 3) with validation.
+
+Every problem ends in a :class:`~fgcal.errors.DatasetError` whose one-line message names the file
+and the line (the header is line 1) or the pose. Writing goes to a temporary directory first,
+which then replaces the target, so a dataset on disk is never half written.
+"""
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import os
+import shutil
+import tempfile
+from array import array
+from pathlib import Path
+
+import numpy as np
+
+from fgcal.measurements.cells import MAX_DEG, pose_id
+from fgcal.measurements.cells import integer as _integer
+from fgcal.measurements.cells import number as _number
+from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
+from fgcal.measurements.point import POINT
+from fgcal.measurements.pose import POSE
+from fgcal.measurements.types import KINEMATIC_TYPES
+from fgcal.errors import DatasetError, FgcalError
+from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
+from fgcal.robots.robot_file import load_model
+from fgcal.io.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
+
+__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
+
+log = logging.getLogger(__name__)
+
+_SLOT_FIELDS = set(EULER_FIELDS) | set(LINK_FIELDS)
+
+JOINT_COLUMNS = ["pose", "q1", "q2", "q3", "q4", "q5", "q6"]
+MAX_JOINTS = 64
+
+
+def joint_columns(n: int) -> list[str]:
+    """``pose, q1 .. qn``: the header of joints.csv for an ``n``-joint robot."""
+    return ["pose"] + [f"q{i}" for i in range(1, n + 1)]
+POINT_COLUMNS = list(POINT.columns)  # probes.csv has the columns of centres.csv
+
+
+def _table_records(path: Path, columns: list[str], optional=()):
+    """The header and the non-blank records of a CSV file, streamed: yields ``(line, header, cells)``.
+
+    The header must hold ``columns`` and may hold ``optional``; line numbers are 1-based (the
+    header is line 1). Only a regular file is opened.
+    """
+    check_regular_file(path, DatasetError)
+    try:
+        fh = path.open(newline="", encoding="utf-8")
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    with fh:
+        reader = csv.reader(fh)
+        try:
+            header = next(reader, None)
+            if header is None:
+                raise DatasetError(f"{path}: empty file (expected the header {','.join(columns)})")
+            header = [h.strip() for h in header]
+            missing = [c for c in columns if c not in header]
+            if missing:
+                raise DatasetError(f"{path}: line 1: missing column(s) {', '.join(missing)} "
+                                   f"(expected {','.join(columns)})")
+            unknown = [h[:24] for h in header if h not in columns and h not in optional]
+            if unknown:
+                raise DatasetError(f"{path}: line 1: unknown column(s) {', '.join(unknown[:3])}"
+                                   f"{' ...' if len(unknown) > 3 else ''} "
+                                   f"(expected {','.join(list(columns) + list(optional))})")
+            if len(set(header)) != len(header):
+                raise DatasetError(f"{path}: line 1: a column is repeated in the header")
+            n = len(header)
+            for record in reader:
+                if not record or all(not c.strip() for c in record):
+                    continue
+                if len(record) != n:
+                    raise DatasetError(f"{path}: line {reader.line_num}: {len(record)} fields, expected {n}")
+                yield reader.line_num, header, [c.strip() for c in record]
+        except csv.Error as exc:
+            raise DatasetError(f"{path}: line {reader.line_num}: {exc}") from None
+        except UnicodeDecodeError:
+            raise DatasetError(f"{path}: line {reader.line_num + 1}: not UTF-8 text") from None
+        except OSError as exc:
+            raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
+
+
+def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
+    """Rows of a CSV file as (line number, dict); the header holds ``columns`` and maybe ``optional``."""
+    return [(line, dict(zip(header, cells))) for line, header, cells in _table_records(path, columns, optional)]
+
+
+def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> PointObservations:
+    """A ``pose,ball,x,y,z`` file (probe points), streamed into compact arrays (memory linear in the
+    rows, small constant): probe files are the largest a dataset has."""
+    names = list(balls)
+    ball_index = {b: i for i, b in enumerate(names)}
+    pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
+    seen = {}
+    cols = None
+    for line, header, cells in _table_records(path, POINT_COLUMNS):
+        if cols is None:
+            cols = [header.index(c) for c in POINT_COLUMNS]
+        where = f"{path}: line {line}"
+        p_txt, b, x, y, z = (cells[i] for i in cols)
+        pid = _integer(p_txt, where, "pose")
+        if pid not in known_poses:
+            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        k = ball_index.get(b)
+        if k is None:
+            raise DatasetError(f"{where}: unknown ball {short_repr(b)} (dataset.yaml tool.balls has "
+                               f"{', '.join(balls)})")
+        if unique:
+            key = (pid, k)
+            if key in seen:
+                raise DatasetError(f"{where}: duplicate centre of ball {b} at pose {pid} (first on line {seen[key]})")
+            seen[key] = line
+        pose.append(pid)
+        ball.append(k)
+        xyz.extend((_number(x, where, "x"), _number(y, where, "y"), _number(z, where, "z")))
+        lines.append(line)
+    ball_names = np.array(names, dtype=str)[np.frombuffer(ball, dtype=np.int16).astype(int)] if len(ball) \
+        else np.zeros(0, dtype=str)
+    return PointObservations(np.frombuffer(pose, dtype=np.int64).astype(int), ball_names,
+                             np.frombuffer(xyz, dtype=float).reshape(-1, 3).copy(),
+                             np.frombuffer(lines, dtype=np.int64).astype(int))
+
+
+def _measurement_table(path: Path, kind, known_poses: set, balls: dict):
+    """The observations of a kinematic measurement type from its file (:mod:`fgcal.measurements.types`).
+
+    One row per pose and ball (or per pose, for types measured once per pose); each row is
+    parsed and checked by the type.
+    """
+    pose, ball, values, lines, seen = [], [], [], [], {}
+    for line, header, cells in _table_records(path, list(kind.columns)):
+        where = f"{path}: line {line}"
+        record = dict(zip(header, cells))
+        pid = pose_id(record["pose"], where, known_poses)
+        b, v = kind.parse(where, record, balls)
+        key = (pid, b)
+        if key in seen:
+            what = f"{kind.noun} of ball {b} at pose {pid}" if kind.per_ball else f"{kind.noun} {pid}"
+            raise DatasetError(f"{where}: duplicate {what} (first on line {seen[key]})")
+        seen[key] = line
+        pose.append(pid)
+        ball.append(b)
+        values.append(v)
+        lines.append(line)
+    width = len(values[0]) if values else 0
+    return kind.observations(np.array(pose, dtype=int), np.array(ball, dtype=str),
+                             np.array(values, dtype=float).reshape(len(values), width), np.array(lines, dtype=int))
+
+
+def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
+    data = read_yaml(path, error=DatasetError)
+    if not isinstance(data, dict):
+        raise DatasetError(f"{path}: expected a mapping with format, robot, tool, noise, provenance")
+    missing = [k for k in ("format", "robot", "tool", "noise", "provenance") if k not in data]
+    if missing:
+        raise DatasetError(f"{path}: missing key(s) {', '.join(missing)}")
+    if data["format"] != FORMAT:
+        raise DatasetError(f"{path}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
+    if not isinstance(data["robot"], str) or not data["robot"]:
+        raise DatasetError(f"{path}: robot must be a model name or a model file path")
+    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance"}
+    if unknown:
+        raise DatasetError(f"{path}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+    chain = data.get("chain")
+    if chain is not None:
+        if (not isinstance(chain, dict) or set(chain) - {"base", "tip"}
+                or not all(isinstance(v, str) and v for v in chain.values())):
+            raise DatasetError(f"{path}: chain must be {{base: LINK, tip: LINK}} (URDF link names)")
+
+    def num(value, what, minimum=None):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise DatasetError(f"{path}: {what} must be a finite number, got {short_repr(value)}")
+        if minimum is not None and value < minimum:
+            raise DatasetError(f"{path}: {what} must be >= {minimum}, got {short_repr(value)}")
+        return float(value)
+
+    tool = data["tool"]
+    if not isinstance(tool, dict) or "radius" not in tool or not isinstance(tool.get("balls"), dict) or not tool["balls"]:
+        raise DatasetError(f"{path}: tool must have radius and balls {{name: [x, y, z]}}")
+    balls = {}
+    for name, centre in tool["balls"].items():
+        if not isinstance(centre, list) or len(centre) != 3:
+            raise DatasetError(f"{path}: tool.balls.{name} must be [x, y, z] (mm)")
+        balls[str(name)] = np.array([num(c, f"tool.balls.{name}") for c in centre])
+    tooling = Tooling(radius=num(tool["radius"], "tool.radius", 0.0), balls=balls)
+
+    noise_raw = data["noise"]
+    allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
+               "centre_sigma", "distance_sigma")
+    if not isinstance(noise_raw, dict):
+        raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
+    unknown = set(noise_raw) - set(allowed)
+    if unknown:
+        raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(str(k)[:24] for k in unknown))}")
+    noise = Noise(**{k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()})
+    provenance = data["provenance"]
+    if not isinstance(provenance, dict):
+        provenance = {"text": str(provenance)}
+    return data["robot"], tooling, noise, provenance, chain
+
+
+def load_truth(path) -> tuple[dict, list]:
+    """``truth.yaml``: parameter values {name: value} (mm, deg) and planted outliers."""
+    path = Path(path)
+    data = read_yaml(path, error=DatasetError)
+    if not isinstance(data, dict) or not isinstance(data.get("parameters"), dict):
+        raise DatasetError(f"{path}: expected 'parameters: {{name: value}}'")
+    truth = {}
+    for name, value in data["parameters"].items():
+        if not isinstance(name, str) or name.rpartition(".")[2] not in _SLOT_FIELDS or not name.rpartition(".")[0]:
+            raise DatasetError(f"{path}: unknown parameter {short_repr(name)}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise DatasetError(f"{path}: parameter {name} must be a finite number, got {short_repr(value)}")
+        truth[name] = float(value)
+    outliers = []
+    for i, item in enumerate(data.get("outliers") or []):
+        if not (isinstance(item, list) and len(item) == 3):
+            raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index]")
+        try:
+            outliers.append((int(item[0]), str(item[1]), int(item[2])))
+        except (TypeError, ValueError):
+            raise DatasetError(f"{path}: outliers[{i}] must be [pose, ball, probe index] (integers)") from None
+    return truth, outliers
+
+
+def load_dataset_meta(directory) -> Dataset:
+    """Only ``dataset.yaml`` of a dataset directory, as a dataset with no poses (for streams)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    return Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.zeros(0, dtype=int),
+                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain)
+
+
+def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
+    """A ``joints.csv``-like file: ``(pose ids (N,), joint readings (N, n) deg or mm)``, columns
+    ``pose,q1..qn``.
+
+    Raises :class:`DatasetError` naming the file and line for a malformed row or repeated id.
+    """
+    joints_path = Path(path)
+    rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)])
+    if not rows:
+        raise DatasetError(f"{joints_path}: no poses")
+    n_joints = sum(1 for c in rows[0][1] if c != "pose")
+    columns = joint_columns(n_joints)
+    if set(rows[0][1]) != set(columns):
+        raise DatasetError(f"{joints_path}: line 1: joint columns must be q1..qn without gaps, got "
+                           f"{','.join(c for c in rows[0][1] if c != 'pose')}")
+    ids, q, seen = [], [], {}
+    for line, r in rows:
+        where = f"{joints_path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose id {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        q.append([_number(r[c], where, c, MAX_DEG) for c in columns[1:]])
+    return np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints)
+
+
+def load_dataset(directory) -> Dataset:
+    """Read and validate a dataset directory.
+
+    Raises
+    ------
+    DatasetError
+        With a one-line message naming the file and line, for any malformed input.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DatasetError(f"{directory}: not a dataset directory")
+    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    ids, q = read_joints(directory / "joints.csv")
+    known = set(ids.tolist())
+    ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=ids,
+                 joints_deg=q, path=directory, chain=chain)
+    if os.path.lexists(directory / "probes.csv"):
+        if tooling.radius <= 0:
+            raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
+        ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
+    for kind in KINEMATIC_TYPES:
+        if os.path.lexists(directory / kind.file):
+            setattr(ds, kind.level, _measurement_table(directory / kind.file, kind, known, tooling.balls))
+    if os.path.lexists(directory / "truth.yaml"):
+        ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
+    if not ds.levels():
+        log.warning("%s: no measurements (probes.csv, centres.csv, poses.csv or distances.csv); joint readings only",
+                    directory)
+    return ds
+
+
+def read_targets(path):
+    """Target tool poses: ``pose,x,y,z,qw,qx,qy,qz`` and optionally seed joints ``q1..q6`` (deg).
+
+    Returns ``(ids (N,), T (N, 4, 4) mm, seeds (N, 6) rad or None)``.
+    """
+    from fgcal.robots.transforms import pose_matrices
+
+    path = Path(path)
+    rows = _read_table(path, list(POSE.columns), optional=JOINT_COLUMNS[1:])
+    if not rows:
+        raise DatasetError(f"{path}: no targets")
+    has_q = [c in rows[0][1] for c in JOINT_COLUMNS[1:]]
+    if any(has_q) and not all(has_q):
+        raise DatasetError(f"{path}: line 1: give all of q1..q6 or none")
+    ids, T, seeds, seen = [], [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = _integer(r["pose"], where, "pose")
+        _, values = POSE.parse(where, r, {})
+        xyz, quat = values[:3], values[3:]
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        T.append(pose_matrices(xyz, quat))
+        if all(has_q):
+            seeds.append(np.radians([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]]))
+    return np.array(ids), np.array(T), (np.array(seeds) if seeds else None)
+
+
+def dataset_model(ds: Dataset) -> RobotModel:
+    """The robot model a dataset names (built-in, or a file relative to the dataset directory)."""
+    ref = ds.robot
+    if ds.path is not None and (ref.endswith((".yaml", ".yml", ".urdf")) or "/" in ref):
+        candidate = (ds.path / ref) if not Path(ref).is_absolute() else Path(ref)
+        model = load_model(candidate, chain=ds.chain)
+    else:
+        try:
+            model = load_model(ref, chain=ds.chain)
+        except FgcalError as exc:
+            where = ds.path / "dataset.yaml" if ds.path else "dataset"
+            raise DatasetError(f"{where}: robot: {exc}") from None
+    check_joint_count(ds, model)
+    return model
+
+
+def check_joint_count(ds: Dataset, model: RobotModel) -> None:
+    """joints.csv must hold one column per joint of the model's chain."""
+    if ds.n_poses and ds.n_joints != model.n_joints:
+        where = ds.path / "joints.csv" if ds.path else "joints"
+        raise DatasetError(f"{where}: {ds.n_joints} joint columns, but robot {model.name} has {model.n_joints} "
+                           f"joints ({', '.join(model.joint_names)})")
+
+
+def _fmt(v: float) -> str:
+    return repr(float(v))
+
+
+def write_csv(path, header, rows) -> None:
+    """Write a CSV file atomically; floats with full (round-trip) precision."""
+    lines = [",".join(header)]
+    for row in rows:
+        lines.append(",".join(_fmt(v) if isinstance(v, (float, np.floating)) else str(v) for v in row))
+    atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _write_into(ds: Dataset, directory: Path) -> None:
+    meta = {
+        "format": FORMAT,
+        "robot": ds.robot,
+        **({"chain": dict(ds.chain)} if ds.chain else {}),
+        "tool": {"radius": float(ds.tooling.radius),
+                 "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
+        "noise": {k: v for k, v in vars(ds.noise).items() if v is not None},
+        "provenance": ds.provenance,
+    }
+    atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
+    write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
+              ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
+    if ds.probes is not None:
+        write_csv(directory / "probes.csv", POINT_COLUMNS, POINT.rows(ds.probes))
+    for kind in KINEMATIC_TYPES:
+        obs = getattr(ds, kind.level)
+        if obs is not None:
+            write_csv(directory / kind.file, kind.columns, kind.rows(obs))
+    if ds.truth is not None:
+        truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
+        if ds.truth_outliers:
+            truth["outliers"] = [[int(p), str(b), int(i)] for p, b, i in ds.truth_outliers]
+        atomic_write_text(directory / "truth.yaml", dump_yaml(truth))
+
+
+def save_dataset(ds: Dataset, directory, overwrite: bool = False, extra_files=None) -> Path:
+    """Write ``ds`` as a dataset directory, all at once (a temporary directory is renamed).
+
+    ``extra_files`` maps further file names to their text (for example ``quality.csv``).
+
+    Raises
+    ------
+    FgcalError
+        If ``directory`` exists and ``overwrite`` is false.
+    """
+    directory = Path(directory)
+    if directory.exists() and not overwrite:
+        raise FgcalError(f"{directory}: already exists (use --force to replace it)")
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    tmp = make_dir(directory)
+    try:
+        _write_into(ds, tmp)
+        for name, text in (extra_files or {}).items():
+            atomic_write_text(tmp / name, text)
+        if directory.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
+            old.rmdir()
+            directory.rename(old)
+            tmp.rename(directory)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            tmp.rename(directory)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return directory

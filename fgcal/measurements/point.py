@@ -1,0 +1,108 @@
+"""Measured points: a ball centre (CMM) or a laser tracker's reflector, position only.
+
+File ``centres.csv``: ``pose,ball,x,y,z`` (mm, instrument frame); one row per pose and ball.
+Error: ``FK(theta, q) offset - xyz`` (mm, 3 rows), :func:`factors.errors.ball_centre_error`.
+The same observations class carries probe points (:mod:`fgcal.measurements.probe`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcal.measurements.base import KinematicMeasurement, Terms
+from fgcal.measurements.cells import ball_name, number
+from fgcal.robots.kinematics import tool_points
+
+__all__ = ["PointObservations", "PointMeasurement", "POINT"]
+
+
+@dataclass
+class PointObservations:
+    """Measured points, one row each: probe points or ball centres (world, mm).
+
+    Attributes
+    ----------
+    pose : ndarray of int, shape (M,)
+    ball : ndarray of str, shape (M,)
+    xyz : ndarray, shape (M, 3)
+    line : ndarray of int, shape (M,)
+        Line in the source file (0 when made in memory), for error messages.
+    """
+
+    pose: np.ndarray
+    ball: np.ndarray
+    xyz: np.ndarray
+    line: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
+        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
+        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
+        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
+        if not (len(self.pose) == len(self.ball) == len(self.xyz) == len(self.line)):
+            raise ValueError("pose, ball, xyz and line must have the same length")
+
+    def __len__(self):
+        return len(self.pose)
+
+    def subset(self, mask) -> "PointObservations":
+        return PointObservations(self.pose[mask], self.ball[mask], self.xyz[mask], self.line[mask])
+
+
+class PointMeasurement(KinematicMeasurement):
+    """A ball centre or reflector position: 3 rows of ``FK offset - measured`` (mm)."""
+
+    level = "centres"
+    file = "centres.csv"
+    columns = ("pose", "ball", "x", "y", "z")
+    width = 3
+    per_ball = True
+    title = "ball centres"
+    noun = "centre"
+
+    def error(self, theta, q, data, index, held, chain):
+        from factors.errors import ball_centre_error
+
+        offset, xyz = data
+        return ball_centre_error(theta, q, offset, xyz, index, held, chain)
+
+    def sigma(self, sigmas) -> np.ndarray:
+        return np.full(3, sigmas.centre)
+
+    def terms(self, obs: PointObservations, tooling, row_of_pose) -> Terms:
+        pose = np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int)
+        return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), obs.xyz))
+
+    def world_points(self, terms: Terms) -> dict:
+        out = {}
+        for i, o, w in zip(terms.pose.tolist(), *terms.data):
+            offs, pts = out.get(i, (np.zeros((0, 3)), np.zeros((0, 3))))
+            out[i] = (np.vstack([offs, o]), np.vstack([pts, w]))
+        return out
+
+    def design_data(self, forward, offsets) -> tuple:
+        return (offsets, tool_points(forward, offsets[:, None, :])[:, 0])
+
+    def simulate(self, T, offsets, rng, noise) -> np.ndarray:
+        c = tool_points(T, offsets[:, None, :])[:, 0]
+        return c + rng.normal(size=c.shape) * noise.cmm_sigma
+
+    def parse(self, where, record, balls):
+        b = ball_name(record["ball"], where, balls)
+        return b, np.array([number(record[c], where, c) for c in "xyz"])
+
+    def observations(self, pose, ball, values, line=None):
+        return PointObservations(pose, ball, np.asarray(values, dtype=float).reshape(-1, 3), line)
+
+    def rows(self, obs: PointObservations):
+        return ([int(p), b, *map(float, x)] for p, b, x in zip(obs.pose, obs.ball, obs.xyz))
+
+    def metric(self, e):
+        return np.linalg.norm(e, axis=1), None
+
+    def residual_summary(self, e) -> dict:
+        return {"centres_mm": np.asarray(e).ravel().tolist()}
+
+
+POINT = PointMeasurement()

@@ -1,0 +1,324 @@
+"""The paper's VERIFY: position and orientation errors of a calibrated model at other poses.
+
+At each pose of a verification dataset the calibrated (and, for comparison, the nominal) model's
+tool pose is compared with the measured pose, and with the true robot's where a simulated
+dataset has ``truth.yaml``, through the differential displacement and orientation of eq. (17).
+No I/O here.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgcal.measurements.dataset import Dataset
+from fgcal.errors import FgcalError
+from fgcal.estimation.joint_errors import corrected_joints, outside_region
+from fgcal.robots.kinematics import tool_points
+from fgcal.measurements.measure import measure_probes
+from fgcal.robots.model import RobotModel
+from fgcal.measurements.posefit import rigid_fit
+from fgcal.estimation.result import CalibrationResult
+from fgcal.robots.transforms import pose_difference
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
+           "compare_poses", "compare_points", "check_same_robot", "check_verification"]
+
+
+@dataclass
+class ErrorStats:
+    mean: float
+    rms: float
+    max: float
+
+
+def error_stats(values) -> ErrorStats:
+    v = np.asarray(values, dtype=float)
+    if not v.size:
+        return ErrorStats(float("nan"), float("nan"), float("nan"))
+    return ErrorStats(float(v.mean()), float(np.sqrt(np.mean(v**2))), float(v.max()))
+
+
+@dataclass
+class Comparison:
+    """Errors of one model against one reference, per pose (mm, deg) and summarised.
+
+    ``orientation_deg`` is None for position-only data (a reflector, one or two balls).
+    """
+
+    position_mm: np.ndarray
+    orientation_deg: np.ndarray | None
+    error_xyz_mm: np.ndarray | None = None  # (K, 3) reference - model (mean over a pose's points), world frame
+
+    def summary(self) -> dict:
+        return {"position_mm": vars(error_stats(self.position_mm)),
+                "orientation_deg": None if self.orientation_deg is None else vars(error_stats(self.orientation_deg))}
+
+
+@dataclass
+class Verification:
+    """Calibrated and nominal errors against the measurements, and against the truth if known.
+
+    ``reference`` says what was compared: ``"measured poses"`` (full pose errors) or
+    ``"measured points"`` (ball centres or reflector positions: the error of each pose is the RMS
+    distance of its points, and there is no orientation error).
+    """
+
+    pose_ids: np.ndarray
+    after: Comparison
+    before: Comparison
+    truth_after: Comparison | None = None
+    truth_before: Comparison | None = None
+    reference: str = "measured poses"
+    skipped: list[str] = field(default_factory=list)
+    robot: str | None = None
+    xyz_mm: np.ndarray | None = None  # (K, 3) measured tool positions (mean of a pose's points), world frame
+    joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
+
+    def to_dict(self) -> dict:
+        d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
+        if self.robot is not None:
+            d["robot"] = self.robot
+        d.update(self.after.summary())
+        d["before"] = self.before.summary()
+        if self.truth_after is not None:
+            d["truth"] = self.truth_after.summary()
+            d["truth"]["before"] = self.truth_before.summary()
+        n = len(self.pose_ids)
+        none = [None] * n
+
+        def values(v):
+            return none if v is None else [float(x) for x in v]
+
+        d["poses"] = [
+            {"pose": int(p), "position_mm": a, "orientation_deg": o, "before_position_mm": bp,
+             "before_orientation_deg": bo}
+            for p, a, o, bp, bo in zip(self.pose_ids, values(self.after.position_mm), values(self.after.orientation_deg),
+                                       values(self.before.position_mm), values(self.before.orientation_deg))]
+        for k, pose in enumerate(d["poses"]):  # additions of fgcal-verify/1 (readers may ignore them)
+            if self.xyz_mm is not None:
+                pose["xyz_mm"] = [float(v) for v in self.xyz_mm[k]]
+            if self.after.error_xyz_mm is not None and self.before.error_xyz_mm is not None:
+                pose["error_xyz_mm"] = [float(v) for v in self.after.error_xyz_mm[k]]
+                pose["before_error_xyz_mm"] = [float(v) for v in self.before.error_xyz_mm[k]]
+            if self.joints_deg is not None:
+                pose["joints_deg"] = [float(v) for v in self.joints_deg[k]]
+            if self.truth_after is not None:
+                pose["truth_position_mm"] = float(self.truth_after.position_mm[k])
+        d["skipped"] = self.skipped
+        return d
+
+
+def measured_poses(ds: Dataset):
+    """Measured tool poses ``(pose_ids, T (K, 4, 4), skipped)`` from the richest level present.
+
+    ``poses.csv`` as it is; otherwise a rigid fit of three or more ball centres (from
+    ``centres.csv``, or fitted to ``probes.csv`` with the quality checks of ``fgcal measure``).
+    """
+    skipped = []
+    if ds.poses is not None:
+        return ds.poses.pose.copy(), ds.poses.matrices(), skipped
+    if ds.centres is not None:
+        ids, Ts = [], []
+        sigma = ds.noise.centre_sigma if ds.noise.centre_sigma is not None else ds.noise.cmm_sigma
+        for p in ds.pose_ids:
+            sel = ds.centres.pose == p
+            if sel.sum() < 3:
+                skipped.append(f"pose {p}: {int(sel.sum())} centre(s), a pose needs 3")
+                continue
+            fit = rigid_fit(ds.tooling.offsets(ds.centres.ball[sel]), ds.centres.xyz[sel], sigma=sigma)
+            if not fit.ok:
+                skipped.append(f"pose {p}: {fit.status}")
+                continue
+            ids.append(p)
+            Ts.append(fit.T)
+        return np.array(ids, dtype=int), np.array(Ts).reshape(-1, 4, 4), skipped
+    if ds.probes is not None:
+        m = measure_probes(ds)
+        skipped += [f"pose {q.pose}: {q.status}" for q in m.quality if q.ball == "*" and q.status != "ok"]
+        return m.poses.pose.copy(), m.poses.matrices(), skipped
+    raise FgcalError(f"{ds.path or 'dataset'}: no measurements to verify against")
+
+
+def check_same_robot(result: CalibrationResult, model: RobotModel, where="dataset",
+                     length_tol_mm: float = 1.0, angle_tol_deg: float = 0.5) -> None:
+    """Raise ``FgcalError`` unless ``result`` was computed for a robot with ``model``'s link geometry.
+
+    Base and tool may differ (they are refitted per set-up); the joints' nominal geometry (the
+    ``j*`` slots) must agree within the tolerances.
+    """
+    mine = result.model()
+    a, b = np.asarray(mine.nominal, dtype=float), np.asarray(model.nominal, dtype=float)
+    names = list(model.slot_names)
+    if a.shape != b.shape or list(mine.slot_names) != names:
+        raise FgcalError(f"{where}: robot {model.name} ({model.n_joints} joints, {len(b)} geometric slots) is not "
+                         f"the robot of the result ({mine.name}, {mine.n_joints} joints, {len(a)} slots)")
+    angle = np.asarray(model.slot_is_angle, dtype=bool)
+    link = np.array([not n.startswith(("base.", "tool.")) for n in names])
+    tol = np.where(angle, np.radians(angle_tol_deg), length_tol_mm)
+    off = link & (np.abs(a - b) > tol)
+    if off.any():
+        i = int(np.argmax(np.where(off, np.abs(a - b) / tol, 0)))
+        scale, unit = (np.degrees(1.0), "deg") if angle[i] else (1.0, "mm")
+        raise FgcalError(f"{where}: robot {model.name} is not the robot of the result ({mine.name}): "
+                         f"{names[i]} is {b[i] * scale:.6g} {unit} here and {a[i] * scale:.6g} {unit} in the result")
+
+
+def check_verification(d, where="verification") -> dict:
+    """Raise ``FgcalError`` unless ``d`` has the shape of an ``fgcal-verify/1`` mapping; returns it."""
+    def number(v):
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    def summary(s, label):
+        for key in ("position_mm", "orientation_deg"):
+            part = s.get(key) if isinstance(s, dict) else None
+            if key == "orientation_deg" and part is None:  # position-only data
+                continue
+            if not isinstance(part, dict) or not all(number(part.get(k)) for k in ("mean", "rms", "max")):
+                raise FgcalError(f"{where}: {label}{key} must hold numbers mean, rms and max")
+
+    if not isinstance(d, dict) or d.get("format") != "fgcal-verify/1":
+        raise FgcalError(f"{where}: not an fgcal-verify/1 file")
+    summary(d, "")
+    summary(d.get("before"), "before.")
+    if "truth" in d:
+        summary(d["truth"], "truth.")
+        summary(d["truth"].get("before"), "truth.before.")
+    poses = d.get("poses", [])
+    keys = ("position_mm", "orientation_deg", "before_position_mm", "before_orientation_deg")
+    if not isinstance(poses, list):
+        raise FgcalError(f"{where}: poses must be a list")
+    for i, p in enumerate(poses):
+        if not isinstance(p, dict) or not all(number(p.get(k)) or (k.endswith("orientation_deg") and p.get(k) is None)
+                                              for k in ("pose", *keys)):
+            raise FgcalError(f"{where}: poses[{i}] must hold numbers pose, {', '.join(keys)}")
+    return d
+
+
+def compare_poses(T_model, T_ref) -> Comparison:
+    d, delta = pose_difference(T_ref, T_model)
+    return Comparison(np.linalg.norm(d, axis=1), np.degrees(np.linalg.norm(delta, axis=1)), d)
+
+
+def compare_points(T_model, offsets_by_pose, points_by_pose) -> Comparison:
+    """Point errors: per pose, the RMS distance (mm) of its measured points from the model's."""
+    d = [w - tool_points(T[None], o)[0] for T, o, w in zip(T_model, offsets_by_pose, points_by_pose)]
+    err = np.array([np.sqrt(np.mean(np.sum(e**2, axis=1))) for e in d])
+    return Comparison(err, None, np.array([e.mean(axis=0) for e in d]).reshape(-1, 3))
+
+
+def measured_points(ds: Dataset):
+    """Measured points per pose: ``(pose_ids, offsets [(B, 3)], world [(B, 3)], skipped)``.
+
+    Ball centres from ``centres.csv``, or fitted to ``probes.csv`` (with ``fgcal measure``'s
+    quality checks) when there are no centres.
+    """
+    skipped = []
+    if ds.centres is not None:
+        centres = ds.centres
+    elif ds.probes is not None:
+        m = measure_probes(ds)
+        skipped += [f"pose {q.pose} ball {q.ball}: {q.status}" for q in m.quality if q.status != "ok"]
+        centres = m.centres
+    else:
+        raise FgcalError(f"{ds.path or 'dataset'}: no measured points to verify against")
+    ids, offs, pts = [], [], []
+    for p in ds.pose_ids:
+        sel = centres.pose == p
+        if not sel.any():
+            continue
+        ids.append(p)
+        offs.append(ds.tooling.offsets(centres.ball[sel]))
+        pts.append(centres.xyz[sel])
+    return np.array(ids, dtype=int), offs, pts, skipped
+
+
+def _full_pose_data(ds: Dataset) -> bool:
+    """Every measured pose has a full pose (poses.csv, or three or more balls)."""
+    if ds.poses is not None:
+        return True
+    obs = ds.centres if ds.centres is not None else ds.probes
+    if obs is None:
+        return False
+    balls = {}
+    for p, b in zip(obs.pose.tolist(), obs.ball.tolist()):
+        balls.setdefault(p, set()).add(b)
+    return bool(balls) and min(len(v) for v in balls.values()) >= 3
+
+
+def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verification:
+    """Compare the calibrated and nominal models with ``ds``'s measurements (and truth).
+
+    Full poses are compared where every pose has one (poses.csv, or three or more balls);
+    otherwise the measured points (ball centres, reflector positions) are.
+    """
+    slots = result.slot_vector(model)
+    truth = None
+    if ds.truth is not None:
+        missing = [n for n in model.slot_names if n not in ds.truth]
+        if missing:
+            raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
+        truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if ds.distances is not None and not ({"probes", "centres", "poses"} & set(ds.levels())):
+        return _verify_distances(ds, model, slots, truth)
+    if _full_pose_data(ds):
+        ids, T_meas, skipped = measured_poses(ds)
+        reference = "measured poses"
+    else:
+        ids, offs, pts, skipped = measured_points(ds)
+        reference = "measured points"
+    named = {s.split(":", 1)[0].split(" ball ")[0] for s in skipped}
+    have = set(np.asarray(ids).tolist())
+    skipped += [f"pose {p}: no measurement of this pose" for p in ds.pose_ids.tolist()
+                if p not in have and f"pose {p}" not in named]
+    if not len(ids):
+        raise FgcalError(f"{ds.path or 'dataset'}: no pose could be measured to verify against")
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    for message in outside_region(result, q):
+        log.warning("%s: %s", ds.path or "dataset", message)
+    T_cal = model.forward(slots, corrected_joints(result, q, model))  # joint-error block, if any
+    T_nom = model.forward(model.nominal, q)
+    if reference == "measured poses":
+        out = Verification(ids, compare_poses(T_cal, T_meas), compare_poses(T_nom, T_meas), skipped=skipped,
+                           xyz_mm=T_meas[:, :3, 3])
+    else:
+        out = Verification(ids, compare_points(T_cal, offs, pts), compare_points(T_nom, offs, pts),
+                           reference=reference, skipped=skipped,
+                           xyz_mm=np.array([w.mean(axis=0) for w in pts]).reshape(-1, 3))
+    out.robot = result.model().name
+    out.joints_deg = np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float)
+    if truth is not None:
+        T_true = model.forward(truth, q)
+        if reference == "measured poses":
+            out.truth_after, out.truth_before = compare_poses(T_cal, T_true), compare_poses(T_nom, T_true)
+        else:  # position-only data say nothing of what they cannot see: compare the measured points
+            true_pts = [tool_points(T[None], o)[0] for T, o in zip(T_true, offs)]
+            out.truth_after = compare_points(T_cal, offs, true_pts)
+            out.truth_before = compare_points(T_nom, offs, true_pts)
+    return out
+
+
+def _verify_distances(ds: Dataset, model: RobotModel, slots, truth) -> Verification:
+    """Ballbar data: per pose, the RMS over its balls of ``|model ball - pivot| - measured length`` (mm)."""
+    d = ds.distances
+    ids = np.array([p for p in ds.pose_ids if np.any(d.pose == p)], dtype=int)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    rows = [np.nonzero(d.pose == p)[0] for p in ids]
+    offs = [ds.tooling.offsets(d.ball[r]) for r in rows]
+
+    def errors(x, reference_lengths):
+        T = model.forward(x, q)
+        return Comparison(np.array([np.sqrt(np.mean((np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) - L) ** 2))
+                                    for Ti, o, L in zip(T, offs, reference_lengths)]), None)
+
+    measured = [d.length[r] for r in rows]
+    out = Verification(ids, errors(slots, measured), errors(model.nominal, measured), reference="measured distances",
+                       robot=model.name, joints_deg=np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float))
+    if truth is not None:
+        T_true = model.forward(truth, q)
+        true_lengths = [np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) for Ti, o in zip(T_true, offs)]
+        out.truth_after, out.truth_before = errors(slots, true_lengths), errors(model.nominal, true_lengths)
+    return out

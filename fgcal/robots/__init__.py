@@ -1,0 +1,4 @@
+"""Robots: serial-chain models (built-in, model files, DH/MDH tables, URDF), kinematics, inverse kinematics and compensation.
+
+Nothing is imported here: import the modules themselves (no side effects, no heavy imports).
+"""

@@ -1,0 +1,349 @@
+"""Forward kinematics and analytic Jacobians of a serial chain, vectorised over many joint sets.
+
+The chain ``T(r) = A_b L_1(v_1) ... L_{n-1}(v_{n-1}) J_n(v_n) A_t`` is a fixed sequence of
+elementary operations (rotations about, or translations along, a local axis). Each operation
+depends on at most one slot (a geometric parameter) and at most one joint variable. A revolute
+link is ``Rz(v + theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)``, a prismatic one
+``Rz(theta) Tz(v + d) Tx(a) Rx(alpha) Ry(beta)``. Joint variables ``v`` come from the readings
+``r`` by a fixed linear map ``v = M r + c`` (sign, scale, offset, coupling such as FANUC's J2/J3);
+by default ``v = r``. Differentiating the chain through an operation is then a screw about (or
+along) that operation's world axis, which gives exact Jacobians with no symbolic algebra.
+
+Units: mm and rad (prismatic readings mm). Slot vectors have ``6 + 5 (n - 1) + 6`` entries
+(37 for six joints) in :attr:`fgcal.robots.model.RobotModel.slot_names` order. Jacobians of a pose are
+``(6, ·)``: rows ``[dp_x, dp_y, dp_z, w_x, w_y, w_z]``, the world-frame translation of the tool
+origin and the world-frame rotation vector (``dR = [w]x R``), the paper's differential
+displacement and orientation (eq. 17). Jacobians with respect to joints are with respect to the
+readings. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from fgcal.robots.transforms import rot
+
+__all__ = ["ChainOp", "Chain", "chain_for", "default_chain", "check_joints", "forward", "forward_frames",
+           "ChainJacobians", "jacobians", "tool_points", "n_slots"]
+
+REVOLUTE, PRISMATIC = "revolute", "prismatic"
+
+
+@dataclass(frozen=True)
+class ChainOp:
+    """One elementary operation: ``kind`` 'R' (rotate) or 'T' (translate) about/along ``axis``."""
+
+    kind: str
+    axis: int
+    slot: int | None
+    joint: int | None
+
+
+def n_slots(n_joints: int) -> int:
+    """Number of geometric slots of an ``n_joints`` chain: base 6, 5 per link 1..n-1, tool 6."""
+    return 12 + 5 * (n_joints - 1)
+
+
+def _cross(a, b) -> np.ndarray:
+    """Cross product over the last axis; np.cross costs ~20 us of overhead per call on small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+class Chain:
+    """The operation sequence of a serial chain and the map from readings to joint variables.
+
+    Parameters
+    ----------
+    joint_types : sequence of {"revolute", "prismatic"}, length n
+    joint_map : ndarray, shape (n, n), optional
+        ``M`` of ``v = M r + c``; identity by default.
+    joint_offset : ndarray, shape (n,), optional
+        ``c`` (rad or mm); zero by default.
+    tool_offset : ndarray, shape (4, 4), optional
+        A constant transform after the tool parameters (mm); identity by default.
+    """
+
+    def __init__(self, joint_types, joint_map=None, joint_offset=None, tool_offset=None):
+        self.joint_types = tuple(str(t) for t in joint_types)
+        bad = [t for t in self.joint_types if t not in (REVOLUTE, PRISMATIC)]
+        if bad or not self.joint_types:
+            raise ValueError(f"joint types must be 'revolute' or 'prismatic' (at least one), got {joint_types!r}")
+        n = self.n_joints = len(self.joint_types)
+        self.n_slots = n_slots(n)
+        self.joint_map = None if joint_map is None else np.asarray(joint_map, dtype=float).reshape(n, n)
+        self.joint_offset = None if joint_offset is None else np.asarray(joint_offset, dtype=float).reshape(n)
+        if self.joint_map is not None and np.allclose(self.joint_map, np.eye(n), rtol=0, atol=0):
+            self.joint_map = None
+        if self.joint_offset is not None and not np.any(self.joint_offset):
+            self.joint_offset = None
+        # A constant transform after the tool's parameters (the user's tool frame where the
+        # paper's Euler angles would be singular); not calibrated.
+        self.tool_offset = None if tool_offset is None else np.asarray(tool_offset, dtype=float).reshape(4, 4)
+        if self.tool_offset is not None and np.allclose(self.tool_offset, np.eye(4), rtol=0, atol=0):
+            self.tool_offset = None
+        ops = []
+        ops += [ChainOp("R", 2, 0, None), ChainOp("R", 1, 1, None), ChainOp("R", 0, 2, None)]
+        ops += [ChainOp("T", i, 3 + i, None) for i in range(3)]
+        for k in range(n - 1):
+            s = 6 + 5 * k  # theta, d, beta, a, alpha
+            rev = self.joint_types[k] == REVOLUTE
+            ops += [ChainOp("R", 2, s, k if rev else None), ChainOp("T", 2, s + 1, None if rev else k),
+                    ChainOp("T", 0, s + 3, None), ChainOp("R", 0, s + 4, None), ChainOp("R", 1, s + 2, None)]
+        ops.append(ChainOp("R" if self.joint_types[-1] == REVOLUTE else "T", 2, None, n - 1))
+        t = self.n_slots - 6
+        ops += [ChainOp("R", 2, t, None), ChainOp("R", 1, t + 1, None), ChainOp("R", 0, t + 2, None)]
+        ops += [ChainOp("T", i, t + 3 + i, None) for i in range(3)]
+        self.ops = tuple(ops)
+        K = len(ops)
+        self.kind_rot = np.array([op.kind == "R" for op in ops])
+        self.axis = np.array([op.axis for op in ops])
+        self.slot_of_op = np.array([-1 if op.slot is None else op.slot for op in ops])
+        self.joint_of_op = np.array([-1 if op.joint is None else op.joint for op in ops])
+        self.slot_map = np.zeros((K, self.n_slots))
+        self.joint_op_map = np.zeros((K, n))
+        for k, op in enumerate(ops):
+            if op.slot is not None:
+                self.slot_map[k, op.slot] = 1.0
+            if op.joint is not None:
+                self.joint_op_map[k, op.joint] = 1.0
+        self._const_rot = [[k for k, op in enumerate(ops) if op.kind == "R" and op.joint is None and op.axis == a]
+                           for a in range(3)]
+        self._joint_rot = [k for k, op in enumerate(ops) if op.kind == "R" and op.joint is not None]
+
+    def __repr__(self) -> str:
+        return f"Chain({self.joint_types!r}, coupled={self.joint_map is not None})"
+
+    # ------------------------------------------------------------------ checks and maps
+    def check_slots(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.n_slots,):
+            raise ValueError(f"slot vector must have shape ({self.n_slots},) for {self.n_joints} joints, got {x.shape}")
+        return x
+
+    def check_joints(self, q) -> np.ndarray:
+        """Convert joint readings to a float ``(N, n)`` array; raise with the expected shape."""
+        q = np.asarray(q, dtype=float)
+        if q.ndim == 1:
+            q = q[None, :]
+        if q.ndim != 2 or q.shape[1] != self.n_joints:
+            raise ValueError(f"joint readings must have shape (N, {self.n_joints}) or ({self.n_joints},), "
+                             f"got {np.shape(q)}")
+        return q
+
+    def joint_values(self, readings) -> np.ndarray:
+        """Joint variables ``v = M r + c`` (N, n) of readings ``r`` (N, n)."""
+        v = readings if self.joint_map is None else readings @ self.joint_map.T
+        return v if self.joint_offset is None else v + self.joint_offset
+
+    def readings_of(self, values) -> np.ndarray:
+        """Readings ``r`` (N, n) that give joint variables ``values`` (inverse of :meth:`joint_values`)."""
+        v = np.asarray(values, dtype=float)
+        if self.joint_offset is not None:
+            v = v - self.joint_offset
+        return v if self.joint_map is None else np.linalg.solve(self.joint_map, v.T).T
+
+    # ------------------------------------------------------------------ kinematics
+    def _op_rotations(self, x, v):
+        """Per operation: its rotation, (3, 3) or (N, 3, 3), or None for a translation."""
+        out = [None] * len(self.ops)
+        for axis, ks in enumerate(self._const_rot):
+            if ks:
+                for k, M in zip(ks, rot(axis, x[self.slot_of_op[ks]])):
+                    out[k] = M
+        if self._joint_rot:
+            ks = self._joint_rot
+            slots = self.slot_of_op[ks]
+            offsets = np.where(slots >= 0, x[np.maximum(slots, 0)], 0.0)
+            mats = rot(2, v[:, self.joint_of_op[ks]] + offsets)  # (N, J, 3, 3)
+            for i, k in enumerate(ks):
+                out[k] = mats[:, i]
+        return out
+
+    def _translation(self, k, x, v):
+        op = self.ops[k]
+        value = x[op.slot] if op.slot is not None else 0.0
+        if op.joint is not None:
+            return (value + v[:, op.joint])[:, None]
+        return value
+
+    def forward_frames(self, x, q):
+        """Frames before every operation and the final tool frame.
+
+        Returns
+        -------
+        R_before : ndarray, shape (K, N, 3, 3)
+        p_before : ndarray, shape (K, N, 3)
+        T : ndarray, shape (N, 4, 4)
+        """
+        x = self.check_slots(x)
+        v = self.joint_values(self.check_joints(q))
+        n = v.shape[0]
+        K = len(self.ops)
+        R_before = np.empty((K, n, 3, 3))
+        p_before = np.empty((K, n, 3))
+        R = np.broadcast_to(np.eye(3), (n, 3, 3))
+        p = np.zeros((n, 3))
+        for k, M in enumerate(self._op_rotations(x, v)):
+            R_before[k] = R
+            p_before[k] = p
+            if M is not None:
+                R = R @ M
+            else:
+                p = p + R[:, :, self.ops[k].axis] * self._translation(k, x, v)
+        return R_before, p_before, self._finish(_homogeneous(R, p))
+
+    def _finish(self, T):
+        return T if self.tool_offset is None else T @ self.tool_offset
+
+    def forward(self, x, q) -> np.ndarray:
+        """Tool poses ``(N, 4, 4)`` in the world frame for joint readings ``q`` (N, n)."""
+        x = self.check_slots(x)
+        v = self.joint_values(self.check_joints(q))
+        n = v.shape[0]
+        R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        p = np.zeros((n, 3))
+        for k, op in enumerate(self.ops):
+            if op.kind == "R":
+                value = x[op.slot] if op.slot is not None else 0.0
+                if op.joint is None:
+                    if value != 0.0:
+                        R = R @ rot(op.axis, value)
+                else:
+                    R = R @ rot(op.axis, value + v[:, op.joint])
+            else:
+                t = self._translation(k, x, v)
+                if np.any(t != 0.0):
+                    p = p + R[:, :, op.axis] * t
+        return self._finish(_homogeneous(R, p))
+
+    def jacobians(self, x, q, offsets=None) -> "ChainJacobians":
+        """Analytic Jacobians of the tool pose, and of tool-frame points, w.r.t. slots and readings.
+
+        Parameters
+        ----------
+        x : array_like, shape (S,)
+            Slot values (mm, rad).
+        q : array_like, shape (N, n)
+            Joint readings (rad or mm).
+        offsets : array_like, shape (B, 3) or (N, B, 3), optional
+            Tool-frame points (mm), for example ball centres: the same at every pose, or per pose.
+        """
+        R_before, p_before, T = self.forward_frames(x, q)
+        n = T.shape[0]
+        p_tool = T[:, :3, 3]
+        axes = R_before[np.arange(len(self.ops)), :, :, self.axis]  # (K, N, 3) world axis of each op
+        rot_ops = self.kind_rot[:, None, None]
+        # A rotation moves a point by axis x (point - origin); a translation by the axis itself.
+        d_pos = np.where(rot_ops, _cross(axes, p_tool[None] - p_before), axes)
+        d_rot = np.where(rot_ops, axes, 0.0)
+        d_pose = np.concatenate([d_pos, d_rot], axis=2)  # (K, N, 6)
+        pose_slots = np.einsum("knr,ks->nrs", d_pose, self.slot_map)
+        pose_joints = self._to_readings(np.einsum("knr,kj->nrj", d_pose, self.joint_op_map))
+        out = ChainJacobians(T=T, pose_slots=pose_slots, pose_joints=pose_joints)
+        if offsets is not None:
+            offsets = np.asarray(offsets, dtype=float)
+            offsets = offsets.reshape(-1, 3) if offsets.ndim < 3 else offsets
+            if offsets.ndim == 3 and offsets.shape[0] != n:
+                raise ValueError(f"per-pose offsets must have shape ({n}, B, 3), got {offsets.shape}")
+            points = tool_points(T, offsets)
+            d_pts = np.where(rot_ops[..., None], _cross(axes[:, :, None, :], points[None] - p_before[:, :, None, :]),
+                             axes[:, :, None, :])  # (K, N, B, 3)
+            out.points = points
+            out.point_slots = np.einsum("knbr,ks->nbrs", d_pts, self.slot_map)
+            out.point_joints = self._to_readings(np.einsum("knbr,kj->nbrj", d_pts, self.joint_op_map))
+        return out
+
+    def _to_readings(self, J_values):
+        """Chain rule from joint variables to readings: ``dv/dr = M``."""
+        return J_values if self.joint_map is None else J_values @ self.joint_map
+
+
+def _homogeneous(R, p) -> np.ndarray:
+    T = np.zeros((R.shape[0], 4, 4))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = p
+    T[:, 3, 3] = 1.0
+    return T
+
+
+@lru_cache(maxsize=64)
+def _all_revolute(n: int) -> Chain:
+    return Chain((REVOLUTE,) * n)
+
+
+def default_chain(n_joints: int = 6) -> Chain:
+    """The all-revolute, uncoupled chain of ``n_joints`` joints (the built-in robots' kind)."""
+    return _all_revolute(int(n_joints))
+
+
+def chain_for(x, chain: Chain | None = None) -> Chain:
+    """``chain``, or the all-revolute uncoupled chain whose slot count matches ``x``."""
+    if chain is not None:
+        return chain
+    size = np.shape(x)[0] if np.ndim(x) else 0
+    if size < 12 or (size - 12) % 5:
+        raise ValueError(f"slot vector of shape ({size},) fits no chain: expected (12 + 5 (n - 1),), "
+                         "for example (37,) for 6 joints")
+    return default_chain((size - 12) // 5 + 1)
+
+
+def check_joints(q, n_joints: int = 6) -> np.ndarray:
+    """Convert joint readings to a float ``(N, n_joints)`` array; raise with the expected shape."""
+    return default_chain(n_joints).check_joints(q)
+
+
+def forward_frames(x, q, chain: Chain | None = None):
+    """See :meth:`Chain.forward_frames`; ``chain`` defaults to the all-revolute chain of ``x``."""
+    return chain_for(x, chain).forward_frames(x, q)
+
+
+def forward(x, q, chain: Chain | None = None) -> np.ndarray:
+    """Tool poses ``(N, 4, 4)``; see :meth:`Chain.forward`."""
+    return chain_for(x, chain).forward(x, q)
+
+
+def tool_points(T, offsets) -> np.ndarray:
+    """World positions ``(N, B, 3)`` of tool-frame points at poses ``T`` (N, 4, 4).
+
+    ``offsets`` is ``(B, 3)`` (the same points at every pose) or ``(N, B, 3)`` (per pose).
+    """
+    offsets = np.asarray(offsets, dtype=float)
+    if offsets.ndim == 3:
+        return T[:, None, :3, 3] + np.einsum("nij,nbj->nbi", T[:, :3, :3], offsets)
+    offsets = offsets.reshape(-1, 3)
+    return T[:, None, :3, 3] + np.einsum("nij,bj->nbi", T[:, :3, :3], offsets)
+
+
+@dataclass
+class ChainJacobians:
+    """Tool poses and their Jacobians at N joint readings.
+
+    Attributes
+    ----------
+    T : ndarray, shape (N, 4, 4)
+        Tool poses (mm).
+    pose_slots : ndarray, shape (N, 6, S)
+        d[p; w] / d slots (mm per mm, mm per rad; rad per mm, rad per rad).
+    pose_joints : ndarray, shape (N, 6, n)
+        d[p; w] / d readings.
+    points : ndarray, shape (N, B, 3) or None
+        World positions of the requested tool-frame points.
+    point_slots : ndarray, shape (N, B, 3, S) or None
+    point_joints : ndarray, shape (N, B, 3, n) or None
+    """
+
+    T: np.ndarray
+    pose_slots: np.ndarray
+    pose_joints: np.ndarray
+    points: np.ndarray | None = None
+    point_slots: np.ndarray | None = None
+    point_joints: np.ndarray | None = None
+
+
+def jacobians(x, q, offsets=None, chain: Chain | None = None) -> ChainJacobians:
+    """See :meth:`Chain.jacobians`; ``chain`` defaults to the all-revolute chain of ``x``."""
+    return chain_for(x, chain).jacobians(x, q, offsets)

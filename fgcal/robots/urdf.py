@@ -1,0 +1,211 @@
+"""URDF export of a (calibrated) chain.
+
+Two forms:
+
+* :func:`to_urdf` writes any model's chain: a fixed joint ``world -> base_link`` with the base
+  transform, one joint per actuated joint whose origin is the previous link's fixed part
+  (``M_k = Rz(theta_k) Tz(d_k) Tx(a_k) Rx(alpha_k) Ry(beta_k)``), and a fixed joint to a ``tool``
+  link. Joint names are the model's.
+* :func:`calibrated_urdf` writes a calibrated *copy* of the URDF a model was imported from: the
+  same links, joints, limits, efforts, velocities, inertials and visuals, with the calibrated
+  origins of the actuated joints 2..n, a ``world`` root (the measuring instrument's frame) placed
+  by the calibrated base, and a ``tool`` link on the tip link (the calibrated tool frame).
+
+Lengths are written in metres, as URDF requires, with round-trip precision. No I/O here.
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from fgcal.robots.model import EULER_FIELDS, RobotModel
+from fgcal.robots.transforms import euler_zyx_trans, rot
+
+__all__ = ["chain_origins", "to_urdf", "calibrated_urdf", "export_urdf", "rpy"]
+
+
+def rpy(R) -> tuple[float, float, float]:
+    """URDF roll, pitch, yaw (rad) of a rotation matrix: ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
+    R = np.asarray(R, dtype=float)
+    s = -R[2, 0]
+    if abs(s) > 1 - 1e-12:  # gimbal lock: put everything in roll
+        pitch = np.copysign(np.pi / 2, s)
+        return float(np.arctan2(-R[1, 2], R[1, 1])), float(pitch), 0.0
+    return float(np.arctan2(R[2, 1], R[2, 2])), float(np.arcsin(s)), float(np.arctan2(R[1, 0], R[0, 0]))
+
+
+def chain_origins(model: RobotModel, slots) -> list[np.ndarray]:
+    """The n + 1 fixed transforms (4, 4), mm: ``A_b, M_1 ... M_{n-1}, A_t``."""
+    x = np.asarray(slots, dtype=float)
+    out = [euler_zyx_trans(*[x[model.slot(f"base.{f}")] for f in EULER_FIELDS])]
+    for j in model.link_names:
+        v = {f: x[model.slot(f"{j}.{f}")] for f in ("theta", "d", "a", "alpha", "beta")}
+        M = np.eye(4)
+        Rz = rot(2, v["theta"])
+        M[:3, :3] = Rz @ rot(0, v["alpha"]) @ rot(1, v["beta"])
+        M[:3, 3] = Rz @ np.array([v["a"], 0.0, v["d"]])
+        out.append(M)
+    out.append(euler_zyx_trans(*[x[model.slot(f"tool.{f}")] for f in EULER_FIELDS]))
+    return out
+
+
+def _xyz_rpy(T) -> tuple[str, str]:
+    return (" ".join(repr(float(v) / 1000.0) for v in T[:3, 3]), " ".join(repr(v) for v in rpy(T[:3, :3])))
+
+
+def _origin(T) -> str:
+    xyz, angles = _xyz_rpy(T)
+    return f'<origin xyz="{xyz}" rpy="{angles}"/>'
+
+
+def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
+    """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad.
+
+    Effort and velocity limits are not part of a model file; they are written as 1e6 (effectively
+    unlimited) rather than 0, which URDF consumers (MoveIt, Gazebo) read as "cannot move".
+    """
+    name = name or model.name
+    origins = chain_origins(model, slots)
+    lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(name)}>",
+             "  <!-- written by fgcal: joint origins carry the calibrated geometry; lengths in metres;"
+             " effort and velocity limits unknown to fgcal (1e6) -->",
+             '  <link name="world"/>', '  <link name="base_link"/>',
+             '  <joint name="base_mount" type="fixed"><parent link="world"/><child link="base_link"/>'
+             f"{_origin(origins[0])}</joint>"]
+    parent = "base_link"
+    limits = model.joint_limits.copy()
+    prismatic = ~model.joint_is_angle
+    limits[prismatic] /= 1000.0
+    for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
+        M = np.eye(4) if k == 0 else origins[k]
+        lo, hi = limits[k]
+        child = f"link_{jname}"
+        lines.append(f"  <link name={quoteattr(child)}/>")
+        lines.append(f'  <joint name={quoteattr(jname)} type="{kind.value}"><parent link={quoteattr(parent)}/>'
+                     f"<child link={quoteattr(child)}/>{_origin(M)}<axis xyz=\"0 0 1\"/>"
+                     f'<limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/></joint>')
+        parent = child
+    lines.append('  <link name="tool"/>')
+    lines.append(f'  <joint name="tool_mount" type="fixed"><parent link={quoteattr(parent)}/><child link="tool"/>'
+                 f"{_origin(origins[-1] @ model.tool_offset_matrix)}</joint>")
+    lines.append("</robot>")
+    return "\n".join(lines) + "\n"
+
+
+def _joint_frames(model: RobotModel, slots) -> list[np.ndarray]:
+    """World frames (4, 4) of the chain's joints before their motion, at q = 0 (mm)."""
+    chain = model.chain
+    R_before, p_before, _ = chain.forward_frames(slots, np.zeros((1, model.n_joints)))
+    firsts = []
+    for k in range(model.n_joints):
+        # The first operation of link k (Rz(theta_k ...)), or the last joint's own motion.
+        ops = [i for i, op in enumerate(chain.ops) if op.joint == k]
+        first = ops[0] - (1 if model.joint_types[k].value == "prismatic" and k < model.n_joints - 1 else 0)
+        firsts.append(first)
+    out = []
+    for i in firsts:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R_before[i, 0], p_before[i, 0]
+        out.append(T)
+    return out
+
+
+def calibrated_urdf(model: RobotModel, slots) -> str:
+    """A calibrated copy of the URDF ``model`` was imported from (see the module docstring)."""
+    from fgcal.robots.urdf_import import parse_urdf, urdf_chain
+
+    info = model.extra["urdf"]
+    text = info["text"]
+    _, joints, links = parse_urdf(text, model.name)
+    chain = urdf_chain(joints, links, info["base"], info["tip"], model.name)
+    C = [np.array(c, dtype=float) for c in info["frame_changes"]]
+    F = _joint_frames(model, slots)
+    Jw = [Fk @ Ck for Fk, Ck in zip(F, C)]  # calibrated URDF joint frames at q = 0 (world)
+    root = ET.fromstring(text)
+    elements = {e.get("name"): e for e in root.findall("joint")}
+    moving = [j for j in chain if j.kind != "fixed"]
+    index = {j.name: k for k, j in enumerate(moving)}
+    # Walk the chain: the parent-link frame of each joint, with fixed joints as they are.
+    T_parent = None
+    k_prev = -1
+    for j in chain:
+        if j.kind == "fixed":
+            if T_parent is not None:
+                T_parent = T_parent @ j.origin
+            continue
+        k = index[j.name]
+        if k > 0:
+            origin = np.linalg.inv(T_parent) @ Jw[k]
+            _set_origin(elements[j.name], origin)
+        T_parent = Jw[k]
+        k_prev = k
+    assert k_prev == model.n_joints - 1
+    # world -> URDF root: the root's calibrated placement, so that joint 1 lands on Jw[0].
+    to_first = np.eye(4)
+    for j in _path_to_root(joints, links, chain[0].parent) + chain[:chain.index(moving[0]) + 1]:
+        to_first = to_first @ j.origin
+    world_root = Jw[0] @ np.linalg.inv(to_first)
+    roots = [lk for lk in links if lk not in {j.child for j in joints.values()}]
+    if roots[0] == "world":
+        # The URDF's own root is called world: it becomes the instrument frame, and the joint below
+        # it on the way to the chain carries the calibrated placement.
+        first = (_path_to_root(joints, links, chain[0].parent) + chain)[0]
+        _set_origin(elements[first.name], world_root @ first.origin)
+    else:
+        _add_link(root, "world", first=True)
+        _add_fixed(root, "world_to_" + roots[0], "world", roots[0], world_root)
+    # tip -> tool: the calibrated tool frame relative to the tip link.
+    T_world_tip = Jw[-1]
+    after = chain[chain.index(moving[-1]) + 1:]
+    for j in after:
+        T_world_tip = T_world_tip @ j.origin
+    x = np.asarray(slots, dtype=float)
+    A_t = euler_zyx_trans(*[x[model.slot(f"tool.{f}")] for f in EULER_FIELDS])
+    tool = np.linalg.inv(T_world_tip) @ F[-1] @ A_t @ model.tool_offset_matrix
+    tool_name = "tool" if "tool" not in links else "fgcal_tool"
+    _add_link(root, tool_name)
+    _add_fixed(root, f"{tool_name}_mount", info["tip"], tool_name, tool)
+    root.insert(0, ET.Comment(" calibrated by fgcal: actuated joint origins, world root (measuring instrument) and "
+                              "tool link; lengths in metres "))
+    return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def _path_to_root(joints, links, link) -> list:
+    by_child = {j.child: j for j in joints.values()}
+    path = []
+    while link in by_child:
+        j = by_child[link]
+        path.append(j)
+        link = j.parent
+    return path[::-1]
+
+
+def _set_origin(element, T) -> None:
+    o = element.find("origin")
+    if o is None:
+        o = ET.SubElement(element, "origin")
+    o.set("xyz", _xyz_rpy(T)[0])
+    o.set("rpy", _xyz_rpy(T)[1])
+
+
+def _add_link(root, name, first=False) -> None:
+    e = ET.Element("link", {"name": name})
+    if first:
+        root.insert(0, e)
+    else:
+        root.append(e)
+
+
+def _add_fixed(root, name, parent, child, T) -> None:
+    e = ET.SubElement(root, "joint", {"name": name, "type": "fixed"})
+    ET.SubElement(e, "parent", {"link": parent})
+    ET.SubElement(e, "child", {"link": child})
+    xyz, angles = _xyz_rpy(T)
+    ET.SubElement(e, "origin", {"xyz": xyz, "rpy": angles})
+
+
+def export_urdf(model: RobotModel, slots) -> str:
+    """The calibrated URDF: a copy of the user's URDF when the model came from one, else :func:`to_urdf`."""
+    return calibrated_urdf(model, slots) if "urdf" in model.extra else to_urdf(model, slots)

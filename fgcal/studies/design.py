@@ -1,0 +1,293 @@
+"""Which poses to measure: observability indices and optimal experiment design.
+
+The information a pose brings about the parameters is the estimator's own (built from its
+measurement definitions, :mod:`fgcal.studies.design_info`): probed balls, ball centres or tracker
+reflectors, full poses, with the joint readings' noise, which moves all of a pose's measurements
+together and is what makes some poses far less informative than their Jacobian alone suggests.
+Indices on the information scaled by the expected parameter errors:
+
+* O1 (Borm & Menq): ``(s_1 ... s_L)^(1/L) / sqrt(m)``; O2: ``s_min / s_max``; O3: ``s_min``;
+  O4 (noise amplification): ``s_min^2 / s_max``; O5: ``1 / sum(1 / s_i)``;
+* ``pred``: the predicted position error RMS (mm) at verification poses drawn like the
+  candidates, ``sqrt(trace(W Sigma))``: the accuracy the calibration is for.
+
+Plans are chosen from a candidate pool by a greedy start and the DETMAX exchange (Mitchell
+1974: add the best candidate, remove the worst design point, until nothing improves). No I/O.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgcal.measurements.dataset import Noise
+from fgcal.errors import FgcalError
+from fgcal.estimation.graph import Sigmas
+from fgcal.studies.design_info import Layout, information, layout_from_access
+from fgcal.estimation.identifiability import analyse_information
+from fgcal.robots.model import ParameterSet, RobotModel
+from fgcal.studies.simulate import PLAN_MARGIN_DEG, PLAN_MARGIN_MM, Deviations
+
+__all__ = ["INDICES", "pose_information", "indices", "predicted_rms", "Design", "design_plan", "candidate_pool",
+           "verification_weight", "Candidates", "random_design_values"]
+
+log = logging.getLogger(__name__)
+
+INDICES = ("O1", "O2", "O3", "O4", "O5", "pred")
+
+
+def pose_information(model: RobotModel, q, noise: Noise, params: ParameterSet | None = None, slots=None,
+                     n_balls: int = 3, probes_per_ball: int = 4, levels=("probes",)):
+    """Per-pose information about the parameters, ``(N, P, P)`` (internal units).
+
+    The ``n_balls`` most accessible balls of each pose are measured at ``levels`` (see
+    :mod:`fgcal.studies.design_info`). Also returns ``usable`` (N,) bool: the pose gives measurements.
+    """
+    layout = layout_from_access(model, q, levels, n_balls, slots, probes_per_ball)
+    return information(model, q, layout, noise, params, slots), layout.usable()
+
+
+def verification_weight(model: RobotModel, q_verify, params: ParameterSet | None = None, slots=None) -> np.ndarray:
+    """``W`` (P, P) with ``trace(W Sigma)`` the mean squared tool-position error at ``q_verify``."""
+    params = params or model.parameters()
+    x = model.nominal if slots is None else np.asarray(slots, dtype=float)
+    J = model.chain.jacobians(x, np.atleast_2d(q_verify)).pose_slots[:, :3][:, :, params.index]
+    return np.einsum("nrp,nrq->pq", J, J) / len(J)
+
+
+def predicted_rms(info, W) -> float:
+    """Predicted position error RMS (mm) at the verification poses of ``W``, given information."""
+    try:
+        return float(np.sqrt(max(np.trace(W @ np.linalg.inv(info)), 0.0)))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def indices(info, m: int, scale, W=None) -> dict[str, float]:
+    """O1-O5 of ``info`` (P, P) scaled by the expected parameter errors ``scale`` (P,), and ``pred``."""
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(info * np.outer(scale, scale)), 0.0, None))[::-1]
+    out = {"O1": float(np.exp(np.mean(np.log(np.maximum(s, 1e-300)))) / np.sqrt(m)),
+           "O2": float(s[-1] / s[0]) if s[0] > 0 else 0.0, "O3": float(s[-1]),
+           "O4": float(s[-1] ** 2 / s[0]) if s[0] > 0 else 0.0,
+           "O5": float(1.0 / np.sum(1.0 / np.maximum(s, 1e-300)))}
+    if W is not None:
+        out["pred"] = predicted_rms(info, W)
+    return out
+
+
+def _scores(infos, scale, index: str, W=None) -> np.ndarray:
+    """Criterion (larger is better) for a batch of information matrices (K, P, P); never NaN."""
+    if index == "pred":
+        try:
+            cov = np.linalg.inv(infos)
+            out = -np.sqrt(np.clip(np.einsum("pq,kqp->k", W, cov), 0.0, None))
+        except np.linalg.LinAlgError:
+            out = np.array([-predicted_rms(I, W) for I in infos])
+        return np.where(np.isfinite(out), out, -np.inf)
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(infos * np.outer(scale, scale)[None]), 1e-300, None))
+    if index == "O1":
+        out = np.mean(np.log(s), axis=1)  # log of det^(1/L): same order, no overflow
+    elif index == "O2":
+        out = s[:, 0] / s[:, -1]
+    elif index == "O3":
+        out = s[:, 0]
+    elif index == "O4":
+        out = s[:, 0] ** 2 / s[:, -1]
+    elif index == "O5":
+        out = 1.0 / np.sum(1.0 / s, axis=1)
+    else:
+        raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
+    return np.where(np.isfinite(out), out, -np.inf)
+
+
+def _low_rank(info, rtol: float = 1e-12):
+    """Factors ``L`` (K, P, r) with ``info[k] = L[k] L[k]^T``, or None when the poses' information
+    is not of low rank (then a rank-r update is no cheaper than an inverse)."""
+    w, V = np.linalg.eigh(info)
+    r = int((w > rtol * np.maximum(w[:, -1:], 1e-300)).sum(axis=1).max(initial=0))
+    if r == 0 or 2 * r > info.shape[1]:
+        return None
+    return V[:, :, -r:] * np.sqrt(np.clip(w[:, None, -r:], 0.0, None))
+
+
+def _pred_update(total, L, W, sign: float) -> np.ndarray:
+    """``pred`` score (minus the predicted RMS) of ``total + sign L_k L_k^T`` for every k, by the
+    Woodbury identity: ``tr(W (T + s L L^T)^-1) = tr(W C) - s tr((I + s L^T C L)^-1 L^T C W C L)``
+    with ``C = T^-1``; r-by-r solves instead of P-by-P inverses."""
+    C = np.linalg.inv(total)
+    CL = C @ L
+    G = np.swapaxes(L, 1, 2) @ CL
+    H = np.swapaxes(CL, 1, 2) @ W @ CL
+    eye = np.eye(L.shape[2])[None]
+    try:
+        change = np.einsum("kii->k", np.linalg.solve(eye + sign * G, H))
+    except np.linalg.LinAlgError:
+        return _scores(total[None] + sign * L @ np.swapaxes(L, 1, 2), None, "pred", W)
+    out = -np.sqrt(np.clip(np.trace(W @ C) - sign * change, 0.0, None))
+    return np.where(np.isfinite(out), out, -np.inf)
+
+
+@dataclass
+class Design:
+    """A chosen plan: joint sets (rad), their indices in the pool, and its index values."""
+
+    q: np.ndarray
+    chosen: np.ndarray
+    values: dict[str, float]
+    index: str
+    iterations: int
+
+
+def candidate_pool(model: RobotModel, n: int, rng: np.random.Generator, n_balls: int = 3, levels=("probes",),
+                   max_tries: int = 200_000) -> np.ndarray:
+    """``n`` random joint sets (n, joints) rad that the instrument measures on the nominal robot,
+    with the planning margins (the actual robot is a few mm off).
+
+    At most ``max_tries`` joint sets are drawn; :class:`FgcalError` says so when too few qualify.
+    """
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    n_balls = min(n_balls, len(model.tooling.balls)) if model.tooling is not None else 0
+    out, found, tries = [], 0, 0
+    while found < n:
+        if tries >= max_tries:
+            raise FgcalError(f"only {found} of {tries} random joint sets of {model.name} let the instrument measure "
+                             f"{n_balls} ball(s) ({', '.join(levels)}); {n} candidates asked for: enlarge the "
+                             "measuring volume or ask for fewer candidates")
+        q = rng.uniform(lo, hi, size=(4 * n, len(lo)))
+        tries += len(q)
+        good = q[layout_from_access(model, q, levels, n_balls, margin_mm=PLAN_MARGIN_MM,
+                                    margin_deg=PLAN_MARGIN_DEG).usable()]
+        out.append(good)
+        found += len(good)
+    return np.vstack(out)[:n]
+
+
+@dataclass
+class Candidates:
+    """A candidate pool with each pose's information and the verification weight.
+
+    ``names`` are the parameters designed for: those of the model that the whole pool can
+    identify; ``dropped`` names the others (with the parameters each is confused with).
+    """
+
+    q: np.ndarray
+    info: np.ndarray
+    usable: np.ndarray
+    W: np.ndarray
+    scale: np.ndarray
+    names: tuple = ()
+    dropped: dict = field(default_factory=dict)
+
+    @classmethod
+    def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
+              layout: Layout | None = None, params: ParameterSet | None = None, slots=None,
+              sigmas: Sigmas | None = None):
+        """Information of every candidate (measured as ``layout`` says; by default the three most
+        accessible balls, probed) and the weight of the accuracy at ``q_verify``, linearised at
+        ``slots`` (the nominal by default); ``sigmas`` (the graph's noise) replaces ``noise``'s
+        declared values, for example with those estimated from a dataset."""
+        params = params or model.parameters()
+        q = np.atleast_2d(np.asarray(candidates, dtype=float))
+        layout = layout if layout is not None else layout_from_access(model, q, ("probes",))
+        usable = layout.usable()
+        if not usable.any():
+            raise FgcalError(f"none of the {len(q)} candidate poses gives a measurement "
+                             f"({', '.join(layout.levels)}): no ball is accessible at any of them")
+        info = information(model, q, layout, noise, params, slots, sigmas)
+        W = verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
+        scale = deviations.sigmas(params.names)
+        dropped = analyse_information(info[usable].sum(axis=0), params.names).redundant
+        keep = np.array([n not in dropped for n in params.names])
+        if dropped:
+            log.warning("not identifiable from any of these %d candidates, so not designed for: %s", usable.sum(),
+                        ", ".join(dropped))
+            info, W, scale = info[:, keep][:, :, keep], W[keep][:, keep], scale[keep]
+        return cls(q, info, usable, W, scale, tuple(np.array(params.names)[keep]), dropped)
+
+    def values(self, sel) -> dict[str, float]:
+        """O1-O5 and ``pred`` of the plan made of candidates ``sel``."""
+        return indices(self.info[sel].sum(axis=0), len(sel), self.scale, self.W)
+
+
+def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index: str = "pred",
+                q_verify=None, deviations: Deviations = Deviations(), max_iterations: int = 200,
+                ridge: float = 1e-9, prepared: Candidates | None = None, progress=None) -> Design:
+    """Choose ``n_poses`` of ``candidates`` (K, joints) rad maximising ``index`` (greedy, then DETMAX).
+
+    ``q_verify`` (default: the candidates) are the poses whose accuracy ``pred`` predicts;
+    ``prepared`` reuses a :class:`Candidates` built once for several designs. At most
+    ``max_iterations`` exchanges; ``progress(text)`` hears of each step. Raises
+    :class:`FgcalError` (one line) when there are fewer usable candidates than poses, or when no
+    plan of ``n_poses`` of them can identify the parameters.
+    """
+    if index not in INDICES:
+        raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
+    prep = prepared or Candidates.build(model, candidates, noise, q_verify, deviations)
+    scale, W = prep.scale, prep.W
+    pool = np.nonzero(prep.usable)[0]
+    if len(pool) < n_poses:
+        raise FgcalError(f"only {len(pool)} usable candidate poses for a plan of {n_poses}: give more candidates "
+                         "or ask for fewer poses")
+    info = prep.info[pool]
+    n_par = len(scale)
+    sv = np.linalg.svd(info * np.outer(scale, scale)[None], compute_uv=False)
+    ranks = (sv > 1e-9 * np.maximum(sv[:, :1], 1e-300)).sum(axis=1)
+    if np.sort(ranks)[::-1][:n_poses].sum() < n_par:
+        need = int(np.ceil(n_par / max(ranks.max(initial=0), 1)))
+        raise FgcalError(f"{n_poses} poses of these candidates cannot identify the {n_par} parameters (each pose "
+                         f"gives at most {ranks.max(initial=0)} independent equations): at least {need} poses needed")
+    say = progress or (lambda text: None)
+    factors = _low_rank(info) if index == "pred" else None
+
+    def batch(total, sign, members):
+        """Scores of ``total + sign * info[m]`` for each candidate m of ``members``."""
+        if factors is not None:
+            return _pred_update(total, factors[members], W, sign)
+        return _scores(total[None] + sign * info[members], scale, index, W)
+
+    # A vanishing ridge (relative to the parameters' expected spread) makes the first, rank
+    # deficient steps of the greedy start well defined; it does not change the final choice.
+    base = np.diag(ridge / scale**2)
+    chosen: list[int] = []
+    total = base.copy()
+    for step in range(n_poses):
+        scores = batch(total, 1.0, slice(None))
+        scores[chosen] = -np.inf
+        j = int(np.argmax(scores))
+        chosen.append(j)
+        total = total + info[j]
+        say(f"greedy start: {step + 1} of {n_poses} poses")
+
+    def score_of(sel):
+        return float(_scores((base + info[sel].sum(axis=0))[None], scale, index, W)[0])
+
+    best = score_of(chosen)
+    it = 0
+    for it in range(1, max_iterations + 1):
+        # DETMAX excursion of size one: add the best candidate, then drop the weakest point.
+        total = base + info[chosen].sum(axis=0)
+        add = batch(total, 1.0, slice(None))
+        add[chosen] = -np.inf
+        j = int(np.argmax(add))
+        grown = chosen + [j]
+        drop = batch(total + info[j], -1.0, grown)
+        k = int(np.argmax(drop))
+        new = [c for i, c in enumerate(grown) if i != k]
+        new_score = score_of(new)
+        if not new_score > best + 1e-12 * abs(best):
+            break
+        chosen, best = new, new_score
+        say(f"exchange {it} (at most {max_iterations}): {index} {abs(best):.4g}")
+    sel = pool[np.array(chosen)]
+    values = prep.values(sel)
+    if index == "pred" and not np.isfinite(values["pred"]):
+        raise FgcalError(f"no plan of {n_poses} of these candidates identifies the {n_par} parameters: "
+                         "ask for more poses")
+    return Design(prep.q[sel], sel, values, index, it)
+
+
+def random_design_values(prepared: Candidates, n_poses: int, rng: np.random.Generator):
+    """A random ``n_poses`` subset of the usable candidates and its index values (for comparison)."""
+    sel = rng.choice(np.nonzero(prepared.usable)[0], size=n_poses, replace=False)
+    return sel, prepared.values(sel)

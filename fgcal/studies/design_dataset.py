@@ -1,0 +1,260 @@
+"""Which of a dataset's poses (or of the user's candidate poses) to measure.
+
+The robot, tool, measurement levels and noise are the dataset's; what each candidate pose would
+measure is what the dataset measured there (its balls, its levels), or, for candidates given
+as joints only, the balls the instrument reaches there (:func:`fgcal.studies.design_info.layout_from_access`,
+as many balls per pose as the dataset usually has). The plan keeps the candidates' pose ids.
+Its predicted accuracy is compared with random plans of the same size from the same candidates.
+
+The noise designed for is, by default, the one the calibration will use: each level's noise
+(variance component) estimated by calibrating the dataset once, and the information is
+linearised at that calibrated geometry (:func:`dataset_noise`). On real data the estimated noise
+holds the robot's unmodelled errors (on the Landgraf UR10 0.25 mm per pose against the tracker's
+stated 0.011 mm), so the plan's predicted accuracy is the one a calibration from it reaches.
+No file I/O here (see :func:`save_plan`).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from fgcal.measurements.dataset import Dataset
+from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
+from fgcal.studies.design import Candidates, design_plan, random_design_values
+from fgcal.studies.design_info import DESIGNED_LEVELS, Layout, layout_from_access, sigmas_of
+from fgcal.errors import FgcalError
+from fgcal.estimation.graph import Sigmas
+from fgcal.estimation.noise import COMPONENTS, NoiseMode
+from fgcal.robots.model import RobotModel
+
+__all__ = ["DATASET_INDEX", "DatasetDesign", "DesignNoise", "dataset_noise", "dataset_layout", "design_from_dataset",
+           "save_plan", "load_plan"]
+
+log = logging.getLogger(__name__)
+
+# The criterion of a design from a dataset: the predicted position error RMS at the candidates
+# (I-optimality over the workspace the candidates sample), at the dataset's estimated noise.
+DATASET_INDEX = "pred"
+
+
+@dataclass
+class DatasetDesign:
+    """A plan chosen from candidate poses, with its predicted accuracy and that of random plans.
+
+    Attributes
+    ----------
+    pose_ids : ndarray of int, shape (n,)
+        The candidates' own pose ids.
+    joints_deg : ndarray, shape (n, joints)
+    index : str
+        The criterion maximised.
+    values : dict of str to float
+        O1-O5 and ``pred`` (predicted position error RMS at poses like the candidates, mm).
+    random_pred : ndarray, shape (k,)
+        ``pred`` of ``k`` random plans of n poses from the same usable candidates (mm).
+    levels : tuple of str
+    n_candidates, n_usable : int
+    iterations : int
+        DETMAX exchanges made.
+    dropped : dict of str to list of str
+        Parameters no candidate can identify (not designed for), with those they are confused with.
+    noise : dict of str to (float, float, str)
+        Per variance component: declared and designed-for sigma and unit (see :class:`DesignNoise`).
+    noise_mode : NoiseMode
+    """
+
+    pose_ids: np.ndarray
+    joints_deg: np.ndarray
+    index: str
+    values: dict
+    random_pred: np.ndarray
+    levels: tuple
+    n_candidates: int
+    n_usable: int
+    iterations: int
+    dropped: dict = field(default_factory=dict)
+    noise: dict = field(default_factory=dict)
+    noise_mode: NoiseMode = NoiseMode.DECLARED
+
+    def random_quartiles(self) -> tuple[float, float, float]:
+        """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
+        return tuple(float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
+
+    def summary(self) -> list[str]:
+        lo, med, hi = self.random_quartiles()
+        lines = [f"designed {len(self.pose_ids)} poses from {self.n_usable} usable of {self.n_candidates} candidates "
+                 f"({', '.join(self.levels)}) by {self.index} ({self.iterations} DETMAX steps)",
+                 "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")),
+                 f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
+                 f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
+                 f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
+        if self.noise:
+            lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
+                f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
+        if self.dropped:
+            lines.append(f"  not identifiable from these candidates, not designed for: {', '.join(self.dropped)}")
+        return lines
+
+
+@dataclass
+class DesignNoise:
+    """The noise a design is for, and where its information is linearised.
+
+    Attributes
+    ----------
+    sigmas : Sigmas or None
+        The graph's noise per factor kind; None: the dataset's declared noise.
+    slots : ndarray, shape (S,), or None
+        Linearisation point (internal units); None: the nominal geometry.
+    levels : dict of str to (float, float, str)
+        Per variance component (:data:`fgcal.noise.COMPONENTS`): declared sigma, sigma designed
+        for, unit.
+    mode : NoiseMode
+    """
+
+    sigmas: Sigmas | None
+    slots: np.ndarray | None
+    levels: dict
+    mode: NoiseMode
+
+
+def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ESTIMATED, progress=None) -> DesignNoise:
+    """The noise to design for: ``estimated`` (default) calibrates ``ds`` once (all its poses,
+    the estimator's default options) and takes each level's noise as the calibration estimated
+    it (the variance components: measurement noise plus whatever the model does not explain),
+    linearised at the calibrated geometry; ``declared`` keeps dataset.yaml's noise at the
+    nominal geometry. A dataset that cannot be calibrated falls back to ``declared`` (logged).
+    """
+    mode = NoiseMode(mode)
+    if mode is NoiseMode.DECLARED:
+        return DesignNoise(None, _linearisation_point(ds, model), {}, mode)
+    from fgcal.estimation.calibrate import calibrate
+
+    if progress is not None:
+        progress(f"calibrating {ds.path or 'the dataset'} ({ds.n_poses} poses) for its noise")
+    try:
+        result = calibrate(ds, model)
+    except (FgcalError, RuntimeError, np.linalg.LinAlgError) as exc:
+        log.warning("design: %s could not be calibrated for its noise (%s); designing for the declared noise",
+                    ds.path or "the dataset", str(exc).strip().split("\n")[0])
+        return DesignNoise(None, _linearisation_point(ds, model), {}, NoiseMode.DECLARED)
+    sig = sigmas_of(ds.noise, model)
+    scaled, levels = {}, {}
+    for name, level in result.noise.items():
+        if name not in COMPONENTS or not level.declared > 0:
+            continue
+        attr = COMPONENTS[name][2]
+        scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
+        levels[name] = (float(level.declared), float(level.used), level.unit)
+    return DesignNoise(replace(sig, **scaled), result.slot_vector(model), levels, mode)
+
+
+def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
+    """What is measured at each pose: the dataset's own measurements at its poses (``q`` None),
+    or at joint sets ``q`` (N, joints) rad the balls the instrument reaches (as many as the
+    dataset usually measures per pose) at the dataset's levels."""
+    levels = tuple(lv for lv in ds.levels() if lv in DESIGNED_LEVELS)
+    other = [lv for lv in ds.levels() if lv not in DESIGNED_LEVELS]
+    if not levels:
+        raise FgcalError(f"{ds.path or 'dataset'}: design needs probes, centres or poses; this dataset has "
+                         f"{', '.join(other) or 'no measurements'}")
+    if other:
+        log.warning("design leaves out the dataset's %s (not yet part of the design's information)", ", ".join(other))
+    names = model.tooling.names if model.tooling is not None else []
+    point_levels = [getattr(ds, lv) for lv in ("probes", "centres", "distances") if lv in levels]
+    ppb = 4
+    if ds.probes is not None and len(ds.probes):
+        _, counts = np.unique([f"{p}/{b}" for p, b in zip(ds.probes.pose, ds.probes.ball)], return_counts=True)
+        ppb = int(np.median(counts))
+    if q is None:
+        balls = np.zeros((ds.n_poses, len(names)), dtype=bool)
+        row = {p: i for i, p in enumerate(ds.pose_ids.tolist())}
+        col = {b: j for j, b in enumerate(names)}
+        for obs in point_levels:
+            for p, b in zip(obs.pose.tolist(), obs.ball.tolist()):
+                balls[row[p], col[b]] = True
+        return Layout(levels, balls, ppb)
+    per_pose = 0
+    for obs in point_levels:
+        if len(obs):
+            _, counts = np.unique(obs.pose, return_counts=True)
+            per_pose = max(per_pose, int(np.median(counts)))
+    return layout_from_access(model, q, levels, max(per_pose, 1), probes_per_ball=ppb)
+
+
+def _linearisation_point(ds: Dataset, model: RobotModel):
+    """The nominal geometry, with a ballbar dataset's world origin moved to its pivot (fitted to the
+    lengths as the estimator starts): a ballbar's information depends on where the pivot is."""
+    if ds.distances is None or not len(ds.distances):
+        return None
+    from fgcal.estimation.calibrate import _initial_pivot
+
+    d = ds.distances
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(d.pose)])
+    return _initial_pivot(model, model.nominal, q, ds.tooling.offsets(d.ball), d.length)
+
+
+def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates=None, index: str = DATASET_INDEX,
+                        random_sets: int = 200, rng: np.random.Generator | None = None, progress=None,
+                        max_iterations: int = 200, noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED) -> DatasetDesign:
+    """Choose ``n_poses`` of the dataset's poses (or of ``candidates``) for the dataset's robot,
+    tool, measurement levels and noise.
+
+    Parameters
+    ----------
+    candidates : tuple (pose ids (K,), joints (K, joints) deg), optional
+        Other candidate poses (for example collision-free poses the user recorded).
+    random_sets : int
+        Random plans of ``n_poses`` from the same usable candidates to compare with.
+    progress : callable(str), optional
+        Told of each design step.
+    noise : NoiseMode or DesignNoise
+        The noise designed for (:func:`dataset_noise`): ``estimated`` from ``ds`` (default) or
+        ``declared``; a :class:`DesignNoise` already found is reused.
+
+    Raises
+    ------
+    FgcalError
+        One line: fewer usable candidates than poses, no measurements, or a plan of this size
+        cannot identify the parameters.
+    """
+    if n_poses < 1:
+        raise FgcalError("--poses must be at least 1")
+    rng = rng if rng is not None else np.random.default_rng(0)
+    if candidates is None:
+        ids, q_deg = ds.pose_ids, ds.joints_deg
+        layout = dataset_layout(ds, model)
+    else:
+        ids, q_deg = (np.asarray(c) for c in candidates)
+        inside = model.in_limits(model.joints_to_internal(q_deg))
+        if not inside.all():
+            log.warning("%d candidate pose(s) outside the joint limits of %s left out (first: pose %d)",
+                        (~inside).sum(), model.name, ids[~inside][0])
+            ids, q_deg = ids[inside], q_deg[inside]
+        layout = dataset_layout(ds, model, model.joints_to_internal(q_deg))
+    q = model.joints_to_internal(q_deg)
+    where = "the candidates" if candidates is not None else f"{ds.path or 'the dataset'}"
+    if len(ids) < n_poses:
+        raise FgcalError(f"{where}: {len(ids)} candidate poses for a plan of {n_poses}: fewer candidates than poses")
+    found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
+    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=found.slots, sigmas=found.sigmas)
+    if progress is not None:
+        progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
+    d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
+                    progress=progress)
+    rand = np.array([random_design_values(prep, n_poses, rng)[1]["pred"] for _ in range(random_sets)])
+    return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
+                         int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode)
+
+
+def save_plan(plan: DatasetDesign, path) -> None:
+    """Write the plan as a ``joints.csv``-like file: ``pose,q1..`` (deg), the candidates' ids."""
+    write_csv(path, joint_columns(plan.joints_deg.shape[1]),
+              [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg)])
+
+
+def load_plan(path) -> tuple[np.ndarray, np.ndarray]:
+    """A plan (or any candidates file): ``(pose ids (n,), joints (n, joints) deg)``."""
+    return read_joints(path)

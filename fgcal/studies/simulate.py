@@ -1,0 +1,415 @@
+"""The paper's POSE program: a simulated robot with known deviations, measured by a CMM.
+
+1. The actual robot: the nominal model plus seeded random deviations of the identifiable
+   parameters (:func:`draw_truth`).
+2. A pose plan: random joint sets whose balls the CMM can reach (:func:`random_plan`), or the
+   paper's experiment, 12 points of a parallelepiped each reached in four arm configurations
+   (:func:`paper_plan`).
+3. Measurement as in the paper (:func:`measure`): per pose, the reachable balls (3 by default)
+   are each probed at 4 points on their accessible side; CMM noise is added to every point and
+   the joint readings are rounded to the controller's resolution.
+
+Everything is driven by an explicit ``numpy.random.Generator``. Units: mm and rad inside, deg
+in the returned :class:`~fgcal.measurements.dataset.Dataset`. No I/O here.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from fgcal.measurements.dataset import LEVELS, Dataset, Noise, PointObservations
+from fgcal.measurements.types import kinematic_levels
+from fgcal.errors import FgcalError
+from fgcal.robots.ik import BRANCHES, solve_puma_batch
+from fgcal.robots.kinematics import forward, tool_points
+from fgcal.robots.model import RobotModel, Tooling
+from fgcal.robots.transforms import quaternion_to_matrix
+
+__all__ = ["Deviations", "draw_truth", "ball_access", "random_plan", "paper_plan", "measure", "simulate"]
+
+log = logging.getLogger(__name__)
+
+UP = np.array([0.0, 0.0, 1.0])  # the CMM's probe comes down from +z of the world
+MAX_APPROACH_ANGLE_DEG = 110.0  # a ball whose stem points up more steeply than this is hidden
+# The actual base may sit several mm and ~0.5 deg off nominal; with ~1 m lever arms that moves
+# the tool by up to ~25 mm, so nominal plans keep this far from the edges.
+PLAN_MARGIN_MM = 30.0
+PLAN_MARGIN_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class Deviations:
+    """Standard deviations of the actual robot from nominal (DESIGN.md's typical values).
+
+    Attributes
+    ----------
+    length : float
+        Link and tool lengths (mm).
+    angle : float
+        Link and tool angles (deg).
+    base_length : float
+        Base placement (mm).
+    base_angle : float
+        Base orientation (deg).
+    """
+
+    length: float = 0.5
+    angle: float = 0.05
+    base_length: float = 5.0
+    base_angle: float = 0.5
+
+    def sigmas(self, names) -> np.ndarray:
+        """Per-parameter standard deviations (mm, rad) for the parameter ``names``."""
+        out = []
+        for name in names:
+            block, field = name.rsplit(".", 1)
+            is_angle = field in ("phi", "theta", "psi", "alpha", "beta")
+            if block == "base":
+                out.append(np.radians(self.base_angle) if is_angle else self.base_length)
+            else:
+                out.append(np.radians(self.angle) if is_angle else self.length)
+        return np.array(out)
+
+
+def draw_truth(model: RobotModel, rng: np.random.Generator, deviations: Deviations = Deviations(),
+               names=None) -> np.ndarray:
+    """Slot vector (S,) of an actual robot: nominal plus Gaussian deviations of ``names``.
+
+    Only the identifiable parameters deviate by default, so the truth is recoverable exactly.
+    """
+    names = model.identifiable_names() if names is None else list(names)
+    x = model.nominal.copy()
+    idx = [model.slot(n) for n in names]
+    x[idx] += rng.normal(size=len(idx)) * deviations.sigmas(names)
+    return x
+
+
+def ball_access(T, tooling: Tooling, volume=None, margin_mm: float = 0.0, margin_deg: float = 0.0):
+    """Which balls the CMM can probe at tool poses ``T`` (N, 4, 4).
+
+    A ball is reachable when the whole ball is inside the measuring ``volume`` (2, 3) and its
+    free side faces the probe: the direction from the tool axis out to the ball (its stem
+    holds it from the other side) is within ``MAX_APPROACH_ANGLE_DEG`` of the world's +z.
+    A planner that knows only the nominal robot asks for margins (``margin_mm`` inside the
+    volume, ``margin_deg`` inside the angle) so that the actual robot still reaches the balls.
+
+    Returns
+    -------
+    ok : ndarray of bool, shape (N, B)
+    upness : ndarray, shape (N, B)
+        Cosine between the ball's free side and +z (larger is easier to probe).
+    centres : ndarray, shape (N, B, 3)
+        Ball centres in the world (mm).
+    """
+    offsets = tooling.offsets()
+    centres = tool_points(T, offsets)
+    norms = np.linalg.norm(offsets, axis=1, keepdims=True)
+    # A ball on the tool axis (a reflector at the flange) faces along the tool's z axis.
+    outward = np.where(norms > 1e-9, offsets / np.maximum(norms, 1e-300), np.array([0.0, 0.0, 1.0]))
+    outward_w = np.einsum("nij,bj->nbi", T[:, :3, :3], outward)
+    upness = outward_w @ UP
+    if tooling.radius > 0:
+        ok = upness >= np.cos(np.radians(MAX_APPROACH_ANGLE_DEG - margin_deg))
+    else:  # a tracker reflector: seen wherever it is inside the tracker's volume
+        ok = np.ones(upness.shape, dtype=bool)
+    if volume is not None:
+        r = tooling.radius + margin_mm
+        ok &= np.all((centres - r >= volume[0]) & (centres + r <= volume[1]), axis=2)
+    return ok, upness, centres
+
+
+def random_plan(model: RobotModel, slots, n_poses: int, rng: np.random.Generator, tooling: Tooling,
+                volume=None, n_balls: int = 3, max_tries: int = 200_000) -> np.ndarray:
+    """``n_poses`` random joint sets (N, n) within the limits with ``n_balls`` reachable balls.
+
+    Revolute joints with limits wider than a turn are drawn within one turn (+-180 deg).
+    """
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    wide = model.joint_is_angle & (hi - lo > 2 * np.pi)
+    lo, hi = np.where(wide, np.maximum(lo, -np.pi), lo), np.where(wide, np.minimum(hi, np.pi), hi)
+    accepted = []
+    tries = 0
+    while len(accepted) < n_poses:
+        batch = max(256, 4 * (n_poses - len(accepted)))
+        q = rng.uniform(lo, hi, size=(batch, model.n_joints))
+        tries += batch
+        ok, _, _ = ball_access(model.forward(slots, q), tooling, volume)
+        good = q[ok.sum(axis=1) >= n_balls]
+        accepted.extend(good[: n_poses - len(accepted)])
+        if tries >= max_tries and len(accepted) < n_poses:
+            raise FgcalError(f"only {len(accepted)} of {n_poses} random poses in {tries} tries have {n_balls} balls "
+                             "inside the measuring volume; enlarge the volume or ask for fewer balls")
+    return np.array(accepted)
+
+
+def _random_rotations(rng, n) -> np.ndarray:
+    q = rng.normal(size=(n, 4))
+    return quaternion_to_matrix(q)
+
+
+def paper_points(box) -> np.ndarray:
+    """The 12 experiment points on a parallelepiped ``box`` (2, 3): 8 corners, 4 side-face centres."""
+    lo, hi = np.asarray(box, dtype=float)
+    mid = (lo + hi) / 2
+    corners = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
+    faces = np.array([[lo[0], mid[1], mid[2]], [hi[0], mid[1], mid[2]], [mid[0], lo[1], mid[2]], [mid[0], hi[1], mid[2]]])
+    return np.vstack([corners, faces])
+
+
+def paper_plan(model: RobotModel, rng: np.random.Generator, tooling: Tooling, volume=None, box=None,
+               n_balls: int = 3, n_orientations: int = 3000):
+    """The paper's experiment: 12 points x (lefty, righty) x (elbow up, down) = 48 poses.
+
+    At each point and arm configuration, the tool orientation is chosen among ``n_orientations``
+    random ones so that the wrist joints go as far towards their limits as the joint limits
+    and the CMM's access to ``n_balls`` balls allow (as the paper did), preferring wrist
+    settings unlike those already used. Planning uses the nominal model (the operator's).
+
+    Returns
+    -------
+    q : ndarray, shape (M, 6)
+        Joint sets (rad), M = 48 when every point is reachable in every configuration.
+    labels : list of str
+        ``"point k righty/up/noflip"`` for each joint set.
+    skipped : list of str
+        The point and configuration pairs with no feasible orientation, and why.
+    """
+    box = model.paper_box if box is None else np.asarray(box, dtype=float)
+    if box is None:
+        raise FgcalError(f"robot model {model.name} has no paper_box: the paper plan needs one")
+    points = paper_points(box)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    half_range = np.maximum(np.abs(lo), np.abs(hi))[3:]
+    rotations = _random_rotations(rng, n_orientations)
+    chosen, labels, skipped = [], [], []
+    for k, p in enumerate(points):
+        targets = np.zeros((n_orientations, 4, 4))
+        targets[:, :3, :3] = rotations
+        targets[:, :3, 3] = p
+        targets[:, 3, 3] = 1.0
+        for righty in (True, False):
+            for elbow_up in (True, False):
+                cands, names = [], []
+                for branch in BRANCHES:
+                    if branch.righty != righty or branch.elbow_up != elbow_up:
+                        continue
+                    q, reachable = solve_puma_batch(model, targets, branch)
+                    good = reachable & model.in_limits(np.nan_to_num(q, nan=1e9))
+                    if good.any():
+                        ok, _, _ = ball_access(forward(model.nominal, q[good]), tooling, volume,
+                                               PLAN_MARGIN_MM, PLAN_MARGIN_DEG)
+                        feasible = q[good][ok.sum(axis=1) >= n_balls]
+                        # Joint 6 may turn past +-180 deg: the same pose, more wrist travel.
+                        for turn in (-2 * np.pi, 2 * np.pi):
+                            alt = feasible.copy()
+                            alt[:, 5] += turn
+                            feasible = np.vstack([feasible, alt[model.in_limits(alt)]])
+                        cands.append(feasible)
+                        names += [str(branch)] * len(feasible)
+                config = f"{'righty' if righty else 'lefty'}/{'up' if elbow_up else 'down'}"
+                candidates = np.vstack(cands) if cands else np.zeros((0, 6))
+                if not len(candidates):
+                    skipped.append(f"point {k} {config}: no tool orientation within the joint limits "
+                                   f"with {n_balls} balls inside the measuring volume")
+                    continue
+                wrist = candidates[:, 3:] / half_range
+                excursion = np.abs(wrist).mean(axis=1)
+                if chosen:
+                    used = np.array([c[3:] for c in chosen]) / half_range
+                    spread = np.min(np.linalg.norm(wrist[:, None, :] - used[None], axis=2), axis=1)
+                else:
+                    spread = np.zeros(len(candidates))
+                best = int(np.argmax(excursion + 0.5 * spread))
+                chosen.append(candidates[best])
+                labels.append(f"point {k} {names[best]}")
+    return np.array(chosen).reshape(-1, 6), labels, skipped
+
+
+def _cap_directions(axis, n_points: int, rng) -> np.ndarray:
+    """``n_points`` unit vectors on a cap around ``axis``: its pole, then a ring 45-75 deg away."""
+    axis = axis / np.linalg.norm(axis)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    def cross(a, b):  # np.cross costs ~20 us of overhead on 3-vectors, this ~2 us
+        return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+    e1 = cross(axis, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = cross(axis, e1)
+    dirs = [axis]
+    n_ring = n_points - 1
+    start = rng.uniform(0, 2 * np.pi)
+    for i in range(n_ring):
+        polar = np.radians(rng.uniform(45.0, 75.0))
+        az = start + 2 * np.pi * i / max(n_ring, 1) + rng.uniform(-0.2, 0.2)
+        dirs.append(np.cos(polar) * axis + np.sin(polar) * (np.cos(az) * e1 + np.sin(az) * e2))
+    return np.array(dirs[:n_points])
+
+
+def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, tooling: Tooling, noise: Noise,
+            volume=None, n_balls: int = 3, probes_per_ball: int = 4, outlier_fraction: float = 0.0,
+            outlier_size: float = 0.5, levels=("probes",), pose_ids=None):
+    """Measure the actual robot ``slots`` at commanded joints as the paper did.
+
+    Parameters
+    ----------
+    q_commanded : array_like, shape (N, 6)
+        Joint sets the robot is sent to (rad). The arm lands at ``q + N(0, repeatability)``;
+        the controller reports ``q`` rounded to ``joint_resolution``.
+    levels : sequence of {"probes", "centres", "poses", "distances"}
+        What to write. Centres carry ``cmm_sigma`` per coordinate; poses carry
+        ``pose_position_sigma`` (mm) and ``pose_orientation_sigma`` (deg) of ``noise``; distances
+        (a ballbar from the world origin to each ball) ``distance_sigma`` (or ``cmm_sigma``).
+    outlier_fraction : float
+        Fraction of probe points displaced by ``outlier_size`` mm along the surface normal.
+
+    Returns
+    -------
+    pose_ids : ndarray of int, shape (N',)
+    joints_deg : ndarray, shape (N', 6)
+    probes, centres, poses, distances : observations or None
+    outliers : list of (pose, ball, probe index)
+    skipped : list of str
+        Poses dropped because fewer than ``n_balls`` balls were reachable on the actual robot.
+    """
+    q_commanded = np.atleast_2d(np.asarray(q_commanded, dtype=float))
+    n = len(q_commanded)
+    ids = np.arange(1, n + 1) if pose_ids is None else np.asarray(pose_ids, dtype=int)
+    # Repeatability and resolution are in each joint's file unit (deg, or mm for prismatic joints).
+    q_actual = q_commanded + rng.normal(size=q_commanded.shape) * model.joints_to_internal(
+        np.full(model.n_joints, noise.repeatability))
+    reading = model.joints_to_file_units(q_commanded)
+    if noise.joint_resolution > 0:
+        reading = np.round(reading / noise.joint_resolution) * noise.joint_resolution
+    T = model.forward(slots, q_actual)
+    ok, upness, centres = ball_access(T, tooling, volume)
+    names = np.array(tooling.names)
+    kinds = kinematic_levels(levels)
+    keep, probe_rows, outliers, skipped = [], [], [], []
+    rows = {kind.level: [] for kind in kinds}  # (pose id, ball, values) per measurement
+    for i in range(n):
+        visible = np.nonzero(ok[i])[0]
+        if len(visible) < n_balls:
+            skipped.append(f"pose {ids[i]}: only {len(visible)} ball(s) reachable on the actual robot")
+            continue
+        keep.append(i)
+        balls = visible[np.argsort(-upness[i, visible], kind="stable")[:n_balls]]
+        for b in sorted(balls):
+            c = centres[i, b]
+            if "probes" in levels:
+                outward = T[i, :3, :3] @ (tooling.balls[names[b]] / np.linalg.norm(tooling.balls[names[b]]))
+                dirs = _cap_directions(outward + UP, probes_per_ball, rng)
+                pts = c + tooling.radius * dirs + rng.normal(size=dirs.shape) * noise.cmm_sigma
+                for k in range(probes_per_ball):
+                    if outlier_fraction > 0 and rng.uniform() < outlier_fraction:
+                        # A bad touch reads off along the surface normal, in or out.
+                        pts[k] += outlier_size * rng.choice([-1.0, 1.0]) * dirs[k]
+                        outliers.append((int(ids[i]), str(names[b]), k))
+                    probe_rows.append((ids[i], names[b], pts[k]))
+            for kind in kinds:
+                if kind.per_ball:
+                    values = kind.simulate(T[i:i + 1], tooling.balls[names[b]][None], rng, noise)
+                    rows[kind.level].append((ids[i], names[b], values[0]))
+        for kind in kinds:
+            if not kind.per_ball:
+                rows[kind.level].append((ids[i], "", kind.simulate(T[i:i + 1], np.zeros((1, 3)), rng, noise)[0]))
+
+    probes = None
+    if "probes" in levels and probe_rows:
+        probes = PointObservations([r[0] for r in probe_rows], [r[1] for r in probe_rows],
+                                   np.array([r[2] for r in probe_rows]))
+    observed = {kind.level: kind.observations(np.array([r[0] for r in rows[kind.level]], dtype=int),
+                                              np.array([r[1] for r in rows[kind.level]], dtype=str),
+                                              np.array([r[2] for r in rows[kind.level]]))
+                for kind in kinds if rows[kind.level]}
+    keep = np.array(keep, dtype=int)
+    centres_obs, poses, distances = (observed.get(level) for level in ("centres", "poses", "distances"))
+    return ids[keep], reading[keep], probes, centres_obs, poses, distances, outliers, skipped
+
+
+def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarray:
+    """``slots`` with the world moved so that its origin is a ballbar pivot amid the balls' positions.
+
+    The pivot sits 300 mm below the mean of the balls' centres at the planned joints, so that the
+    bar's length varies over the poses.
+    """
+    centres = tool_points(model.forward(slots, q), tooling.offsets()).reshape(-1, 3)
+    return model.with_world_origin_at(slots, centres.mean(axis=0) - np.array([0.0, 0.0, 300.0]))
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """Everything :func:`simulate` needs besides the model and the random generator."""
+
+    n_poses: int | None = None
+    plan: str = "random"
+    noise: Noise = Noise()
+    deviations: Deviations = Deviations()
+    n_balls: int = 3
+    probes_per_ball: int = 4
+    outlier_fraction: float = 0.0
+    outlier_size: float = 0.5
+    levels: tuple = ("probes",)
+
+
+def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSettings = SimulationSettings(),
+             robot_ref: str | None = None, seed=None, truth=None):
+    """Simulate a calibration experiment; returns ``(dataset, notes)``.
+
+    ``truth`` (S,) mm/rad reuses an actual robot (for a verification set of the same robot, as
+    the paper ran POSE twice; a ballbar keeps that truth's pivot); a new one is drawn otherwise. ``notes`` lists what was skipped
+    (poses the CMM could not reach) so callers can say so.
+    """
+    s = settings
+    if model.tooling is None:
+        raise FgcalError(f"robot model {model.name} has no tooling (balls) to measure")
+    for lv in s.levels:
+        if lv not in LEVELS:
+            raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(LEVELS)})")
+    if s.n_balls < 1 or s.n_balls > len(model.tooling.balls):
+        raise FgcalError(f"--balls must be between 1 and {len(model.tooling.balls)}")
+    if s.probes_per_ball < 4 and "probes" in s.levels:
+        raise FgcalError("--probes-per-ball must be at least 4 (a sphere needs 4 points)")
+    if "probes" in s.levels and model.tooling.radius <= 0:
+        raise FgcalError(f"robot model {model.name}: its tooling is a reflector (radius 0): simulate centres or "
+                         "poses, not probes")
+    new_robot = truth is None
+    truth = draw_truth(model, rng, s.deviations) if truth is None else np.asarray(truth, dtype=float)
+    notes = []
+    if s.plan == "random":
+        n = 21 if s.n_poses is None else s.n_poses
+        if n < 1:
+            raise FgcalError("--poses must be at least 1")
+        # A given ballbar truth has the pivot's frame for a world: the instrument volume means nothing there.
+        plan_volume = None if ("distances" in s.levels and not new_robot) else model.volume
+        q = random_plan(model, truth, n, rng, model.tooling, plan_volume, s.n_balls)
+    elif s.plan == "paper":
+        q, labels, skipped = paper_plan(model, rng, model.tooling, model.volume, n_balls=s.n_balls)
+        notes += [f"paper plan: skipped {m}" for m in skipped]
+        if s.n_poses is not None and s.n_poses != len(q):
+            raise FgcalError(f"the paper plan has {len(q)} poses; omit --poses or use --plan random")
+    else:
+        raise FgcalError(f"unknown plan {s.plan!r} (random, paper)")
+    noise = s.noise
+    if "poses" in s.levels and noise.pose_position_sigma is None:
+        # A pose from balls ~120 mm apart: position as a point, orientation ~ sigma / 100 mm.
+        noise = Noise(noise.cmm_sigma, noise.joint_resolution, noise.repeatability,
+                      noise.cmm_sigma, float(np.degrees(noise.cmm_sigma / 100.0)))
+    volume = model.volume
+    if "distances" in s.levels:  # the world is the pivot's frame; the plan already kept the volume
+        if new_robot:  # a given truth keeps its pivot (a verification set of the same set-up)
+            truth = _pivot_at_origin(model, truth, q, model.tooling)
+        volume = None
+    ids, joints_deg, probes, centres, poses, distances, outliers, skipped = measure(
+        model, truth, q, rng, model.tooling, noise, volume, s.n_balls, s.probes_per_ball,
+        s.outlier_fraction, s.outlier_size, s.levels)
+    notes += [f"skipped {m}" for m in skipped]
+    provenance = {"generator": "fgcal simulate", "plan": s.plan, "seed": seed,
+                  "deviations": asdict(s.deviations), "n_balls": s.n_balls, "probes_per_ball": s.probes_per_ball,
+                  "outlier_fraction": s.outlier_fraction, "outlier_size_mm": s.outlier_size}
+    truth_file = {name: float(v) for name, v in zip(model.slot_names, model.slots_to_file_units(truth))}
+    ds = Dataset(robot=robot_ref or model.name, tooling=model.tooling, noise=noise, provenance=provenance,
+                 pose_ids=ids, joints_deg=joints_deg, probes=probes, centres=centres, poses=poses, distances=distances,
+                 truth=truth_file, truth_outliers=outliers)
+    return ds, notes
