@@ -207,7 +207,7 @@ def test_ballbar_only_dataset_calibrates_with_its_pivot(puma, tmp_path):
     truth_slots = puma.slots_from_file_units(np.array([train.truth[n] for n in puma.slot_names]))
     test, _ = simulate(puma, np.random.default_rng(22), settings, truth=truth_slots)
     d = verify(result, test, puma).to_dict()
-    assert d["reference"] == "measured distances" and d["orientation_deg"] is None
+    assert d["reference"] == "measured ballbar lengths" and d["orientation_deg"] is None
     assert d["truth"]["position_mm"]["rms"] < 0.02 < d["before"]["position_mm"]["rms"]
 
 

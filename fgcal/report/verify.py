@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.joint_errors import corrected_joints, outside_region
 from fgcal.robots.kinematics import tool_points
@@ -262,8 +263,10 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         if missing:
             raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
         truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
-    if ds.distances is not None and not ({"probes", "centres", "poses"} & set(ds.levels())):
-        return _verify_distances(ds, model, slots, truth)
+    if not ({"probes", "centres", "poses"} & set(ds.levels())):  # another type: verified by its own metric
+        kinds = kinematic_levels(ds.levels())
+        if kinds:
+            return _verify_kind(kinds[0], ds, model, slots, truth)
     if _full_pose_data(ds):
         ids, T_meas, skipped = measured_poses(ds)
         reference = "measured poses"
@@ -301,24 +304,28 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
     return out
 
 
-def _verify_distances(ds: Dataset, model: RobotModel, slots, truth) -> Verification:
-    """Ballbar data: per pose, the RMS over its balls of ``|model ball - pivot| - measured length`` (mm)."""
-    d = ds.distances
-    ids = np.array([p for p in ds.pose_ids if np.any(d.pose == p)], dtype=int)
+def _verify_kind(kind, ds: Dataset, model: RobotModel, slots, truth) -> Verification:
+    """Verification by a measurement type's own metric (:meth:`KinematicMeasurement.metric`): per
+    pose, the RMS over its measurements of the type's error at the calibrated and nominal models
+    (for a ballbar: ``|model ball - pivot| - measured length``, mm)."""
+    obs = getattr(ds, kind.level)
+    ids = np.array([p for p in ds.pose_ids if np.any(obs.pose == p)], dtype=int)
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
-    rows = [np.nonzero(d.pose == p)[0] for p in ids]
-    offs = [ds.tooling.offsets(d.ball[r]) for r in rows]
+    terms = kind.terms(obs, ds.tooling, {int(p): i for i, p in enumerate(ids)})
+    everything = np.arange(len(model.slot_names))
 
-    def errors(x, reference_lengths):
-        T = model.forward(x, q)
-        return Comparison(np.array([np.sqrt(np.mean((np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) - L) ** 2))
-                                    for Ti, o, L in zip(T, offs, reference_lengths)]), None)
+    def errors(x, data):
+        distance, angle = kind.metric(kind.error(x, q[terms.pose], data, everything, x, model.chain)[0])
+        per_pose = [np.sqrt(np.mean(distance[terms.pose == i] ** 2)) for i in range(len(ids))]
+        angles = None if angle is None else np.array([np.sqrt(np.mean(angle[terms.pose == i] ** 2))
+                                                      for i in range(len(ids))])
+        return Comparison(np.array(per_pose), angles)
 
-    measured = [d.length[r] for r in rows]
-    out = Verification(ids, errors(slots, measured), errors(model.nominal, measured), reference="measured distances",
-                       robot=model.name, joints_deg=np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float))
-    if truth is not None:
-        T_true = model.forward(truth, q)
-        true_lengths = [np.linalg.norm(tool_points(Ti[None], o)[0], axis=1) for Ti, o in zip(T_true, offs)]
-        out.truth_after, out.truth_before = errors(slots, true_lengths), errors(model.nominal, true_lengths)
+    out = Verification(ids, errors(slots, terms.data), errors(model.nominal, terms.data),
+                       reference=f"measured {kind.title}", robot=model.name,
+                       joints_deg=np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float))
+    if truth is not None:  # the true robot's noiseless measurement as the reference
+        true_data = kind.design_data(model.forward(truth, q[terms.pose]), terms.data[0] if kind.per_ball
+                                     else np.zeros((len(terms), 3)))
+        out.truth_after, out.truth_before = errors(slots, true_data), errors(model.nominal, true_data)
     return out
