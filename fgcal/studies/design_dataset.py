@@ -11,6 +11,10 @@ The noise designed for is, by default, the one the calibration will use: each le
 linearised at that calibrated geometry (:func:`dataset_noise`). On real data the estimated noise
 holds the robot's unmodelled errors (on the Landgraf UR10 0.25 mm per pose against the tracker's
 stated 0.011 mm), so the plan's predicted accuracy is the one a calibration from it reaches.
+Where the estimator does not model joint noise, the excess of the estimated over the declared
+noise is taken for a random joint-space error (it grows with the lever arms, as the robot's
+unmodelled errors do) and ``pred`` is the covariance of the estimator as it weighs the data under
+that error (a sandwich, :mod:`fgcal.studies.design_info`).
 No file I/O here (see :func:`save_plan`).
 """
 from __future__ import annotations
@@ -23,7 +27,7 @@ import numpy as np
 from fgcal.measurements.dataset import Dataset
 from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
 from fgcal.studies.design import Candidates, design_plan, random_design_values
-from fgcal.studies.design_info import DESIGNED_LEVELS, Layout, layout_from_access, sigmas_of
+from fgcal.studies.design_info import DESIGNED_LEVELS, Layout, joint_sensitivity, layout_from_access, sigmas_of
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.noise import COMPONENTS, NoiseMode
@@ -105,7 +109,11 @@ class DesignNoise:
     Attributes
     ----------
     sigmas : Sigmas or None
-        The graph's noise per factor kind; None: the dataset's declared noise.
+        The estimator's noise per factor kind (its weights); None: the dataset's declared noise.
+    actual : Sigmas or None
+        The data's instrument noise, when it differs from ``sigmas``.
+    joint_error : float
+        Unmodelled random joint-space error per joint and pose (rad) the data shows.
     slots : ndarray, shape (S,), or None
         Linearisation point (internal units); None: the nominal geometry.
     levels : dict of str to (float, float, str)
@@ -118,6 +126,8 @@ class DesignNoise:
     slots: np.ndarray | None
     levels: dict
     mode: NoiseMode
+    actual: Sigmas | None = None
+    joint_error: float = 0.0
 
 
 def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ESTIMATED, progress=None) -> DesignNoise:
@@ -148,7 +158,20 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         attr = COMPONENTS[name][2]
         scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
         levels[name] = (float(level.declared), float(level.used), level.unit)
-    return DesignNoise(replace(sig, **scaled), result.slot_vector(model), levels, mode)
+    weights, slots = replace(sig, **scaled), result.slot_vector(model)
+    if np.any(np.asarray(sig.joint) > 0):  # the estimator models joint noise and estimated it
+        return DesignNoise(weights, slots, levels, mode)
+    # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
+    # s^2 * sens / rows to a component's variance factor (pooled over the components).
+    sens = joint_sensitivity(model, ds.joints_rad, dataset_layout(ds, model), sig, slots)
+    excess = sum(max(levels[c][1] ** 2 / levels[c][0] ** 2 - 1.0, 0.0) * rows
+                 for c, (_, rows) in sens.items() if c in levels)
+    total = sum(v for c, (v, _) in sens.items() if c in levels)
+    if not excess > 0 or not total > 0:
+        return DesignNoise(weights, slots, levels, mode)
+    joint_error = float(np.sqrt(excess / total))
+    levels["unmodelled joint error"] = (0.0, float(np.degrees(joint_error)), "deg")
+    return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error)
 
 
 def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
@@ -239,7 +262,8 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     if len(ids) < n_poses:
         raise FgcalError(f"{where}: {len(ids)} candidate poses for a plan of {n_poses}: fewer candidates than poses")
     found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
-    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=found.slots, sigmas=found.sigmas)
+    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=found.slots, sigmas=found.sigmas,
+                            actual=found.actual, joint_error=found.joint_error)
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
