@@ -4,7 +4,8 @@
    (``bench_batch.py``, ``scipy_reference.py``);
 2. online: the whole CLI step per pose and total CPU against one batch calibration, 1000 poses
    (``bench_online.py``);
-3. study throughput on 1 and 2 local processes and a Dask LocalCluster (``bench_study.py``).
+3. studies: a trial against its calibration, and the 2-worker study against bare calibrations
+   (``bench_study.py``).
 """
 import platform
 import subprocess

@@ -4,32 +4,34 @@
 data cannot identify (they are held at nominal and named), solves by Levenberg-Marquardt from
 the nominal model (the base placement is first fitted to the measurements), and computes the
 parameters' covariance as the inverse of the solve's Schur complement. No I/O here.
+
+The pieces live beside it: the options (:mod:`fgcal.estimation.options`), the graph of a dataset
+and its start (:mod:`fgcal.estimation.build`), the solver (:mod:`fgcal.estimation.solve`), noise
+and outliers (:mod:`fgcal.estimation.noise`), held parameters (:mod:`fgcal.estimation.holding`).
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 
 import numpy as np
 
 from fgcal import __version__
-from fgcal.measurements.dataset import LEVELS, Dataset
-from fgcal.measurements.types import BY_LEVEL, kinematic_levels
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
-from fgcal.estimation.graph import Graph, Sigmas, State
+from fgcal.estimation.build import _initial_pivot, _levels, _sigmas, build_graph  # noqa: F401 (also reached here)
+from fgcal.estimation.graph import Graph, State
+from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
+from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost
 from fgcal.estimation.identifiability import analyse_information
 from fgcal.robots.kinematics import tool_points
-from fgcal.robots.model import EULER_FIELDS, RobotModel
+from fgcal.robots.model import RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
                     scaled_inverse, update_sigmas)
-from fgcal.measurements.posefit import rigid_fit
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate, ResidualSummary
-from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
-from fgcal.studies.simulate import Deviations
-from fgcal.robots.transforms import to_euler_zyx_trans
-from fgcal.estimation.gravity import model_inertials
-from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
+from fgcal.estimation.joint_errors import BlockParameters
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "identifiability_of"]
@@ -48,279 +50,11 @@ def __getattr__(name):
 
 log = logging.getLogger(__name__)
 
-# Weak prior: ten times the typical deviations of DESIGN.md (mm, deg).
-WEAK_PRIOR = Deviations(length=5.0, angle=0.5, base_length=50.0, base_angle=5.0)
-MIN_SIGMA = 1e-6  # exact data (sigma 0) still has floating-point noise
 MAX_NOISE_ROUNDS = 40
-
-
-@dataclass(frozen=True)
-class CalibrationOptions:
-    """How to calibrate.
-
-    Attributes
-    ----------
-    levels : tuple of str or None
-        Measurement levels to use (``probes``, ``centres``, ``poses``); all present by default.
-    robust : {None, "huber", "cauchy"}
-        Robust loss on the measurement factors; ``robust_k`` its threshold in sigmas.
-    prior : {"none", "weak"}
-        ``weak``: a prior of ten times the typical deviation on every parameter
-        (:data:`WEAK_PRIOR`), which keeps an ill-posed solve finite.
-    joint_noise : bool
-        Model the joint readings' rounding and repeatability with joint variables.
-    kinematic_sigma : float
-        Unmodelled error (mm) between a ball-centre variable and the forward kinematics.
-    noise : NoiseMode
-        ``estimated`` (default): each level's noise (joint readings included) is estimated from the
-        residuals where the redundancy allows, and the covariance is at that noise; ``declared``:
-        dataset.yaml's values only.
-    outliers : OutlierMode
-        ``exclude`` (default): gross errors are found by data snooping, excluded and named.
-    estimate_noise : bool
-        Kept for old callers: True forces ``noise="estimated"``.
-    engine : {"batch", "gtsam"}
-        ``batch``: fgcal's Levenberg-Marquardt with one batched Schur complement per step;
-        ``gtsam``: GTSAM's own Levenberg-Marquardt on :func:`to_gtsam` (slower: every custom
-        factor is a Python callback). The covariance is computed the same way for both.
-    extra, exclude : tuple of str
-        Slots to add to, or remove from, the identifiable parameters.
-    noise_scale : dict or None
-        Fixed factors on each level's declared noise (``{"poses": 12.0}``), for example the
-        ones a previous ``estimate_noise`` run found.
-    joint_errors : JointErrorSpec or None
-        A block of non-geometric joint errors (compliance, error map) estimated with the geometry
-        (:mod:`fgcal.estimation.joint_errors`); ``None``: the geometric model.
-    """
-
-    levels: tuple | None = None
-    robust: str | None = None
-    robust_k: float | None = None
-    prior: str = "none"
-    joint_noise: bool = True
-    kinematic_sigma: float = 1e-4
-    noise: NoiseMode = NoiseMode.ESTIMATED
-    outliers: OutlierMode = OutlierMode.EXCLUDE
-    estimate_noise: bool = False
-    extra: tuple = ()
-    exclude: tuple = ()
-    max_iterations: int = 100
-    tolerance: float = 1e-12
-    noise_scale: dict | None = None
-    joint_errors: JointErrorSpec | None = None
-    engine: str = "batch"
 
 
 def _pose_dof(n_balls: int, full_pose: bool) -> int:
     return 6 if full_pose or n_balls >= 3 else {0: 0, 1: 3, 2: 5}[n_balls]
-
-
-def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=None) -> Sigmas:
-    scale = scale or {}
-    n = ds.noise
-    # A joint reading's sigma is in its file unit (deg, or mm for a prismatic joint).
-    joint = model.joints_to_internal(np.full(model.n_joints, n.joint_sigma_deg)) if options.joint_noise else 0.0
-    centre = n.centre_sigma if n.centre_sigma is not None else n.cmm_sigma
-    pos = n.pose_position_sigma if n.pose_position_sigma is not None else n.cmm_sigma
-    rot = np.radians(n.pose_orientation_sigma) if n.pose_orientation_sigma is not None else n.cmm_sigma / 100.0
-    return Sigmas(probe=max(n.cmm_sigma, MIN_SIGMA) * scale.get("probes", 1.0),
-                  centre=max(centre, MIN_SIGMA) * scale.get("centres", 1.0),
-                  pose_position=max(pos, MIN_SIGMA) * scale.get("poses", 1.0),
-                  pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses", 1.0),
-                  joint=joint, kinematic=options.kinematic_sigma,
-                  distance=max(n.distance_sigma if n.distance_sigma is not None else n.cmm_sigma, MIN_SIGMA)
-                  * scale.get("distances", 1.0))
-
-
-def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
-    present = ds.levels()
-    if options.levels is None:
-        return present
-    for lv in options.levels:
-        if lv not in LEVELS:
-            raise FgcalError(f"unknown level {lv!r} ({', '.join(LEVELS)})")
-        if lv not in present:
-            raise FgcalError(f"{ds.path or 'dataset'}: has no {lv} (it has: {', '.join(present) or 'none'})")
-    return list(options.levels)
-
-
-def _initial_base(model: RobotModel, held, q, world_points_by_pose):
-    """Fit the base placement to measured points with the nominal chain (a rigid fit)."""
-    x = held.copy()
-    base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
-    x[base] = 0.0
-    if not world_points_by_pose:
-        return held
-    poses = np.array(list(world_points_by_pose), dtype=int)
-    T = model.forward(x, q[poses])  # one kinematics evaluation for all poses
-    pred = np.vstack([tool_points(T[k:k + 1], offsets)[0]
-                      for k, (offsets, _) in enumerate(world_points_by_pose.values())])
-    meas = np.vstack([world for _, world in world_points_by_pose.values()])
-    if len(pred) < 3 or np.linalg.matrix_rank(pred - pred.mean(0), tol=1e-6) < 2:
-        return held
-    fit = rigid_fit(pred, meas, sigma=1.0)
-    try:
-        values = to_euler_zyx_trans(fit.T)
-    except ValueError:
-        return held
-    out = held.copy()
-    out[base] = values
-    return out
-
-
-def _initial_pivot(model: RobotModel, held, q, offsets, length):
-    """Slots with the base moved so that the world origin is the ballbar's pivot.
-
-    ``|p_i - c|^2 = L_i^2`` with ``p_i`` the nominal ball positions is linear in ``(c, |c|^2)``;
-    the base then becomes ``Trans(-c) A_b``. Its rotation stays nominal (distances cannot see it).
-    """
-    p = tool_points(model.forward(held, q), offsets[:, None, :] if offsets.ndim == 2 else offsets)[:, 0]
-    A = np.column_stack([2 * p, -np.ones(len(p))])
-    b = np.sum(p**2, axis=1) - np.asarray(length, dtype=float) ** 2
-    if len(p) < 4 or np.linalg.matrix_rank(A) < 4:
-        return held
-    return model.with_world_origin_at(held, np.linalg.lstsq(A, b, rcond=None)[0][:3])
-
-
-def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None):
-    """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
-
-    Only poses with at least one measurement at the chosen levels take part.
-    """
-    levels = _levels(ds, options)
-    block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
-    names = [n for n in names if not is_block_name(n)]
-    params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
-    params = type(params)(model, tuple(names))
-    held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
-    measured = set()
-    for lv in levels:
-        measured |= set(getattr(ds, lv).pose.tolist())
-    pose_ids = np.array([p for p in ds.pose_ids if p in measured], dtype=int)
-    if not len(pose_ids):
-        raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
-    row = {p: i for i, p in enumerate(pose_ids)}
-    q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose_ids)])
-    sig = _sigmas(ds, model, options, scale if scale is not None else options.noise_scale)
-    kw = {}
-    world_points = {}
-    init_c = None
-    if "probes" in levels:
-        pr = ds.probes
-        keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
-        var = {k: j for j, k in enumerate(keys)}
-        ball_pose = np.array([row[p] for p, _ in keys], dtype=int)
-        ball_offset = np.array([ds.tooling.balls[b] for _, b in keys])
-        # Start each centre from a sphere fit of its points (batched over balls with equal counts).
-        init_c = np.full((len(keys), 3), np.nan)
-        var_of_probe = np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int)
-        for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=4):
-            init_c[vs] = fit_spheres_batch(pts, ds.tooling.radius)
-        for j, (p, b) in enumerate(keys):
-            if np.all(np.isfinite(init_c[j])):
-                offs, pts_w = world_points.get(row[p], (np.zeros((0, 3)), np.zeros((0, 3))))
-                world_points[row[p]] = (np.vstack([offs, ds.tooling.balls[b]]), np.vstack([pts_w, init_c[j]]))
-        kw.update(probes=(np.array([row[p] for p in pr.pose], dtype=int),
-                          np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int),
-                          pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset, radius=ds.tooling.radius)
-    kw["measurements"] = {}
-    for kind in kinematic_levels(levels):
-        terms = kind.terms(getattr(ds, kind.level), ds.tooling, row)
-        kw["measurements"][kind.level] = terms
-        for i, (offs, pts_w) in kind.world_points(terms).items():
-            if i in world_points and kind.level != "poses":  # a measured pose fixes the pose alone
-                offs, pts_w = np.vstack([world_points[i][0], offs]), np.vstack([world_points[i][1], pts_w])
-            world_points[i] = (offs, pts_w)
-    pivot_start = None
-    if "distances" in levels:
-        terms = kw["measurements"]["distances"]
-        pivot_start = _initial_pivot(model, held, q[terms.pose], *terms.data)
-    if options.prior == "weak":
-        kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
-    elif options.prior != "none":
-        raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
-    start = _initial_base(model, held, q, world_points) if pivot_start is None or world_points else pivot_start
-    if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
-        block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,
-                                      model_inertials(model), block_names, model.chain)
-        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
-        params = BlockParameters(params, block)
-        kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
-        kw["joint_errors"] = block.design(q, start)
-    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
-    theta0 = params.take(start)
-    if init_c is not None and len(graph.ball_pose):
-        # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
-        # points equally well, the one near the prediction is the ball's. Balls whose points do
-        # not fit a sphere start at the prediction itself.
-        T0 = model.forward(params.full(theta0, start), q)
-        predicted = tool_points(T0[graph.ball_pose], graph.ball_offset[:, None, :])[:, 0]
-        for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=3):
-            first = init_c[vs]
-            ok = np.all(np.isfinite(first), axis=1)
-            first_ok = np.where(ok[:, None], first, predicted[vs])
-            candidates = [fit_spheres_batch(pts, ds.tooling.radius, guess=g)
-                          for g in (first_ok, mirror_through_points(pts, first_ok), predicted[vs])]
-            init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates, ds.noise.cmm_sigma, predicted[vs])
-        bad = ~np.all(np.isfinite(init_c), axis=1) | (np.linalg.norm(init_c - predicted, axis=1) > 50.0)
-        init_c[bad] = predicted[bad]
-    state = graph.initial_state(theta0, init_c)
-    graph.held = params.full(theta0, start)  # held slots stay at the fitted start's values
-    return graph, state, pose_ids
-
-
-# Relative change of the cost below which two costs are the same up to rounding: the residuals
-# are differences of coordinates of ~1e3 mm computed to ~1e-13 mm, whitened by sigmas of ~1e-2.
-COST_ROUNDING = 1e-10
-
-
-def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None):
-    """Minimise the graph's cost; returns ``(state, iterations, converged)``.
-
-    ``lin``: the linearisation at ``state`` when the caller has it. The solve stops when a step
-    (or the Gauss-Newton model's prediction of it) changes the cost by no more than
-    ``tolerance`` relative, or by no more than rounding: such a step is not tried again damped.
-    """
-    lin = graph.linearise(state) if lin is None else lin
-    cost = lin.cost
-    damping = 1e-4
-    for it in range(1, max_iterations + 1):
-        for _ in range(30):
-            try:
-                new, d_theta, predicted = graph.step(state, lin, damping)
-            except np.linalg.LinAlgError:
-                damping *= 10
-                continue
-            if damping <= 1e-3 and 0 <= predicted <= tolerance * max(cost, 1e-300):
-                return state, it, True  # at the minimum: what is left to gain is rounding
-            lin.cache.clear()  # its normal equations are formed again if this step is rejected
-            new_lin = graph.linearise(new)
-            if np.isfinite(new_lin.cost) and new_lin.cost <= cost:
-                break
-            if np.isfinite(new_lin.cost) and new_lin.cost - cost <= COST_ROUNDING * cost and predicted <= COST_ROUNDING * cost:
-                return state, it, True  # the change is rounding, not a worse point
-            damping *= 10
-        else:
-            log.warning("Levenberg-Marquardt: no step reduces the cost (damping %.3g)", damping)
-            return state, it, False
-        gain = cost - new_lin.cost
-        state, lin = new, new_lin
-        damping = max(damping / 10, 1e-12)
-        small_step = np.max(np.abs(d_theta)) < 1e-12 * (1 + np.max(np.abs(state.theta)))
-        if gain <= tolerance * max(cost, 1e-300) or small_step or new_lin.cost < 1e-24:
-            return state, it, True
-        cost = new_lin.cost
-    return state, max_iterations, False
-
-
-def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None):
-    if options.engine == "batch":
-        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance, lin=lin)
-    if options.engine == "gtsam":
-        from fgcal.estimation.gtsam_graph import gtsam_levenberg_marquardt
-
-        return gtsam_levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
-    raise FgcalError(f"unknown engine {options.engine!r} (batch, gtsam)")
 
 
 def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:

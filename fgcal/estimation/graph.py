@@ -15,25 +15,29 @@ linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 
 import numpy as np
 
 import factors.errors as fx
+from fgcal.estimation.elimination import POSE_CHUNK, ArrowElimination
 from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import ParameterSet
 
 __all__ = ["Sigmas", "Graph", "State", "LEVELS"]
 
-POSE_CHUNK = 2000  # poses per kinematics evaluation in a linearisation (bounds its temporaries)
 LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
 
 @dataclass(frozen=True)
 class Sigmas:
-    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact."""
+    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact.
+
+    ``other`` holds ``(field, sigma)`` pairs of measurement types beyond the built-in ones
+    (:meth:`fgcal.measurements.base.KinematicMeasurement.declared_sigmas`); they read as attributes.
+    """
 
     probe: float
     centre: float
@@ -42,6 +46,20 @@ class Sigmas:
     joint: float
     kinematic: float = 1e-4
     distance: float = 0.01
+    other: tuple = ()
+
+    def __getattr__(self, name):  # only for names that are not fields
+        for field_name, value in object.__getattribute__(self, "other"):
+            if field_name == name:
+                return value
+        raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
+
+    def replaced(self, **values) -> "Sigmas":
+        """A copy with the given sigmas changed (fields or ``other`` ones)."""
+        known = {f.name for f in fields(self)}
+        other = dict(self.other)
+        other.update({k: v for k, v in values.items() if k not in known})
+        return replace(self, **{k: v for k, v in values.items() if k in known}, other=tuple(sorted(other.items())))
 
 
 @dataclass
@@ -95,7 +113,7 @@ def _robust(s, kind, k):
     raise ValueError(f"unknown robust loss {kind!r}")
 
 
-class Graph:
+class Graph(ArrowElimination):
     """The factor graph of one dataset, laid out for batched evaluation.
 
     Parameters
@@ -251,14 +269,15 @@ class Graph:
         The last linearisation is remembered: asking again at the same state (and held values,
         noise and excluded measurements) returns it, with the normal equations already formed on it.
         """
-        weights = (repr(self.sigmas), tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items())))
+        # Sigmas are immutable (replaced, never changed): the same object means the same noise.
+        weights = tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
         key = (state.theta, state.q, state.c, self.held)
         last = getattr(self, "_last", None)
-        if (last is not None and last[2] == weights
+        if (last is not None and last[3] is self.sigmas and last[2] == weights
                 and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
             return last[1]
         lin = self._linearise(state)
-        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights)
+        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights, self.sigmas)
         return lin
 
     def _linearise(self, state: State) -> Linearisation:
@@ -347,108 +366,6 @@ class Graph:
     def cost(self, state: State) -> float:
         return self.linearise(state).cost
 
-    # ------------------------------------------------------------------ solving
-    def normal_equations(self, lin: Linearisation):
-        """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
-
-        Formed once per linearisation (kept on ``lin``) by BLAS products over the per-pose blocks.
-        """
-        if "normal" in lin.cache:
-            return lin.cache["normal"]
-        n, mt, P = lin.J_theta.shape
-        Jt2 = lin.J_theta.reshape(-1, P)
-        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
-        g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
-        JzT = lin.J_local.transpose(0, 2, 1)
-        B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
-        D = np.matmul(JzT, lin.J_local)
-        g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
-        # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
-        pad = ~self.local_used
-        D[pad] = 0.0
-        D[:, np.arange(self.nz), np.arange(self.nz)] += pad
-        lin.cache["normal"] = (A, B, D, g_t, g_z)
-        return lin.cache["normal"]
-
-    def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0):
-        """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
-        if damping:
-            A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
-        S = A.copy()
-        rhs = None if g_t is None else g_t.copy()
-        Dinv = np.empty_like(D)
-        idx = np.arange(self.nz)
-        for lo in range(0, len(D), POSE_CHUNK):  # in chunks of poses: no temporaries of N blocks
-            c = slice(lo, lo + POSE_CHUNK)
-            Dc = D[c]
-            if damping:
-                Dc = Dc.copy()
-                Dc[:, idx, idx] += damping * np.maximum(Dc[:, idx, idx], 1e-12)
-            Dinv[c] = np.linalg.inv(Dc) if self.nz else Dc
-            BD = np.matmul(B[c], Dinv[c])
-            S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
-            if rhs is not None:
-                rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
-        return S, rhs, Dinv
-
-    def _reduced_at(self, lin: Linearisation):
-        """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
-        if "reduced" not in lin.cache:
-            A, B, D, _, _ = self.normal_equations(lin)
-            _, _, Dinv = self.reduced(A, B, D)
-            # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
-            # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
-            n, mt, P = lin.J_theta.shape
-            S = lin.prior_J.T @ lin.prior_J
-            for lo in range(0, n, POSE_CHUNK):
-                c = slice(lo, lo + POSE_CHUNK)
-                k = len(lin.r[c])
-                M = np.zeros((k, self.m + self.nz, self.nz + P))
-                M[:, :self.m, :self.nz] = lin.J_local[c]
-                M[:, :mt, self.nz:] = lin.J_theta[c]
-                pad = ~self.local_used[c]
-                M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
-                R = np.linalg.qr(M, mode="r")[:, self.nz:, self.nz:]
-                S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
-            lin.cache["reduced"] = (S, Dinv)
-        return lin.cache["reduced"]
-
-    def step(self, state: State, lin: Linearisation, damping: float):
-        """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
-        A, B, D, g_t, g_z = self.normal_equations(lin)
-        S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping)
-        d_theta = -np.linalg.solve(S, rhs)
-        d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
-        new = state.copy()
-        new.theta = state.theta + d_theta
-        if self.joint_vars:
-            new.q = state.q + d_z[:, :self.n_joints]
-        if len(self.ball_pose):
-            cols = self.ball_col[:, None] + np.arange(3)
-            new.c = state.c + d_z[self.ball_pose[:, None], cols]
-        # The Gauss-Newton model's decrease: -g.d - d.H.d / 2 over all variables (H undamped).
-        g_dot = g_t @ d_theta + np.einsum("nz,nz->", g_z, d_z)
-        Hd_t = A @ d_theta + np.einsum("npz,nz->p", B, d_z)
-        Hd_z = np.matmul(d_theta, B) + np.matmul(D, d_z[:, :, None])[:, :, 0]
-        dHd = d_theta @ Hd_t + np.einsum("nz,nz->", d_z, Hd_z)
-        return new, d_theta, float(-g_dot - 0.5 * dHd)
-
-    def parameter_information(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
-        """The (P, P) information of theta with the per-pose variables marginalised out.
-
-        ``lin``: the linearisation at ``state`` when the caller has it already.
-        """
-        lin = self.linearise(state) if lin is None else lin
-        return self._reduced_at(lin)[0]
-
-    def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
-        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""
-        lin = self.linearise(state) if lin is None else lin
-        if "covariance" not in lin.cache:
-            S = self._reduced_at(lin)[0]
-            lin.cache["covariance"] = np.linalg.inv(0.5 * (S + S.T))
-        return lin.cache["covariance"]
-
     def factor_rows(self, level: str):
         """Pose index (K,) and row numbers (K, width) of each factor of ``level``."""
         if level in self.measurements:
@@ -458,38 +375,3 @@ class Graph:
             pose = {"probes": lambda: self.probes[0], "kinematic": lambda: self.ball_pose,
                     "joints": lambda: np.arange(self.n_poses)}[level]()
         return np.asarray(pose, dtype=int), self.row[level][:, None] + np.arange(width)
-
-    def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
-        """Diagonal of the hat matrix (N, m) of the whitened rows; ``covariance`` is theta's (P, P).
-
-        One minus it is each row's redundancy number (Foerstner): the share of its noise that
-        shows in its residual.
-        """
-        lin = self.linearise(state) if lin is None else lin
-        _, B, _, _, _ = self.normal_equations(lin)
-        _, Dinv = self._reduced_at(lin)
-        St = covariance  # (P, P) = S^-1
-        E = -np.matmul(Dinv, B.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = E @ St  # (N, nz, P)
-        Szz = Dinv + np.matmul(Szt, E.transpose(0, 2, 1))
-        Jt, Jz = lin.J_theta, lin.J_local
-        mt = Jt.shape[1]
-        # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt rows
-        # of a pose depend on theta.
-        h = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
-        h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
-        return h
-
-    def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
-        """Redundancy of each factor level: rows (excluded ones not counted) and the sum of their leverage."""
-        lin = self.linearise(state) if lin is None else lin
-        h = self.row_leverage(state, covariance, lin)
-        out = {}
-        for level in self.row:
-            pose, rows_ = self.factor_rows(level)
-            kept = ~self.excluded.get(level, np.zeros(len(pose), dtype=bool))
-            out[level] = (int(rows_[kept].size), float(h[pose[kept, None], rows_[kept]].sum()))
-        if self.prior is not None:
-            hp = np.einsum("kp,pq,kq->k", lin.prior_J, covariance, lin.prior_J)
-            out["prior"] = (len(hp), float(hp.sum()))
-        return out

@@ -18,13 +18,15 @@ Pure functions of a :class:`~fgcal.estimation.graph.Graph` and its linearisation
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 from scipy import special
 
-__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "MIN_REDUNDANCY", "OUTLIER_ALPHA",
+from fgcal.measurements.types import all_levels, kinematic_types
+
+__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "component_table", "MIN_REDUNDANCY", "OUTLIER_ALPHA",
            "components", "update_sigmas", "find_outliers", "fit_test", "scaled_inverse"]
 
 log = logging.getLogger(__name__)
@@ -50,16 +52,21 @@ class OutlierMode(str, Enum):
     NONE = "none"  # keep every measurement
 
 
-# Variance components: name -> (graph level, columns of its factor rows, Sigmas field, unit, to unit).
-COMPONENTS = {
-    "probes": ("probes", slice(0, 1), "probe", "mm", 1.0),
-    "centres": ("centres", slice(0, 3), "centre", "mm", 1.0),
-    "poses": ("poses", slice(3, 6), "pose_position", "mm", 1.0),
-    "poses_rotation": ("poses", slice(0, 3), "pose_rotation", "deg", float(np.degrees(1.0))),
-    "distances": ("distances", slice(0, 1), "distance", "mm", 1.0),
-    "joints": ("joints", slice(0, None), "joint", "deg", float(np.degrees(1.0))),  # revolute joints: deg
-}
-MEASUREMENT_LEVELS = ("probes", "centres", "poses", "distances")
+def component_table() -> dict:
+    """Variance components: name -> (graph level, columns of its factor rows, Sigmas field, unit, to unit).
+
+    Probe points and joint readings, and each registered measurement type's own components
+    (:attr:`fgcal.measurements.base.KinematicMeasurement.noise_components`).
+    """
+    table = {"probes": ("probes", slice(0, 1), "probe", "mm", 1.0)}
+    for kind in kinematic_types():
+        for c in kind.noise_components:
+            table[c.name] = (kind.level, c.columns, c.sigma_field, c.unit, c.to_unit)
+    table["joints"] = ("joints", slice(0, None), "joint", "deg", float(np.degrees(1.0)))  # revolute joints: deg
+    return table
+
+
+COMPONENTS = component_table()  # the built-in types' (the registry may grow: use component_table())
 
 
 @dataclass
@@ -121,7 +128,7 @@ def components(graph, lin, h) -> dict[str, tuple[float, float]]:
     ``h`` (N, m) is the rows' leverage (:meth:`fgcal.estimation.graph.Graph.row_leverage`).
     """
     out = {}
-    for name, (level, cols, _, _, _) in COMPONENTS.items():
+    for name, (level, cols, _, _, _) in component_table().items():
         if level not in graph.row:
             continue
         pose, rows = graph.factor_rows(level)
@@ -141,7 +148,7 @@ def update_sigmas(sigmas, comps, declared, tolerance: float = 0.01):
     changed = False
     new = {}
     for name, (ssq, red) in comps.items():
-        field = COMPONENTS[name][2]
+        field = component_table()[name][2]
         current = np.asarray(getattr(sigmas, field), dtype=float)  # per joint for the joints
         if red < MIN_REDUNDANCY or np.any(current <= 0):
             continue
@@ -153,7 +160,7 @@ def update_sigmas(sigmas, comps, declared, tolerance: float = 0.01):
         if np.any(value != current):
             new[field] = value if value.ndim else float(value)
             changed = True
-    return replace(sigmas, **new), changed
+    return sigmas.replaced(**new), changed
 
 
 def _factor_statistics(graph, lin, h, level):
@@ -176,7 +183,7 @@ def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.n
     heavy-tailed rather than a few gross errors.
     """
     best = {}  # pose -> (ratio, level, index)
-    for level in MEASUREMENT_LEVELS:
+    for level in all_levels():
         if level not in graph.row:
             continue
         pose, t, width, _ = _factor_statistics(graph, lin, h, level)
@@ -231,7 +238,7 @@ def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNois
     """The noise table of a finished solve: ``comps`` at the final ``sigmas``."""
     out = {}
     for name, (ssq, red) in comps.items():
-        _, _, field, unit, k = COMPONENTS[name]
+        _, _, field, unit, k = component_table()[name]
         used = float(np.max(getattr(sigmas, field)))  # joints: the largest (one scale for all of them)
         decl = float(np.max(getattr(declared, field)))
         ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")

@@ -23,7 +23,7 @@ from fgcal.measurements.cells import number as _number
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
 from fgcal.measurements.point import POINT
 from fgcal.measurements.pose import POSE
-from fgcal.measurements.types import KINEMATIC_TYPES
+from fgcal.measurements.types import kinematic_types
 from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
@@ -289,7 +289,7 @@ def load_dataset(directory) -> Dataset:
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
-    for kind in KINEMATIC_TYPES:
+    for kind in kinematic_types():
         if os.path.lexists(directory / kind.file):
             setattr(ds, kind.level, _measurement_table(directory / kind.file, kind, known, tooling.balls))
     if os.path.lexists(directory / "truth.yaml"):
@@ -381,8 +381,8 @@ def _write_into(ds: Dataset, directory: Path) -> None:
               ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
     if ds.probes is not None:
         write_csv(directory / "probes.csv", POINT_COLUMNS, POINT.rows(ds.probes))
-    for kind in KINEMATIC_TYPES:
-        obs = getattr(ds, kind.level)
+    for kind in kinematic_types():
+        obs = getattr(ds, kind.level, None)
         if obs is not None:
             write_csv(directory / kind.file, kind.columns, kind.rows(obs))
     if ds.truth is not None:

@@ -19,11 +19,34 @@ variables of their own (ball centres) and are handled by the graph directly. No 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["Terms", "KinematicMeasurement"]
+__all__ = ["NoiseComponent", "Terms", "ObservationRows", "KinematicMeasurement"]
+
+
+@dataclass(frozen=True)
+class NoiseComponent:
+    """A variance component of a measurement type: some of its error rows and the sigma they share.
+
+    Attributes
+    ----------
+    name : str
+        Its name in results (``"poses_rotation"``).
+    columns : slice
+        Its rows among the type's ``width`` error rows.
+    sigma_field : str
+        The field of the graph's ``Sigmas`` that holds its sigma.
+    unit : str
+        The unit a report shows it in; ``to_unit`` converts from internal units (mm, rad).
+    """
+
+    name: str
+    columns: slice
+    sigma_field: str
+    unit: str = "mm"
+    to_unit: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -48,6 +71,35 @@ class Terms:
         return Terms(self.pose[rows], tuple(np.asarray(d)[rows] for d in self.data))
 
 
+class ObservationRows:
+    """Per-row arrays of one measurement level (a base of the levels' dataclasses).
+
+    The dataclass has ``pose`` (M,) ids, optionally ``ball`` (M,) names, float arrays whose row
+    shapes are in ``ROW_SHAPES`` (``{"xyz": (3,)}``) and ``line`` (M,), the file line (0 when made
+    in memory). Converts them, checks their lengths, and gives ``len`` and ``subset``.
+    """
+
+    ROW_SHAPES: dict = {}
+
+    def __post_init__(self):
+        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
+        if hasattr(self, "ball"):
+            self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
+        for name, shape in self.ROW_SHAPES.items():
+            setattr(self, name, np.asarray(getattr(self, name), dtype=float).reshape((-1, *shape)))
+        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
+        names = [f.name for f in fields(self)]
+        if len({len(getattr(self, n)) for n in names}) > 1:
+            raise ValueError(f"{', '.join(names[:-1])} and {names[-1]} must have the same length")
+
+    def __len__(self):
+        return len(self.pose)
+
+    def subset(self, mask):
+        """The rows selected by ``mask`` (a boolean mask or indices)."""
+        return type(self)(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
+
+
 class KinematicMeasurement(ABC):
     """One measurement type whose error depends on ``theta`` and one pose's joints only.
 
@@ -65,6 +117,10 @@ class KinematicMeasurement(ABC):
         Whether a pose has one measurement per tool ball (else one per pose).
     title : str
         What a person calls it, for reports.
+    noun : str
+        One measurement, in messages (``"centre"``).
+    noise_components : tuple of NoiseComponent
+        Its variance components, estimated from the residuals (:mod:`fgcal.estimation.noise`).
     """
 
     level: str
@@ -74,11 +130,17 @@ class KinematicMeasurement(ABC):
     per_ball: bool = True
     title: str = ""
     noun: str = "measurement"
+    noise_components: tuple = ()
 
     # ------------------------------------------------------------------ model
     @abstractmethod
     def error(self, theta, q, data, index, held, chain):
         """Unwhitened error ``(M, width)`` and Jacobians ``(M, width, P)``, ``(M, width, n)``."""
+
+    def declared_sigmas(self, noise) -> dict:
+        """Sigmas of a type beyond the built-in ones, ``{field: sigma}`` (mm, rad), from the dataset's
+        ``Noise``; the built-in types' are fields of ``Sigmas`` and return nothing."""
+        return {}
 
     @abstractmethod
     def sigma(self, sigmas) -> np.ndarray:

@@ -15,7 +15,7 @@ from fgcal.robots.model import Tooling
 from fgcal.measurements.distance import DistanceObservations
 from fgcal.measurements.point import PointObservations
 from fgcal.measurements.pose import PoseObservations
-from fgcal.measurements.types import LEVELS
+from fgcal.measurements.types import LEVELS, all_levels
 
 __all__ = ["FORMAT", "LEVELS", "Noise", "PointObservations", "PoseObservations", "DistanceObservations", "Dataset"]
 
@@ -134,12 +134,12 @@ class Dataset:
                       pose_ids=self.pose_ids[keep], joints_deg=self.joints_deg[keep], truth=self.truth,
                       truth_outliers=[o for o in self.truth_outliers if o[0] in set(self.pose_ids[keep].tolist())],
                       path=self.path, chain=self.chain)
-        for level in LEVELS:
-            obs = getattr(self, level)
+        for level in all_levels():
+            obs = getattr(self, level, None)
             if obs is not None:
                 setattr(out, level, obs.subset(np.isin(obs.pose, self.pose_ids[keep])))
         return out
 
     def levels(self) -> list[str]:
         """The measurement levels present: a subset of :data:`LEVELS`."""
-        return [lv for lv in LEVELS if getattr(self, lv) is not None]
+        return [lv for lv in all_levels() if getattr(self, lv, None) is not None]

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcal.errors import DatasetError
-from fgcal.measurements.base import KinematicMeasurement, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
@@ -19,7 +19,7 @@ __all__ = ["DistanceObservations", "DistanceMeasurement", "DISTANCE"]
 
 
 @dataclass
-class DistanceObservations:
+class DistanceObservations(ObservationRows):
     """Measured distances (mm), one row each: a telescoping ballbar between a tool ball and a fixed
     pivot whose position is unknown. The dataset's world frame has its origin at the pivot.
 
@@ -38,19 +38,7 @@ class DistanceObservations:
     length: np.ndarray
     line: np.ndarray | None = None
 
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
-        self.length = np.asarray(self.length, dtype=float).reshape(-1)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-        if not (len(self.pose) == len(self.ball) == len(self.length) == len(self.line)):
-            raise ValueError("pose, ball, length and line must have the same length")
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask) -> "DistanceObservations":
-        return DistanceObservations(self.pose[mask], self.ball[mask], self.length[mask], self.line[mask])
+    ROW_SHAPES = {"length": ()}
 
 
 class DistanceMeasurement(KinematicMeasurement):
@@ -63,6 +51,7 @@ class DistanceMeasurement(KinematicMeasurement):
     per_ball = True
     title = "ballbar lengths"
     noun = "length"
+    noise_components = (NoiseComponent("distances", slice(0, 1), "distance"),)
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import distance_error

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.measurements.base import KinematicMeasurement, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
@@ -18,7 +18,7 @@ __all__ = ["PointObservations", "PointMeasurement", "POINT"]
 
 
 @dataclass
-class PointObservations:
+class PointObservations(ObservationRows):
     """Measured points, one row each: probe points or ball centres (world, mm).
 
     Attributes
@@ -35,19 +35,7 @@ class PointObservations:
     xyz: np.ndarray
     line: np.ndarray | None = None
 
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.ball = np.asarray(self.ball, dtype=str).reshape(-1)
-        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-        if not (len(self.pose) == len(self.ball) == len(self.xyz) == len(self.line)):
-            raise ValueError("pose, ball, xyz and line must have the same length")
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask) -> "PointObservations":
-        return PointObservations(self.pose[mask], self.ball[mask], self.xyz[mask], self.line[mask])
+    ROW_SHAPES = {"xyz": (3,)}
 
 
 class PointMeasurement(KinematicMeasurement):
@@ -60,6 +48,7 @@ class PointMeasurement(KinematicMeasurement):
     per_ball = True
     title = "ball centres"
     noun = "centre"
+    noise_components = (NoiseComponent("centres", slice(0, 3), "centre"),)
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import ball_centre_error

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgcal.errors import DatasetError
-from fgcal.measurements.base import KinematicMeasurement, Terms
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import number
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
@@ -19,7 +19,7 @@ __all__ = ["PoseObservations", "PoseMeasurement", "POSE", "small_rotation"]
 
 
 @dataclass
-class PoseObservations:
+class PoseObservations(ObservationRows):
     """Measured tool poses (world): position (mm) and unit quaternion ``(qw, qx, qy, qz)``."""
 
     pose: np.ndarray
@@ -27,19 +27,7 @@ class PoseObservations:
     quat: np.ndarray
     line: np.ndarray | None = None
 
-    def __post_init__(self):
-        self.pose = np.asarray(self.pose, dtype=int).reshape(-1)
-        self.xyz = np.asarray(self.xyz, dtype=float).reshape(-1, 3)
-        self.quat = np.asarray(self.quat, dtype=float).reshape(-1, 4)
-        self.line = np.zeros(len(self.pose), dtype=int) if self.line is None else np.asarray(self.line, dtype=int)
-        if not (len(self.pose) == len(self.xyz) == len(self.quat) == len(self.line)):
-            raise ValueError("pose, xyz, quat and line must have the same length")
-
-    def __len__(self):
-        return len(self.pose)
-
-    def subset(self, mask) -> "PoseObservations":
-        return PoseObservations(self.pose[mask], self.xyz[mask], self.quat[mask], self.line[mask])
+    ROW_SHAPES = {"xyz": (3,), "quat": (4,)}
 
     def matrices(self) -> np.ndarray:
         """The poses as homogeneous transforms ``(K, 4, 4)`` (mm)."""
@@ -69,6 +57,8 @@ class PoseMeasurement(KinematicMeasurement):
     per_ball = False
     title = "tool poses"
     noun = "pose"
+    noise_components = (NoiseComponent("poses", slice(3, 6), "pose_position"),
+                        NoiseComponent("poses_rotation", slice(0, 3), "pose_rotation", "deg", float(np.degrees(1.0))))
 
     def error(self, theta, q, data, index, held, chain):
         from factors.errors import pose_error

@@ -14,7 +14,7 @@ from functools import lru_cache
 import numpy as np
 
 __all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "fit_spheres_batch", "best_of_candidates",
-           "mirror_through_points", "fit_spheres_checked", "default_threshold", "check_points"]
+           "mirror_through_points", "fit_spheres_checked", "fit_spheres_arrays", "default_threshold", "check_points"]
 
 FALSE_ALARM = 1e-3  # probability that a good fit is flagged by the default threshold
 MIN_THRESHOLD_MM = 1e-6  # exact data still carries floating-point noise
@@ -140,25 +140,52 @@ def fit_spheres_checked(point_sets, radius: float, sigma: float, threshold: floa
             for i in idx:
                 out[i] = fit_sphere(point_sets[i], radius=radius, sigma=sigma, threshold=threshold)
             continue
-        pts = np.array([point_sets[i] for i in idx], dtype=float)
-        centres = fit_spheres_batch(pts, radius)
-        diff = pts - centres[:, None, :]
-        dist = np.linalg.norm(diff, axis=2)
-        res = dist - radius
-        rms = np.sqrt(np.mean(res**2, axis=1))
-        limit = default_threshold(sigma, n, 3) if threshold is None else threshold
-        J = -diff / dist[..., None]
-        info = np.einsum("kni,knj->kij", J, J)
-        finite = np.all(np.isfinite(info), axis=(1, 2))
-        eig = np.linalg.eigvalsh(np.where(finite[:, None, None], info, np.eye(3)))
-        well = finite & (eig[:, 0] > 1e-12 * eig[:, -1])
-        cov = np.linalg.inv(np.where(well[:, None, None], info, np.eye(3))) * sigma**2
+        centres, res, rms, cov, passed = fit_spheres_arrays(np.array([point_sets[i] for i in idx], dtype=float),
+                                                            radius, sigma, threshold)
         for k, i in enumerate(idx):
-            if well[k] and np.all(np.isfinite(centres[k])) and rms[k] <= limit:
+            if passed[k]:
                 out[i] = SphereFit(centres[k], float(radius), res[k], float(rms[k]), cov[k], True, "ok")
             else:
                 out[i] = fit_sphere(point_sets[i], radius=radius, sigma=sigma, threshold=threshold)
     return out
+
+
+def fit_spheres_arrays(points, radius: float, sigma: float, threshold: float | None = None):
+    """The vectorised part of :func:`fit_spheres_checked`: K balls of n >= 4 points each.
+
+    Parameters
+    ----------
+    points : ndarray, shape (K, n, 3)
+        Probe points (mm).
+
+    Returns
+    -------
+    centres : ndarray, shape (K, 3)
+    residuals : ndarray, shape (K, n)
+        Signed distances from the fitted spheres (mm).
+    rms : ndarray, shape (K,)
+    covariance : ndarray, shape (K, 3, 3)
+        Of each centre for ``sigma`` (mm^2).
+    passed : ndarray of bool, shape (K,)
+        The fits that are determined and pass the residual check; the others need
+        :func:`fit_sphere`'s full diagnosis (it may still accept them).
+    """
+    pts = np.asarray(points, dtype=float)
+    n = pts.shape[1]
+    centres = fit_spheres_batch(pts, radius)
+    diff = pts - centres[:, None, :]
+    dist = np.linalg.norm(diff, axis=2)
+    res = dist - radius
+    rms = np.sqrt(np.mean(res**2, axis=1))
+    limit = default_threshold(sigma, n, 3) if threshold is None else threshold
+    J = -diff / dist[..., None]
+    info = np.einsum("kni,knj->kij", J, J)
+    finite = np.all(np.isfinite(info), axis=(1, 2))
+    eig = np.linalg.eigvalsh(np.where(finite[:, None, None], info, np.eye(3)))
+    well = finite & (eig[:, 0] > 1e-12 * eig[:, -1])
+    cov = np.linalg.inv(np.where(well[:, None, None], info, np.eye(3))) * sigma**2
+    passed = well & np.all(np.isfinite(centres), axis=1) & (rms <= limit)
+    return centres, res, rms, cov, passed
 
 
 def best_of_candidates(points, radius: float, candidates, sigma: float, prediction=None) -> np.ndarray:

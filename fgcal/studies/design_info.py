@@ -32,7 +32,7 @@ from factors.errors import ball_centre_error, probe_error
 
 from fgcal.estimation.calibrate import CalibrationOptions, _sigmas
 from fgcal.measurements.dataset import Dataset, Noise
-from fgcal.measurements.types import kinematic_levels
+from fgcal.measurements.types import LEVELS, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
@@ -41,7 +41,7 @@ from fgcal.studies.simulate import UP, ball_access
 __all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
            "information_and_middle", "joint_sensitivity"]
 
-DESIGNED_LEVELS = ("probes", "centres", "poses", "distances")  # all of fgcal.measurements.dataset.LEVELS
+DESIGNED_LEVELS = LEVELS  # every level: each measurement type brings its own rows
 
 
 @dataclass

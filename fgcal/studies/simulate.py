@@ -19,8 +19,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from fgcal.measurements.dataset import LEVELS, Dataset, Noise, PointObservations
-from fgcal.measurements.types import kinematic_levels
+from fgcal.measurements.dataset import Dataset, Noise, PointObservations
+from fgcal.measurements.types import all_levels, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.robots.ik import BRANCHES, solve_puma_batch
 from fgcal.robots.kinematics import forward, tool_points
@@ -254,21 +254,22 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
 
     Parameters
     ----------
-    q_commanded : array_like, shape (N, 6)
+    q_commanded : array_like, shape (N, n)
         Joint sets the robot is sent to (rad). The arm lands at ``q + N(0, repeatability)``;
         the controller reports ``q`` rounded to ``joint_resolution``.
-    levels : sequence of {"probes", "centres", "poses", "distances"}
-        What to write. Centres carry ``cmm_sigma`` per coordinate; poses carry
-        ``pose_position_sigma`` (mm) and ``pose_orientation_sigma`` (deg) of ``noise``; distances
-        (a ballbar from the world origin to each ball) ``distance_sigma`` (or ``cmm_sigma``).
+    levels : sequence of str
+        What to write: ``"probes"`` and any registered measurement type's level
+        (:mod:`fgcal.measurements.types`), each simulated by its type with its noise from ``noise``.
     outlier_fraction : float
         Fraction of probe points displaced by ``outlier_size`` mm along the surface normal.
 
     Returns
     -------
     pose_ids : ndarray of int, shape (N',)
-    joints_deg : ndarray, shape (N', 6)
-    probes, centres, poses, distances : observations or None
+    joints_deg : ndarray, shape (N', n)
+    probes : PointObservations or None
+    observed : dict of level to observations
+        The other levels' measurements.
     outliers : list of (pose, ball, probe index)
     skipped : list of str
         Poses dropped because fewer than ``n_balls`` balls were reachable on the actual robot.
@@ -324,8 +325,7 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
                                               np.array([r[2] for r in rows[kind.level]]))
                 for kind in kinds if rows[kind.level]}
     keep = np.array(keep, dtype=int)
-    centres_obs, poses, distances = (observed.get(level) for level in ("centres", "poses", "distances"))
-    return ids[keep], reading[keep], probes, centres_obs, poses, distances, outliers, skipped
+    return ids[keep], reading[keep], probes, observed, outliers, skipped
 
 
 def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarray:
@@ -365,8 +365,8 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
     if model.tooling is None:
         raise FgcalError(f"robot model {model.name} has no tooling (balls) to measure")
     for lv in s.levels:
-        if lv not in LEVELS:
-            raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(LEVELS)})")
+        if lv not in all_levels():
+            raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(all_levels())})")
     if s.n_balls < 1 or s.n_balls > len(model.tooling.balls):
         raise FgcalError(f"--balls must be between 1 and {len(model.tooling.balls)}")
     if s.probes_per_ball < 4 and "probes" in s.levels:
@@ -401,7 +401,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
         if new_robot:  # a given truth keeps its pivot (a verification set of the same set-up)
             truth = _pivot_at_origin(model, truth, q, model.tooling)
         volume = None
-    ids, joints_deg, probes, centres, poses, distances, outliers, skipped = measure(
+    ids, joints_deg, probes, observed, outliers, skipped = measure(
         model, truth, q, rng, model.tooling, noise, volume, s.n_balls, s.probes_per_ball,
         s.outlier_fraction, s.outlier_size, s.levels)
     notes += [f"skipped {m}" for m in skipped]
@@ -410,6 +410,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
                   "outlier_fraction": s.outlier_fraction, "outlier_size_mm": s.outlier_size}
     truth_file = {name: float(v) for name, v in zip(model.slot_names, model.slots_to_file_units(truth))}
     ds = Dataset(robot=robot_ref or model.name, tooling=model.tooling, noise=noise, provenance=provenance,
-                 pose_ids=ids, joints_deg=joints_deg, probes=probes, centres=centres, poses=poses, distances=distances,
-                 truth=truth_file, truth_outliers=outliers)
+                 pose_ids=ids, joints_deg=joints_deg, probes=probes, truth=truth_file, truth_outliers=outliers)
+    for level, obs in observed.items():
+        setattr(ds, level, obs)
     return ds, notes

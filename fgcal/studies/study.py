@@ -81,8 +81,8 @@ def _design(trials=8, poses=12, seed=0, candidates=2000, random_sets=40, **_):
     """Designed plans (one per index, planned once on the nominal robot) against random sets,
     each calibrated on ``trials`` truth draws: the answer to the paper's open question."""
     from fgcal.measurements.dataset import Noise
-    from fgcal.studies.design import INDICES, Candidates, candidate_pool, design_plan
     from fgcal.robots.robot_file import load_model
+    from fgcal.studies.design import INDICES, Candidates, candidate_pool, design_plan
     from fgcal.studies.simulate import random_plan
 
     model = load_model("puma560")
@@ -142,12 +142,21 @@ def _model(robot: str):
     return load_model(robot)
 
 
+def prepare_process(robots) -> None:
+    """Import what a trial uses and read the ``robots``' models, so that forked workers inherit them."""
+    import fgcal.estimation.calibrate  # noqa: F401
+    import fgcal.report.verify  # noqa: F401
+    import fgcal.studies.probing  # noqa: F401
+
+    for robot in robots:
+        _model(robot)
+
+
 @lru_cache(maxsize=4)
 def _paper_plan(robot: str):
-    from fgcal.robots.robot_file import load_model
     from fgcal.studies.simulate import paper_plan
 
-    model = load_model(robot)
+    model = _model(robot)
     q, _, _ = paper_plan(model, np.random.default_rng(1993), model.tooling, model.volume)
     return q
 
@@ -156,13 +165,16 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     """Simulate, calibrate and verify one trial; a row of :data:`RESULT_COLUMNS`.
 
     ``q_identify`` (N, 6) rad fixes the identification poses (a designed plan); the trial's own
-    random draw is used otherwise.
+    random draw is used otherwise. The simulation and the verification's sphere and pose fits are
+    the vectorised forms of :func:`fgcal.studies.simulate.measure` and :func:`fgcal.report.verify.measured_poses`
+    (same random stream, same estimators and checks: the same numbers, to rounding).
     """
     from fgcal.estimation.calibrate import calibrate
     from fgcal.measurements.dataset import Noise
-    from fgcal.studies.simulate import draw_truth, measure, random_plan
+    from fgcal.report.verify import compare_poses
     from fgcal.robots.kinematics import forward
-    from fgcal.report.verify import compare_poses, measured_poses
+    from fgcal.studies.probing import simulate_probes
+    from fgcal.studies.simulate import draw_truth, random_plan
 
     t0 = time.perf_counter()
     model = _model(trial.robot)
@@ -171,12 +183,9 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     truth = draw_truth(model, rng)
     noise = Noise(trial.cmm_sigma, trial.joint_resolution, trial.repeatability)
     measured_pos = measured_ori = float("nan")
-    from fgcal.measurements.dataset import Dataset
 
-    def dataset(q):
-        ids, joints, probes, _, _, _, _, skipped = measure(model, truth, q, rng, model.tooling, noise, model.volume)
-        return Dataset(robot=model.name, tooling=model.tooling, noise=noise, provenance={}, pose_ids=ids,
-                       joints_deg=joints, probes=probes)
+    def probe(q):
+        return simulate_probes(model, truth, q, rng, model.tooling, noise, model.volume)
 
     if trial.plan == "experiment":
         plan = _paper_plan(trial.robot)
@@ -189,16 +198,17 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
         verify_q = random_plan(model, truth, trial.n_verify, rng, model.tooling, model.volume)
     if trial.q_plan and q_identify is None:
         q_id = np.array(trial.q_plan, dtype=float)
-    ident = dataset(q_id)
-    result = calibrate(ident, model)
-    ver = dataset(verify_q)
-    q_ver = ver.joints_rad
-    after = compare_poses(forward(result.slot_vector(), q_ver), forward(truth, q_ver)).summary()
+    result = calibrate(probe(q_id).dataset(model, noise), model)
+    ver = probe(verify_q)
+    q_ver = np.radians(ver.joints_deg)
+    x = result.slot_vector()
+    T_cal = forward(x, q_ver)
+    after = compare_poses(T_cal, forward(truth, q_ver)).summary()
     pos_rms, pos_max = after["position_mm"]["rms"], after["position_mm"]["max"]
     ori_rms, ori_max = after["orientation_deg"]["rms"], after["orientation_deg"]["max"]
-    ids, T_meas, _ = measured_poses(ver)
-    if len(ids):
-        against = compare_poses(forward(result.slot_vector(), ver.joints_rad[ver.row_of(ids)]), T_meas).summary()
+    rows, T_meas = ver.measured_poses(model.tooling, noise.cmm_sigma)
+    if len(rows):
+        against = compare_poses(T_cal[rows], T_meas).summary()
         measured_pos = against["position_mm"]["rms"]
         measured_ori = against["orientation_deg"]["rms"]
     row = asdict(trial)

@@ -131,6 +131,23 @@ def _check_settings(csv_path: Path, rows: list[dict], trials: list[Trial]) -> No
                              f"{csv_path.parent}")
 
 
+def _worker_context(todo: list[Trial]):
+    """How to start local workers: forked from this process where that is safe, else spawned.
+
+    A spawned worker imports fgcal's calibration path and reads the robot model again (about a
+    second of CPU each, as much as ten trials); a fork inherits them. Fork only on Linux and from
+    a process with no other threads (a fork copies no threads, and any lock one held stays held).
+    """
+    import threading
+
+    if sys.platform.startswith("linux") and threading.active_count() == 1:
+        from fgcal.studies.study import prepare_process
+
+        prepare_process({t.robot for t in todo})
+        return get_context("fork")
+    return get_context("spawn")
+
+
 def run_study(trials: list[Trial], out_dir, workers: int | None = None, scheduler: str | None = None,
               progress: bool = True, runner=run_trial) -> list[dict]:
     """Run the trials not yet in ``out_dir/trials.csv``; returns all rows (old and new).
@@ -183,7 +200,7 @@ def run_study(trials: list[Trial], out_dir, workers: int | None = None, schedule
         for t in todo:
             finished(runner(t))
     else:
-        with ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=_worker_context(todo)) as pool:
             futures = [pool.submit(runner, t) for t in todo]
             for fut in as_completed(futures):
                 finished(fut.result())

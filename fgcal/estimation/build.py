@@ -1,0 +1,178 @@
+"""The factor graph of a dataset: its noise, its measurement levels, the starting point (the base
+fitted to the measurements, a ballbar's pivot, sphere fits chosen against the kinematic
+prediction) and the :class:`fgcal.estimation.graph.Graph` itself. No I/O here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fgcal.errors import FgcalError
+from fgcal.estimation.graph import Graph, Sigmas
+from fgcal.estimation.gravity import model_inertials
+from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
+from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.posefit import rigid_fit
+from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
+from fgcal.measurements.types import all_levels, kinematic_levels, kinematic_types
+from fgcal.robots.kinematics import tool_points
+from fgcal.robots.model import EULER_FIELDS, RobotModel
+from fgcal.robots.transforms import to_euler_zyx_trans
+
+__all__ = ["build_graph"]
+
+
+def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=None) -> Sigmas:
+    scale = scale or {}
+    n = ds.noise
+    # A joint reading's sigma is in its file unit (deg, or mm for a prismatic joint).
+    joint = model.joints_to_internal(np.full(model.n_joints, n.joint_sigma_deg)) if options.joint_noise else 0.0
+    centre = n.centre_sigma if n.centre_sigma is not None else n.cmm_sigma
+    pos = n.pose_position_sigma if n.pose_position_sigma is not None else n.cmm_sigma
+    rot = np.radians(n.pose_orientation_sigma) if n.pose_orientation_sigma is not None else n.cmm_sigma / 100.0
+    other = {name: max(value, MIN_SIGMA) * scale.get(kind.level, 1.0)
+             for kind in kinematic_types() for name, value in kind.declared_sigmas(n).items()}
+    return Sigmas(other=tuple(sorted(other.items())), probe=max(n.cmm_sigma, MIN_SIGMA) * scale.get("probes", 1.0),
+                  centre=max(centre, MIN_SIGMA) * scale.get("centres", 1.0),
+                  pose_position=max(pos, MIN_SIGMA) * scale.get("poses", 1.0),
+                  pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses", 1.0),
+                  joint=joint, kinematic=options.kinematic_sigma,
+                  distance=max(n.distance_sigma if n.distance_sigma is not None else n.cmm_sigma, MIN_SIGMA)
+                  * scale.get("distances", 1.0))
+
+
+def _levels(ds: Dataset, options: CalibrationOptions) -> list[str]:
+    present = ds.levels()
+    if options.levels is None:
+        return present
+    for lv in options.levels:
+        if lv not in all_levels():
+            raise FgcalError(f"unknown level {lv!r} ({', '.join(all_levels())})")
+        if lv not in present:
+            raise FgcalError(f"{ds.path or 'dataset'}: has no {lv} (it has: {', '.join(present) or 'none'})")
+    return list(options.levels)
+
+
+def _initial_base(model: RobotModel, held, q, world_points_by_pose):
+    """Fit the base placement to measured points with the nominal chain (a rigid fit)."""
+    x = held.copy()
+    base = [model.slot(f"base.{f}") for f in EULER_FIELDS]
+    x[base] = 0.0
+    if not world_points_by_pose:
+        return held
+    poses = np.array(list(world_points_by_pose), dtype=int)
+    T = model.forward(x, q[poses])  # one kinematics evaluation for all poses
+    pred = np.vstack([tool_points(T[k:k + 1], offsets)[0]
+                      for k, (offsets, _) in enumerate(world_points_by_pose.values())])
+    meas = np.vstack([world for _, world in world_points_by_pose.values()])
+    if len(pred) < 3 or np.linalg.matrix_rank(pred - pred.mean(0), tol=1e-6) < 2:
+        return held
+    fit = rigid_fit(pred, meas, sigma=1.0)
+    try:
+        values = to_euler_zyx_trans(fit.T)
+    except ValueError:
+        return held
+    out = held.copy()
+    out[base] = values
+    return out
+
+
+def _initial_pivot(model: RobotModel, held, q, offsets, length):
+    """Slots with the base moved so that the world origin is the ballbar's pivot.
+
+    ``|p_i - c|^2 = L_i^2`` with ``p_i`` the nominal ball positions is linear in ``(c, |c|^2)``;
+    the base then becomes ``Trans(-c) A_b``. Its rotation stays nominal (distances cannot see it).
+    """
+    p = tool_points(model.forward(held, q), offsets[:, None, :] if offsets.ndim == 2 else offsets)[:, 0]
+    A = np.column_stack([2 * p, -np.ones(len(p))])
+    b = np.sum(p**2, axis=1) - np.asarray(length, dtype=float) ** 2
+    if len(p) < 4 or np.linalg.matrix_rank(A) < 4:
+        return held
+    return model.with_world_origin_at(held, np.linalg.lstsq(A, b, rcond=None)[0][:3])
+
+
+def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None):
+    """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
+
+    Only poses with at least one measurement at the chosen levels take part.
+    """
+    levels = _levels(ds, options)
+    block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
+    names = [n for n in names if not is_block_name(n)]
+    params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
+    params = type(params)(model, tuple(names))
+    held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
+    measured = set()
+    for lv in levels:
+        measured |= set(getattr(ds, lv).pose.tolist())
+    pose_ids = np.array([p for p in ds.pose_ids if p in measured], dtype=int)
+    if not len(pose_ids):
+        raise FgcalError(f"{ds.path or 'dataset'}: no pose has measurements at levels {', '.join(levels)}")
+    row = {p: i for i, p in enumerate(pose_ids)}
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose_ids)])
+    sig = _sigmas(ds, model, options, scale if scale is not None else options.noise_scale)
+    kw = {}
+    world_points = {}
+    init_c = None
+    if "probes" in levels:
+        pr = ds.probes
+        keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
+        var = {k: j for j, k in enumerate(keys)}
+        ball_pose = np.array([row[p] for p, _ in keys], dtype=int)
+        ball_offset = np.array([ds.tooling.balls[b] for _, b in keys])
+        # Start each centre from a sphere fit of its points (batched over balls with equal counts).
+        init_c = np.full((len(keys), 3), np.nan)
+        var_of_probe = np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int)
+        for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=4):
+            init_c[vs] = fit_spheres_batch(pts, ds.tooling.radius)
+        for j, (p, b) in enumerate(keys):
+            if np.all(np.isfinite(init_c[j])):
+                offs, pts_w = world_points.get(row[p], (np.zeros((0, 3)), np.zeros((0, 3))))
+                world_points[row[p]] = (np.vstack([offs, ds.tooling.balls[b]]), np.vstack([pts_w, init_c[j]]))
+        kw.update(probes=(np.array([row[p] for p in pr.pose], dtype=int),
+                          np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int),
+                          pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset, radius=ds.tooling.radius)
+    kw["measurements"] = {}
+    for kind in kinematic_levels(levels):
+        terms = kind.terms(getattr(ds, kind.level), ds.tooling, row)
+        kw["measurements"][kind.level] = terms
+        for i, (offs, pts_w) in kind.world_points(terms).items():
+            if i in world_points and kind.level != "poses":  # a measured pose fixes the pose alone
+                offs, pts_w = np.vstack([world_points[i][0], offs]), np.vstack([world_points[i][1], pts_w])
+            world_points[i] = (offs, pts_w)
+    pivot_start = None
+    if "distances" in levels:
+        terms = kw["measurements"]["distances"]
+        pivot_start = _initial_pivot(model, held, q[terms.pose], *terms.data)
+    if options.prior == "weak":
+        kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
+    elif options.prior != "none":
+        raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
+    start = _initial_base(model, held, q, world_points) if pivot_start is None or world_points else pivot_start
+    if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
+        block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,
+                                      model_inertials(model), block_names, model.chain)
+        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
+        params = BlockParameters(params, block)
+        kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
+        kw["joint_errors"] = block.design(q, start)
+    graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
+    theta0 = params.take(start)
+    if init_c is not None and len(graph.ball_pose):
+        # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
+        # points equally well, the one near the prediction is the ball's. Balls whose points do
+        # not fit a sphere start at the prediction itself.
+        T0 = model.forward(params.full(theta0, start), q)
+        predicted = tool_points(T0[graph.ball_pose], graph.ball_offset[:, None, :])[:, 0]
+        for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=3):
+            first = init_c[vs]
+            ok = np.all(np.isfinite(first), axis=1)
+            first_ok = np.where(ok[:, None], first, predicted[vs])
+            candidates = [fit_spheres_batch(pts, ds.tooling.radius, guess=g)
+                          for g in (first_ok, mirror_through_points(pts, first_ok), predicted[vs])]
+            init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates, ds.noise.cmm_sigma, predicted[vs])
+        bad = ~np.all(np.isfinite(init_c), axis=1) | (np.linalg.norm(init_c - predicted, axis=1) > 50.0)
+        init_c[bad] = predicted[bad]
+    state = graph.initial_state(theta0, init_c)
+    graph.held = params.full(theta0, start)  # held slots stay at the fitted start's values
+    return graph, state, pose_ids

@@ -1,0 +1,67 @@
+"""Levenberg-Marquardt on the batched graph (or GTSAM's, with ``engine="gtsam"``). No I/O here."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from fgcal.errors import FgcalError
+from fgcal.estimation.graph import Graph, State
+from fgcal.estimation.options import CalibrationOptions
+
+__all__ = ["levenberg_marquardt", "COST_ROUNDING"]
+
+log = logging.getLogger(__name__)
+
+# Relative change of the cost below which two costs are the same up to rounding: the residuals
+# are differences of coordinates of ~1e3 mm computed to ~1e-13 mm, whitened by sigmas of ~1e-2.
+COST_ROUNDING = 1e-10
+
+
+def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None):
+    """Minimise the graph's cost; returns ``(state, iterations, converged)``.
+
+    ``lin``: the linearisation at ``state`` when the caller has it. The solve stops when a step
+    (or the Gauss-Newton model's prediction of it) changes the cost by no more than
+    ``tolerance`` relative, or by no more than rounding: such a step is not tried again damped.
+    """
+    lin = graph.linearise(state) if lin is None else lin
+    cost = lin.cost
+    damping = 1e-4
+    for it in range(1, max_iterations + 1):
+        for _ in range(30):
+            try:
+                new, d_theta, predicted = graph.step(state, lin, damping)
+            except np.linalg.LinAlgError:
+                damping *= 10
+                continue
+            if damping <= 1e-3 and 0 <= predicted <= tolerance * max(cost, 1e-300):
+                return state, it, True  # at the minimum: what is left to gain is rounding
+            lin.cache.clear()  # its normal equations are formed again if this step is rejected
+            new_lin = graph.linearise(new)
+            if np.isfinite(new_lin.cost) and new_lin.cost <= cost:
+                break
+            if np.isfinite(new_lin.cost) and new_lin.cost - cost <= COST_ROUNDING * cost and predicted <= COST_ROUNDING * cost:
+                return state, it, True  # the change is rounding, not a worse point
+            damping *= 10
+        else:
+            log.warning("Levenberg-Marquardt: no step reduces the cost (damping %.3g)", damping)
+            return state, it, False
+        gain = cost - new_lin.cost
+        state, lin = new, new_lin
+        damping = max(damping / 10, 1e-12)
+        small_step = np.max(np.abs(d_theta)) < 1e-12 * (1 + np.max(np.abs(state.theta)))
+        if gain <= tolerance * max(cost, 1e-300) or small_step or new_lin.cost < 1e-24:
+            return state, it, True
+        cost = new_lin.cost
+    return state, max_iterations, False
+
+
+def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None):
+    if options.engine == "batch":
+        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance, lin=lin)
+    if options.engine == "gtsam":
+        from fgcal.estimation.gtsam_graph import gtsam_levenberg_marquardt
+
+        return gtsam_levenberg_marquardt(graph, state, options.max_iterations, options.tolerance)
+    raise FgcalError(f"unknown engine {options.engine!r} (batch, gtsam)")
