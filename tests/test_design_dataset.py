@@ -133,7 +133,7 @@ def test_sandwich_middle_is_the_information_when_the_weights_are_right(puma):
         np.testing.assert_allclose(middle, info, rtol=1e-9, atol=1e-9 * np.abs(info).max())
         # weights of twice the actual sigma on every row: the middle is a quarter of their information
         sig = sigmas_of(NOISE, puma)
-        half = replace(sig, probe=2 * sig.probe, centre=2 * sig.centre, pose_position=2 * sig.pose_position,
+        half = sig.replaced(probe=2 * sig.probe, centre=2 * sig.centre, pose_position=2 * sig.pose_position,
                        pose_rotation=2 * sig.pose_rotation, kinematic=2 * sig.kinematic, joint=2 * sig.joint)
         _, m2 = information_and_middle(puma, pool, layout, NOISE, sigmas=half, actual=sig)
         np.testing.assert_allclose(m2, information(puma, pool, layout, NOISE, sigmas=half) / 4, rtol=1e-9,

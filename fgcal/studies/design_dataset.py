@@ -20,7 +20,7 @@ No file I/O here (see :func:`save_plan`).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -158,7 +158,7 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         attr = COMPONENTS[name][2]
         scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
         levels[name] = (float(level.declared), float(level.used), level.unit)
-    weights, slots = replace(sig, **scaled), result.slot_vector(model)
+    weights, slots = sig.replaced(**scaled), result.slot_vector(model)
     if np.any(np.asarray(sig.joint) > 0):  # the estimator models joint noise and estimated it
         return DesignNoise(weights, slots, levels, mode)
     # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
