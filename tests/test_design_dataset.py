@@ -61,6 +61,21 @@ def test_plan_from_a_dataset_beats_random_sets_at_held_out_poses(puma, level):
     assert c.plan_mean < np.median(c.random_mean)
 
 
+def _misdeclared(puma, true: Noise, declared: Noise, seed: int):
+    """A simulated 150-pose dataset of full poses with noise ``true`` that declares ``declared``,
+    60 new poses of the same robot, and the realised position error RMS (mm, against the truth at
+    the new poses) of a calibration from given pose ids."""
+    settings = SimulationSettings(n_poses=150, noise=true, levels=("poses",))
+    ds, _ = simulate(puma, np.random.default_rng(seed), settings)
+    held, _ = simulate(puma, np.random.default_rng(seed + 1), replace(settings, n_poses=60),
+                       truth=slots_from_file_units(np.array(list(ds.truth.values()))))
+    ds = replace(ds, noise=declared)
+
+    def realised(ids):
+        return float(np.sqrt(np.mean(verify(calibrate(ds.select(ids), puma), held, puma).truth_after.position_mm ** 2)))
+    return ds, realised
+
+
 def test_design_for_the_estimated_noise_predicts_and_beats_random_sets(puma):
     """A dataset whose declared position noise is 10x too small (as a tracker's stated noise is,
     against a robot's unmodelled errors): designing for the declared noise misweighs position
@@ -68,19 +83,12 @@ def test_design_for_the_estimated_noise_predicts_and_beats_random_sets(puma):
     the noise estimated from the dataset gives a plan whose predicted accuracy (at new poses,
     against the simulated truth) is the realised one, and which beats the random sets."""
     true = Noise(0.01, 0.0, pose_position_sigma=0.1, pose_orientation_sigma=0.01)
-    settings = SimulationSettings(n_poses=150, noise=true, levels=("poses",))
-    ds, _ = simulate(puma, np.random.default_rng(140), settings)
-    held, _ = simulate(puma, np.random.default_rng(141), replace(settings, n_poses=60),
-                       truth=slots_from_file_units(np.array(list(ds.truth.values()))))
-    ds = replace(ds, noise=replace(true, pose_position_sigma=0.01))
+    ds, realised = _misdeclared(puma, true, replace(true, pose_position_sigma=0.01), 140)
     plan = design_from_dataset(ds, puma, 12, random_sets=100, rng=np.random.default_rng(142))
     declared = design_from_dataset(ds, puma, 12, random_sets=100, rng=np.random.default_rng(142), noise="declared")
     decl, used, _ = plan.noise["poses"]
     assert decl == 0.01 and used == pytest.approx(0.1, rel=0.15)
     assert plan.noise["poses_rotation"][1] == pytest.approx(0.01, rel=0.15) and not declared.noise
-
-    def realised(ids):  # position error RMS against the truth at the new poses (mm)
-        return float(np.sqrt(np.mean(verify(calibrate(ds.select(ids), puma), held, puma).truth_after.position_mm ** 2)))
 
     rng = np.random.default_rng(143)
     random = np.median([realised(rng.choice(ds.pose_ids, 12, replace=False)) for _ in range(10)])
@@ -102,16 +110,9 @@ def test_unmodelled_joint_error_is_found_and_its_sandwich_predicts_the_realised_
     (the sandwich) predicts the realised accuracy at new poses, against the simulated truth, for
     the plan and for random sets; the plan beats the random sets."""
     true = Noise(0.01, 0.0, 0.02, pose_position_sigma=0.01, pose_orientation_sigma=0.001)
-    settings = SimulationSettings(n_poses=150, noise=true, levels=("poses",))
-    ds, _ = simulate(puma, np.random.default_rng(150), settings)
-    held, _ = simulate(puma, np.random.default_rng(151), replace(settings, n_poses=60),
-                       truth=slots_from_file_units(np.array(list(ds.truth.values()))))
-    ds = replace(ds, noise=replace(true, repeatability=0.0))
+    ds, realised = _misdeclared(puma, true, replace(true, repeatability=0.0), 150)
     plan = design_from_dataset(ds, puma, 12, random_sets=100, rng=np.random.default_rng(152))
     assert plan.noise["unmodelled joint error"][1] == pytest.approx(0.02, rel=0.15)  # measured 0.0195 deg
-
-    def realised(ids):  # position error RMS against the truth at the new poses (mm)
-        return float(np.sqrt(np.mean(verify(calibrate(ds.select(ids), puma), held, puma).truth_after.position_mm ** 2)))
 
     rng = np.random.default_rng(153)
     random = np.median([realised(rng.choice(ds.pose_ids, 12, replace=False)) for _ in range(10)])
