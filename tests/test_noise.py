@@ -72,12 +72,39 @@ def test_gross_errors_are_excluded_and_named(puma, tmp_path):
     assert kept.outliers == [] and kept.noise["probes"].used > 3 * r.noise["probes"].used
 
 
+@pytest.mark.parametrize("width", [1, 3])
+def test_robust_scale_is_unbiased_tighter_than_the_median_and_ignores_gross_errors(width):
+    """The outlier test's scale: chi-square statistics of a known variance factor, 3 of them gross."""
+    from scipy import special
+
+    from fgcal.estimation.noise import robust_scale
+
+    rng = np.random.default_rng(87)
+    n, true = 250, 2.0
+    trunc, median = [], []
+    for _ in range(400):
+        t = true * rng.chisquare(width, n)
+        t[:3] = true * 400.0  # 20-sigma gross errors
+        trunc.append(robust_scale(t, width) / true)
+        median.append(np.median(t) / special.chdtri(width, 0.5) / true)
+    # unbiased to its scatter over 400 draws (sigma of the mean ~0.005), 3 gross errors included
+    assert abs(np.mean(trunc) - 1) < 0.02, np.mean(trunc)
+    # two thirds of the median's scatter or less: fewer good measurements excluded for a low scale
+    assert np.std(trunc) < 0.75 * np.std(median), (np.std(trunc), np.std(median))
+
+
 def test_clean_data_lose_nothing(puma):
     for seed in range(82, 85):
         ds, _ = simulate(puma, np.random.default_rng(seed), SimulationSettings(n_poses=21))
         r = calibrate(ds, puma)
         assert r.outliers == [] and r.fit_test["p_value"] > 1e-3
         assert "match the estimated noise" in verdict(r)[0]
+    # measured centres: a centre's three coordinates share the pose's joint variables, so their
+    # residuals are correlated; summed as if chi-square(3) they excluded this good centre
+    from fgcal.estimation.honesty import scenario_dataset
+
+    ds, _, _, _ = scenario_dataset(puma, SCENARIOS["centres only"], 2015)
+    assert calibrate(ds, puma).outliers == []
 
 
 def test_held_parameters_do_not_depend_on_options(puma):

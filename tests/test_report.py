@@ -130,3 +130,49 @@ def test_cli_report(result, tmp_path):
     run = subprocess.run([sys.executable, "-m", "fgcal.cli", "report", str(tmp_path / "r.json"), "--verify",
                           str(tmp_path / "bad.json"), "--out", str(tmp_path / "rep2")], capture_output=True, text=True)
     assert run.returncode == 2 and "not an fgcal-verify/1 file" in run.stderr
+
+
+def test_pose_residuals_at_the_readings_are_kept_and_name_the_outlier(puma, tmp_path, capsys):
+    """Per-pose training residuals: at the readings (against plain forward kinematics here), after the
+    joints moved, saved and loaded, and a pose with a wrong joint reading named an outlier."""
+    from fgcal.estimation.result import load_result
+    from fgcal.report.report_sections import build_content, training_flags
+    from fgcal.robots.kinematics import tool_points
+
+    ds, _ = simulate(puma, np.random.default_rng(31), SimulationSettings(n_poses=18, levels=("centres",)))
+    bad = int(ds.pose_ids[7])
+    ds.joints_deg[ds.row_of([bad])[0], 1] += 0.2  # the controller reported joint 2 0.2 deg off
+    r = calibrate(ds, puma)
+    assert [p.pose for p in r.pose_residuals] == r.pose_ids
+    # at the readings: the calibrated chain's centres at the reported joints against the measured ones
+    c = ds.centres
+    q = puma.joints_to_internal(ds.joints_deg[ds.row_of(c.pose)])
+    offsets = np.array([ds.tooling.balls[b] for b in c.ball])[:, None, :]
+    d = np.linalg.norm(tool_points(puma.forward(r.slot_vector(), q), offsets)[:, 0] - c.xyz, axis=1)
+    kept = np.ones(len(c), dtype=bool)
+    kept[[o.index for o in r.outliers]] = False
+    assert {o.pose for o in r.outliers} <= {bad}  # the wrong reading may make a centre look gross
+    for p in r.pose_residuals:
+        m = (c.pose == p.pose) & kept
+        assert p.n == m.sum() and p.excluded == np.sum(c.pose == p.pose) - m.sum() and p.rotation_deg is None
+        assert p.rms_mm == pytest.approx(np.sqrt(np.mean(d[m] ** 2)), rel=1e-9, abs=1e-12)
+        assert p.max_mm == pytest.approx(d[m].max(), rel=1e-9, abs=1e-12)
+        assert p.nominal_mm > p.rms_mm
+    worst = max(r.pose_residuals, key=lambda p: p.rms_mm)
+    # 0.2 deg at ~0.8 m is ~3 mm at the reading; the joint variable absorbs it after the solve
+    assert worst.pose == bad and worst.rms_mm > 1.0 and worst.moved_mm < 0.1 * worst.rms_mm
+    save_result(r, tmp_path / "r.json")
+    back = load_result(tmp_path / "r.json")
+    assert back.pose_residuals == r.pose_residuals
+    flags = {f.pose: f.flags for f in training_flags(back)}
+    assert any(x.startswith("outlier") for x in flags[bad])
+    assert [p for p, fl in flags.items() if any(x.startswith("outlier") for x in fl)] == [bad]
+    section = next(s for s in build_content(back).sections if s.title == "Residuals at the calibration poses")
+    text = " ".join(b.text for b in section.blocks)
+    assert f"Outlier poses (residual at the readings more than 3.5 robust sigma above the median): {bad}." in text
+    table = next(b for b in section.blocks if b.kind == "table")
+    assert table.rows[0][0] == str(bad) and "outlier" in table.rows[0][-1]
+    from fgcal.cli.commands.calibrate import _print_result
+
+    _print_result(back)  # what `fgcal calibrate` prints
+    assert f"outlier poses (residual at the joint readings): {bad} ({worst.rms_mm:.3g} mm)" in capsys.readouterr().out

@@ -163,9 +163,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="CSV of pose,q1..q6 (deg) of the reachable targets; standard output if omitted. The "
                          "unreachable ones are named on standard error and the exit status is 3")
     c2.add_argument("--frame", choices=("instrument", "base"), default="instrument",
-                    help="frame of the targets: the measuring instrument's (default) or the robot's base as the "
-                         "model places it (calibrated); a first link's d and theta are folded into the base, so "
-                         "for the UR10 this frame is 127.3 mm above the mounting face")
+                    help="frame of the targets: the measuring instrument's (default) or the robot's own base frame "
+                         "(a URDF's base link; a DH table's base frame, at the mounting face), placed by the "
+                         "calibrated base")
     c2.add_argument("--tcp", default=None, metavar="X,Y,Z[,RX,RY,RZ]",
                     help="the targets are for this TCP, given in the model's tool frame (the flange for the "
                          "built-in robots): mm, and deg as R = Rz(RZ) Ry(RY) Rx(RX)")

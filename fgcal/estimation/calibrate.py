@@ -26,11 +26,11 @@ from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F40
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost
 from fgcal.estimation.identifiability import analyse_information
-from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
                     scaled_inverse, update_sigmas)
-from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate, ResidualSummary
+from fgcal.estimation.residuals import at_readings, pose_residuals
+from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 from fgcal.estimation.joint_errors import BlockParameters
 
 __all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
@@ -142,29 +142,6 @@ def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
     return graph.covariance(state, lin)
 
 
-def _at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
-    """Residuals with the joints at their readings and centres on the kinematics (the training error)."""
-    if not graph.joint_vars:
-        return {}
-    at = state.copy()
-    at.q = graph.readings.copy()
-    if len(graph.ball_pose):
-        T = graph.params.model.forward(graph.params.full(state.theta, graph.held), at.q[graph.ball_pose])
-        at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
-    raw = graph.linearise(at).raw
-    out = {}
-    for level in ("probes", *BY_LEVEL):
-        if level not in raw:
-            continue
-        e = raw[level][0][~graph.excluded.get(level, np.zeros(len(raw[level][0]), dtype=bool))]
-        if level in BY_LEVEL:
-            dist, angle = BY_LEVEL[level].metric(e)
-            out[level] = ResidualSummary(len(e), _rms(dist), "mm", None if angle is None else _rms(angle))
-        else:
-            out[level] = ResidualSummary(len(e), _rms(np.linalg.norm(e.reshape(len(e), -1), axis=1)), "mm")
-    return out
-
-
 def _measured_points(ds: Dataset, levels) -> np.ndarray | str:
     if "poses" in levels:
         return "pose"
@@ -224,6 +201,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         graph, state, pose_ids = build_graph(ds, model, names, options)
         lin = None
 
+    theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     state, iterations, converged = _solve(graph, state, options)
     declared = graph.sigmas
     if options.estimate_noise:
@@ -304,7 +282,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         noise_mode=noise_mode.value, noise=noise_table, outliers=outliers,
         fit_test={"statistic": float(ssq_declared), "redundancy": float(red_total),
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
-        at_readings=_at_readings(graph, state),
+        at_readings=at_readings(graph, state), pose_residuals=pose_residuals(graph, state, theta_start, pose_ids),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
 
 

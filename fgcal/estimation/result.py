@@ -13,7 +13,8 @@ from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.estimation.noise import LevelNoise, Outlier
 from fgcal.io.yamlio import atomic_write_text
 
-__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "CalibrationResult", "save_result", "load_result"]
+__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "PoseResidual", "CalibrationResult",
+           "save_result", "load_result"]
 
 FORMAT = "fgcal-result/1"
 MAX_RESULT_BYTES = 1 << 30
@@ -57,6 +58,45 @@ class ResidualSummary:
     rms: float
     unit: str
     rms_rotation_deg: float | None = None
+
+
+@dataclass
+class PoseResidual:
+    """What the calibrated model misses at one calibration pose (mm; deg for rotations).
+
+    The position residuals of a pose are its probe points' distances off their spheres, its
+    measured centres' and poses' position errors (vector lengths) and its ballbar length errors.
+
+    Attributes
+    ----------
+    pose : int
+        Pose id.
+    n : int
+        Measurements of the pose that entered the solve.
+    rms_mm : float
+        RMS of those residuals with the joints at their readings and the ball centres on the
+        kinematics: the training error a user of the readings sees.
+    moved_mm : float
+        The same after the joint variables moved to absorb the readings' noise (equal to
+        ``rms_mm`` when the readings are exact).
+    nominal_mm : float
+        At the readings with the nominal geometry (the base fitted to the data: the solve's start).
+    max_mm : float
+        The largest single residual at the readings.
+    excluded : int
+        Measurements of the pose excluded as gross errors (named in ``outliers``).
+    rotation_deg : float or None
+        RMS rotation error of the pose's measured orientations at the readings.
+    """
+
+    pose: int
+    n: int
+    rms_mm: float
+    moved_mm: float
+    nominal_mm: float
+    max_mm: float
+    excluded: int = 0
+    rotation_deg: float | None = None
 
 
 @dataclass
@@ -106,6 +146,9 @@ class CalibrationResult:
     at_readings : dict of str to ResidualSummary
         Residuals with the joints at their readings (before the joint variables moved): the
         training error a user of the readings sees. ``levels`` holds those after they moved.
+    pose_residuals : list of PoseResidual
+        Per calibration pose (``pose_ids`` order): the residuals at the readings, after the joints
+        moved and with the nominal geometry, so that a report can show them and name the outliers.
     """
 
     robot: str
@@ -133,6 +176,7 @@ class CalibrationResult:
     outliers: list[Outlier] = field(default_factory=list)
     fit_test: dict = field(default_factory=dict)
     at_readings: dict[str, ResidualSummary] = field(default_factory=dict)
+    pose_residuals: list[PoseResidual] = field(default_factory=list)
 
     @property
     def names(self) -> list[str]:
@@ -186,6 +230,7 @@ class CalibrationResult:
         d["noise"] = {k: asdict(v) for k, v in self.noise.items()}
         d["outliers"] = [asdict(o) for o in self.outliers]
         d["at_readings"] = {k: asdict(v) for k, v in self.at_readings.items()}
+        d["pose_residuals"] = [asdict(p) for p in self.pose_residuals]
         return d
 
 
@@ -203,6 +248,16 @@ def _json_safe(obj):
 
 def _float(v):
     return float("nan") if v is None else (float(v) if not isinstance(v, str) else float(v.replace("Infinity", "inf")))
+
+
+def _pose_residual(d: dict) -> PoseResidual:
+    p = PoseResidual(**d)
+    for name in ("rms_mm", "moved_mm", "nominal_mm", "max_mm"):
+        setattr(p, name, _float(getattr(p, name)))
+    p.pose, p.n, p.excluded = int(p.pose), int(p.n), int(p.excluded)
+    if p.rotation_deg is not None:
+        p.rotation_deg = _float(p.rotation_deg)
+    return p
 
 
 def save_result(result: CalibrationResult, path) -> None:
@@ -249,7 +304,8 @@ def load_result(path) -> CalibrationResult:
             noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
             outliers=[Outlier(**o) for o in d.get("outliers", [])],
             fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},
-            at_readings={k: ResidualSummary(**v) for k, v in d.get("at_readings", {}).items()})
+            at_readings={k: ResidualSummary(**v) for k, v in d.get("at_readings", {}).items()},
+            pose_residuals=[_pose_residual(p) for p in d.get("pose_residuals", [])])
     except (AttributeError, KeyError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     try:

@@ -10,15 +10,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.report.accuracy import (AccuracyStats, accuracy_stats, flag_poses, held_parameter_cost, predicted_position_sigma,
-                       round_to_sigma, tolerance_verdict, verification_joints)
+from fgcal.report.accuracy import (OUTLIER_Z, AccuracyStats, accuracy_stats, flag_poses, held_parameter_cost,
+                                   predicted_position_sigma, round_to_sigma, tolerance_verdict, verification_joints)
 from fgcal.errors import FgcalError
 from fgcal.estimation.result import CalibrationResult
 from fgcal.report.uncertainty import parameter_table, verdict
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Block", "Section", "ReportContent", "build_content", "num"]
+__all__ = ["Block", "Section", "ReportContent", "build_content", "num", "training_flags"]
 
 MAX_FLAGGED_ROWS = 30
 
@@ -212,6 +212,9 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
                                     header=header, rows=rows))
         sections.append(acc)
 
+    if getattr(result, "pose_residuals", None):
+        sections.append(_training_section(result))
+
     if result.held:
         held = Section("What the parameters held at nominal cost")
         where = "At the verification poses"
@@ -245,6 +248,55 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
     if captions:
         sections.append(Section("Figures", [Block("figure", name=n, text=c) for n, c in captions.items()]))
     return ReportContent(title, sections)
+
+
+def training_flags(result: CalibrationResult) -> list:
+    """Each calibration pose's flags (:func:`~fgcal.accuracy.flag_poses` on its residual at the readings
+    against the nominal geometry's), plus its measurements excluded as gross errors."""
+    rows = [p for p in result.pose_residuals if np.isfinite(p.rms_mm)]
+    flags = flag_poses({"poses": [{"pose": p.pose, "position_mm": p.rms_mm, "before_position_mm": p.nominal_mm}
+                                  for p in rows]})
+    for f, p in zip(flags, rows):
+        if p.excluded:
+            f.flags.append(f"{p.excluded} measurement(s) excluded as gross errors")
+    return flags
+
+
+def _training_section(result: CalibrationResult) -> Section:
+    sec = Section("Residuals at the calibration poses")
+    res = {p.pose: p for p in result.pose_residuals}
+    flags = training_flags(result)
+    outliers = [f.pose for f in flags if any(x.startswith("outlier") for x in f.flags)]
+    excluded = [p.pose for p in result.pose_residuals if p.excluded]
+    sec.blocks.append(Block("p", "What the calibrated model misses at each calibration pose, with the joints at their "
+                                 "readings (the error a user of the readings sees), after the joint variables moved "
+                                 "to absorb the readings' noise, and with the nominal geometry (base fitted). A "
+                                 "pose's residuals are its probe points' distances off their spheres and its measured "
+                                 "centres' and poses' position errors."))
+    if outliers:
+        sec.blocks.append(Block("p", f"Outlier poses (residual at the readings more than {OUTLIER_Z:g} robust sigma "
+                                     f"above the median): {_listed(outliers)}. Check their joint readings and "
+                                     "measurements, or re-measure them."))
+    if excluded:
+        sec.blocks.append(Block("p", f"Poses with measurements excluded as gross errors (re-measure them): "
+                                     f"{_listed(excluded)}."))
+    if not outliers and not excluded:
+        sec.blocks.append(Block("p", "No calibration pose is an outlier and no measurement was excluded."))
+    header = ["pose", "at the readings (mm RMS)", "after the joints moved (mm RMS)", "nominal (mm RMS)",
+              "largest (mm)", "flags"]
+
+    def row(f):
+        p = res[f.pose]
+        return [str(p.pose), num(p.rms_mm, 3), num(p.moved_mm, 3), num(p.nominal_mm, 3), num(p.max_mm, 3),
+                "; ".join(f.flags)]
+
+    ranked = sorted(flags, key=lambda f: -f.error_mm)
+    shown = [f for f in ranked if f.flags][:MAX_FLAGGED_ROWS]
+    if shown:
+        sec.blocks.append(Block("table", header=header, rows=[row(f) for f in shown], row_flags=[True] * len(shown)))
+    sec.blocks.append(Block("details", f"All {len(ranked)} calibration poses, largest residual first", header=header,
+                            rows=[row(f) for f in ranked]))
+    return sec
 
 
 def _summary(result: CalibrationResult) -> list[tuple[str, str]]:

@@ -16,7 +16,11 @@ A model file holds the nominal table in the paper's convention (lengths mm, angl
 
 A sixth link row (standard DH tables have one) is folded into the tool, and link 1's theta and
 d into the base, since the chain cannot tell them apart; the folded model has the same forward
-kinematics.
+kinematics. What was folded into the base is kept as ``mounting`` (the chain's base frame in the
+robot's own base frame, the table's ``base`` frame before the fold; for a URDF the base link), so
+that targets can be given in the robot's base frame (:mod:`fgcal.robots.compensate`)::
+
+    mounting: {phi: 0, theta: 0, psi: 0, px: 0, py: 0, pz: 127.3}   # written by fgcal, optional
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ from fgcal.io.resources import builtin_robot_names, builtin_robot_path
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
 from fgcal.io.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
-__all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT"]
+__all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT", "euler_dict"]
 
 FORMAT = "fgcal-robot/1"
 
@@ -119,7 +123,7 @@ def _joints(data, n: int, source: str):
 def model_from_dict(data, source: str = "<model>") -> RobotModel:
     """Build a :class:`RobotModel` from a parsed model file; ``ModelError`` names ``source``."""
     top = ("format", "name", "description", "convention", "base", "links", "tool", "tool_offset", "joint_limits",
-           "joints", "coupling", "tooling", "volume", "paper_box", "inertials", "urdf")
+           "joints", "coupling", "tooling", "volume", "paper_box", "inertials", "urdf", "mounting")
     if isinstance(data, dict) and "format" not in data:
         raise ModelError(f"{source}: not an {FORMAT} model file (no format key)")
     data = _mapping(data, top, source, required=("format", "base", "links", "tool", "joint_limits"))
@@ -146,6 +150,7 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     if not isinstance(links, list) or len(links) not in (n - 1, n):
         raise ModelError(f"{source}: links: expected a list of {n - 1} or {n} link rows for {n} joints")
     rows = _table_rows(links, convention, source)
+    table_base = euler_zyx_trans(*base)
     if convention == "mdh":
         first = rows.pop(0)
         base = to_euler_zyx_trans(euler_zyx_trans(*base) @ _link_transform({"theta": 0.0, "d": 0.0, "beta": 0.0,
@@ -157,6 +162,9 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         A = euler_zyx_trans(*base) @ _link_transform({**first, "a": 0.0, "alpha": 0.0, "beta": 0.0})
         base = to_euler_zyx_trans(A)
         first["theta"] = first["d"] = 0.0
+    # What was folded into the base: the chain's base frame in the robot's own (mounting) frame.
+    mounting = euler_zyx_trans(*euler("mounting")) if data.get("mounting") is not None else np.eye(4)
+    mounting = mounting @ np.linalg.solve(table_base, euler_zyx_trans(*base))
     # A last link row sits between the last joint's motion and the tool: fold it into the tool.
     last_row = None
     if len(rows) == n:
@@ -192,6 +200,8 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     link_names = joint_names[:-1] if joint_names else ()
     nominal = np.concatenate([base, np.array([[r[f] for f in LINK_FIELDS] for r in rows]).reshape(-1), tool])
     extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
+    if not np.allclose(mounting, np.eye(4), rtol=0.0, atol=1e-12):
+        extra["mounting"] = euler_dict(mounting)
     if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.estimation.gravity)
         from fgcal.estimation.gravity import inertials_from_dict, inertials_to_dict
 
@@ -282,8 +292,15 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
         b = getattr(model, key)
         if b is not None:
             out[key] = {"min": [float(c) for c in b[0]], "max": [float(c) for c in b[1]]}
-    out.update({k: v for k, v in model.extra.items() if k in ("inertials", "urdf")})
+    out.update({k: v for k, v in model.extra.items() if k in ("inertials", "urdf", "mounting")})
     return out
+
+
+def euler_dict(T) -> dict:
+    """``T`` (4, 4) as a model file's ``{phi, theta, psi (deg), px, py, pz (mm)}`` block."""
+    v = _euler_any(np.asarray(T, dtype=float))
+    return {f: round(float(math.degrees(x) if i < 3 else x), 12) + 0.0  # no -0.0
+            for i, (f, x) in enumerate(zip(EULER_FIELDS, v))}
 
 
 def _euler_any(T) -> np.ndarray:

@@ -244,8 +244,11 @@ def model_from_urdf(text: str, source: str = "<urdf>", base: str | None = None, 
     clash = [x for x in names if x in ("base", "tool")]
     if clash:
         raise ModelError(f"{source}: a joint named {clash[0]!r} clashes with fgcal's base/tool parameters")
+    from fgcal.robots.robot_file import euler_dict
+
+    # the chain's base frame in the base link's: the robot's own base frame is the base link
     extra = {"urdf": {"text": text, "base": base, "tip": tip,
-                      "frame_changes": [np.round(c, 15).tolist() for c in C]}}
+                      "frame_changes": [np.round(c, 15).tolist() for c in C]}, "mounting": euler_dict(A_b)}
     model = RobotModel(name=name or robot_name, nominal=nominal, joint_limits=np.array(limits),
                        description=f"from URDF {Path(source).name}: chain {base} -> {tip}",
                        joint_types=tuple(_MOVING[j.kind] for j in moving), link_names=names[:-1],

@@ -76,6 +76,12 @@ def _print_result(result) -> None:
     for o in result.outliers:
         print(f"  excluded as a gross error: {o.level} at {outlier_location(o)}, {o.residual:.3g} {o.unit} "
               f"({o.statistic:.3g} sigma)")
+    from fgcal.report.report_sections import training_flags
+
+    odd = [f for f in training_flags(result) if any(x.startswith("outlier") for x in f.flags)]
+    if odd:
+        print("  outlier poses (residual at the joint readings): "
+              + ", ".join(f"{f.pose} ({f.error_mm:.3g} mm)" for f in odd[:10]) + (" ..." if len(odd) > 10 else ""))
     for h in result.held:
         cost = f"; costs {h['cost_mm']:.3g} mm at new poses" if "cost_mm" in h else ""
         print(f"  held at nominal: {h['name']} = {h['value']:g} ({h['reason']}{cost})")

@@ -1,0 +1,102 @@
+"""Residuals at the joint readings: per level and per calibration pose (the training error).
+
+After the solve the joint variables have moved to absorb the readings' noise; a user commands
+the robot from readings, so the error that matters is the one with the joints at their readings
+and the ball centres on the kinematics. :func:`at_readings` summarises it per level and
+:func:`pose_residuals` per pose, beside the error after the joints moved and the one of the
+nominal geometry (the solve's start, base fitted to the data). Pure functions of a
+:class:`~fgcal.estimation.graph.Graph`; no I/O.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from fgcal.estimation.graph import Graph, State
+from fgcal.estimation.result import PoseResidual, ResidualSummary
+from fgcal.measurements.types import kinematic_types
+from fgcal.robots.kinematics import tool_points
+
+__all__ = ["raw_at_readings", "at_readings", "pose_residuals"]
+
+
+def _levels() -> tuple:
+    """Probe points and every registered kinematic measurement type's level."""
+    return ("probes",) + tuple(t.level for t in kinematic_types())
+
+
+def _metric(level: str, e):
+    """A factor's position residual (mm) and rotation residual (deg, or None) from its raw error (K, width)."""
+    if level == "probes":  # signed distance off the sphere
+        return np.abs(e[:, 0]), None
+    return next(t for t in kinematic_types() if t.level == level).metric(e)
+
+
+def _rms(values) -> float:
+    return float(np.sqrt(np.mean(np.asarray(values) ** 2)))
+
+
+def raw_at_readings(graph: Graph, theta) -> dict:
+    """Raw residuals per level (``{level: (e, s, w)}``) at ``theta`` with the joints at their
+    readings and each ball centre on the forward kinematics."""
+    at = State(np.asarray(theta, dtype=float).copy(), graph.readings.copy(), np.zeros((len(graph.ball_pose), 3)))
+    if len(graph.ball_pose):
+        T = graph.params.model.forward(graph.params.full(at.theta, graph.held), graph.joints(at)[graph.ball_pose])
+        at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
+    return graph.linearise(at).raw
+
+
+def _kept(graph: Graph, level: str, n: int) -> np.ndarray:
+    return ~graph.excluded.get(level, np.zeros(n, dtype=bool))
+
+
+def at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
+    """RMS residual per measurement level at the readings (empty when the readings are exact)."""
+    if not graph.joint_vars:
+        return {}
+    raw = raw_at_readings(graph, state.theta)
+    out = {}
+    for level in _levels():
+        if level not in raw:
+            continue
+        e = raw[level][0][_kept(graph, level, len(raw[level][0]))]
+        dist, angle = _metric(level, e)
+        out[level] = ResidualSummary(len(e), _rms(dist), "mm", None if angle is None else _rms(angle))
+    return out
+
+
+def _per_pose(graph: Graph, raw: dict):
+    """Per pose: (sum of squared position residuals, count, largest, rotation sum of squares,
+    rotation count, excluded count), kept measurements only (rotations in deg)."""
+    n = graph.n_poses
+    ssq, cnt, big, rssq, rcnt, excl = (np.zeros(n) for _ in range(6))
+    for level in _levels():
+        if level not in raw:
+            continue
+        e = raw[level][0]
+        pose = graph.factor_rows(level)[0]
+        kept = _kept(graph, level, len(e))
+        d, angle = _metric(level, e)
+        np.add.at(ssq, pose[kept], d[kept] ** 2)
+        np.add.at(cnt, pose[kept], 1)
+        np.maximum.at(big, pose[kept], d[kept])
+        np.add.at(excl, pose[~kept], 1)
+        if angle is not None:
+            np.add.at(rssq, pose[kept], angle[kept] ** 2)
+            np.add.at(rcnt, pose[kept], 1)
+    return ssq, cnt, big, rssq, rcnt, excl
+
+
+def pose_residuals(graph: Graph, state: State, start_theta, pose_ids) -> list[PoseResidual]:
+    """One :class:`PoseResidual` per pose of ``graph`` (``pose_ids`` (N,) their ids).
+
+    ``state`` is the solution, ``start_theta`` the nominal parameters the solve started from.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ssq, cnt, big, rssq, rcnt, excl = _per_pose(graph, raw_at_readings(graph, state.theta))
+        moved = np.sqrt(_per_pose(graph, graph.linearise(state).raw)[0] / cnt)
+        nominal = np.sqrt(_per_pose(graph, raw_at_readings(graph, start_theta))[0] / cnt)
+        rms = np.sqrt(ssq / cnt)
+        rot = np.sqrt(rssq / rcnt)
+    return [PoseResidual(int(pose_ids[i]), int(cnt[i]), float(rms[i]), float(moved[i]), float(nominal[i]),
+                         float(big[i]) if cnt[i] else float("nan"), int(excl[i]),
+                         float(rot[i]) if rcnt[i] else None) for i in range(graph.n_poses)]
