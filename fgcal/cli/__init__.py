@@ -226,6 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default=None,
                     help="criterion: observability index O1-O5, or pred (predicted accuracy; default)")
     de.add_argument("--seed", type=nonnegative_int, default=0)
+    de.add_argument("--noise", choices=("estimated", "declared"), default="estimated",
+                    help="with --dataset: design for the noise a calibration of it estimates (default) or its "
+                         "declared noise")
     de.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01)
     de.add_argument("--joint-resolution", type=nonnegative_float, default=0.01)
     de.add_argument("--repeatability", type=nonnegative_float, default=0.0)

@@ -9,7 +9,10 @@ Indices on the information scaled by the expected parameter errors:
 * O1 (Borm & Menq): ``(s_1 ... s_L)^(1/L) / sqrt(m)``; O2: ``s_min / s_max``; O3: ``s_min``;
   O4 (noise amplification): ``s_min^2 / s_max``; O5: ``1 / sum(1 / s_i)``;
 * ``pred``: the predicted position error RMS (mm) at verification poses drawn like the
-  candidates, ``sqrt(trace(W Sigma))``: the accuracy the calibration is for.
+  candidates, ``sqrt(trace(W Sigma))``: the accuracy the calibration is for (I-optimality).
+  ``Sigma`` is the inverse information, or, when the data's error is not what the estimator
+  weighs it by (:func:`fgcal.studies.design_info.information_and_middle`), the sandwich
+  ``M^-1 B M^-1``.
 
 Plans are chosen from a candidate pool by a greedy start and the DETMAX exchange (Mitchell
 1974: add the best candidate, remove the worst design point, until nothing improves). No I/O.
@@ -23,7 +26,8 @@ import numpy as np
 
 from fgcal.measurements.dataset import Noise
 from fgcal.errors import FgcalError
-from fgcal.studies.design_info import Layout, information, layout_from_access
+from fgcal.estimation.graph import Sigmas
+from fgcal.studies.design_info import Layout, information, information_and_middle, layout_from_access
 from fgcal.estimation.identifiability import analyse_information
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.simulate import PLAN_MARGIN_DEG, PLAN_MARGIN_MM, Deviations
@@ -55,34 +59,42 @@ def verification_weight(model: RobotModel, q_verify, params: ParameterSet | None
     return np.einsum("nrp,nrq->pq", J, J) / len(J)
 
 
-def predicted_rms(info, W) -> float:
-    """Predicted position error RMS (mm) at the verification poses of ``W``, given information."""
+def predicted_rms(info, W, middle=None) -> float:
+    """Predicted position error RMS (mm) at the verification poses of ``W``, given information
+    (and the sandwich's middle ``B``: covariance ``info^-1 B info^-1``)."""
     try:
-        return float(np.sqrt(max(np.trace(W @ np.linalg.inv(info)), 0.0)))
+        cov = np.linalg.inv(info)
+        if middle is not None:
+            cov = cov @ middle @ cov
+        return float(np.sqrt(max(np.trace(W @ cov), 0.0)))
     except np.linalg.LinAlgError:
         return float("inf")
 
 
-def indices(info, m: int, scale, W=None) -> dict[str, float]:
-    """O1-O5 of ``info`` (P, P) scaled by the expected parameter errors ``scale`` (P,), and ``pred``."""
+def indices(info, m: int, scale, W=None, middle=None) -> dict[str, float]:
+    """O1-O5 of ``info`` (P, P) scaled by the expected parameter errors ``scale`` (P,), and ``pred``
+    (with the sandwich's ``middle`` when given)."""
     s = np.sqrt(np.clip(np.linalg.eigvalsh(info * np.outer(scale, scale)), 0.0, None))[::-1]
     out = {"O1": float(np.exp(np.mean(np.log(np.maximum(s, 1e-300)))) / np.sqrt(m)),
            "O2": float(s[-1] / s[0]) if s[0] > 0 else 0.0, "O3": float(s[-1]),
            "O4": float(s[-1] ** 2 / s[0]) if s[0] > 0 else 0.0,
            "O5": float(1.0 / np.sum(1.0 / np.maximum(s, 1e-300)))}
     if W is not None:
-        out["pred"] = predicted_rms(info, W)
+        out["pred"] = predicted_rms(info, W, middle)
     return out
 
 
-def _scores(infos, scale, index: str, W=None) -> np.ndarray:
-    """Criterion (larger is better) for a batch of information matrices (K, P, P); never NaN."""
+def _scores(infos, scale, index: str, W=None, middles=None) -> np.ndarray:
+    """Criterion (larger is better) for a batch of information matrices (K, P, P) (and sandwich
+    middles, for ``pred``); never NaN."""
     if index == "pred":
         try:
             cov = np.linalg.inv(infos)
+            if middles is not None:
+                cov = cov @ middles @ cov
             out = -np.sqrt(np.clip(np.einsum("pq,kqp->k", W, cov), 0.0, None))
         except np.linalg.LinAlgError:
-            out = np.array([-predicted_rms(I, W) for I in infos])
+            out = np.array([-predicted_rms(I, W, None if middles is None else middles[i]) for i, I in enumerate(infos)])
         return np.where(np.isfinite(out), out, -np.inf)
     s = np.sqrt(np.clip(np.linalg.eigvalsh(infos * np.outer(scale, scale)[None]), 1e-300, None))
     if index == "O1":
@@ -168,6 +180,8 @@ class Candidates:
 
     ``names`` are the parameters designed for: those of the model that the whole pool can
     identify; ``dropped`` names the others (with the parameters each is confused with).
+    ``middle`` (N, P, P), when the data's error is not the estimator's weights, the candidates'
+    sandwich middles (:func:`fgcal.studies.design_info.information_and_middle`).
     """
 
     q: np.ndarray
@@ -177,13 +191,18 @@ class Candidates:
     scale: np.ndarray
     names: tuple = ()
     dropped: dict = field(default_factory=dict)
+    middle: np.ndarray | None = None
 
     @classmethod
     def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
-              layout: Layout | None = None, params: ParameterSet | None = None, slots=None):
+              layout: Layout | None = None, params: ParameterSet | None = None, slots=None,
+              sigmas: Sigmas | None = None, actual: Sigmas | None = None, joint_error=0.0):
         """Information of every candidate (measured as ``layout`` says; by default the three most
         accessible balls, probed) and the weight of the accuracy at ``q_verify``, linearised at
-        ``slots`` (the nominal by default)."""
+        ``slots`` (the nominal by default); ``sigmas`` (the graph's noise) replaces ``noise``'s
+        declared values, for example with those estimated from a dataset. ``actual`` (the data's
+        noise) and ``joint_error`` (rad, an unmodelled joint-space error) make ``pred`` the
+        sandwich covariance of the estimator at ``sigmas`` under that error."""
         params = params or model.parameters()
         q = np.atleast_2d(np.asarray(candidates, dtype=float))
         layout = layout if layout is not None else layout_from_access(model, q, ("probes",))
@@ -191,7 +210,11 @@ class Candidates:
         if not usable.any():
             raise FgcalError(f"none of the {len(q)} candidate poses gives a measurement "
                              f"({', '.join(layout.levels)}): no ball is accessible at any of them")
-        info = information(model, q, layout, noise, params, slots)
+        middle = None
+        if actual is not None or np.any(np.asarray(joint_error) > 0):
+            info, middle = information_and_middle(model, q, layout, noise, params, slots, sigmas, actual, joint_error)
+        else:
+            info = information(model, q, layout, noise, params, slots, sigmas)
         W = verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
         scale = deviations.sigmas(params.names)
         dropped = analyse_information(info[usable].sum(axis=0), params.names).redundant
@@ -200,11 +223,13 @@ class Candidates:
             log.warning("not identifiable from any of these %d candidates, so not designed for: %s", usable.sum(),
                         ", ".join(dropped))
             info, W, scale = info[:, keep][:, :, keep], W[keep][:, keep], scale[keep]
-        return cls(q, info, usable, W, scale, tuple(np.array(params.names)[keep]), dropped)
+            middle = None if middle is None else middle[:, keep][:, :, keep]
+        return cls(q, info, usable, W, scale, tuple(np.array(params.names)[keep]), dropped, middle)
 
     def values(self, sel) -> dict[str, float]:
         """O1-O5 and ``pred`` of the plan made of candidates ``sel``."""
-        return indices(self.info[sel].sum(axis=0), len(sel), self.scale, self.W)
+        return indices(self.info[sel].sum(axis=0), len(sel), self.scale, self.W,
+                       None if self.middle is None else self.middle[sel].sum(axis=0))
 
 
 def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index: str = "pred",
@@ -235,40 +260,48 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
         raise FgcalError(f"{n_poses} poses of these candidates cannot identify the {n_par} parameters (each pose "
                          f"gives at most {ranks.max(initial=0)} independent equations): at least {need} poses needed")
     say = progress or (lambda text: None)
-    factors = _low_rank(info) if index == "pred" else None
+    mid = prep.middle[pool] if (prep.middle is not None and index == "pred") else None
+    factors = _low_rank(info) if index == "pred" and mid is None else None
 
-    def batch(total, sign, members):
-        """Scores of ``total + sign * info[m]`` for each candidate m of ``members``."""
+    def batch(total, sign, members, mtotal=None):
+        """Scores of ``total + sign * info[m]`` (sandwich middle ``mtotal + sign * mid[m]``) for
+        each candidate m of ``members``."""
         if factors is not None:
             return _pred_update(total, factors[members], W, sign)
-        return _scores(total[None] + sign * info[members], scale, index, W)
+        return _scores(total[None] + sign * info[members], scale, index, W,
+                       None if mid is None else mtotal[None] + sign * mid[members])
 
     # A vanishing ridge (relative to the parameters' expected spread) makes the first, rank
     # deficient steps of the greedy start well defined; it does not change the final choice.
     base = np.diag(ridge / scale**2)
     chosen: list[int] = []
-    total = base.copy()
+    total, mtotal = base.copy(), base.copy()
     for step in range(n_poses):
-        scores = batch(total, 1.0, slice(None))
+        scores = batch(total, 1.0, slice(None), mtotal)
         scores[chosen] = -np.inf
         j = int(np.argmax(scores))
         chosen.append(j)
         total = total + info[j]
+        mtotal = mtotal + (0.0 if mid is None else mid[j])
         say(f"greedy start: {step + 1} of {n_poses} poses")
 
+    def middle_of(sel):
+        return None if mid is None else base + mid[sel].sum(axis=0)
+
     def score_of(sel):
-        return float(_scores((base + info[sel].sum(axis=0))[None], scale, index, W)[0])
+        m = middle_of(sel)
+        return float(_scores((base + info[sel].sum(axis=0))[None], scale, index, W, None if m is None else m[None])[0])
 
     best = score_of(chosen)
     it = 0
     for it in range(1, max_iterations + 1):
         # DETMAX excursion of size one: add the best candidate, then drop the weakest point.
-        total = base + info[chosen].sum(axis=0)
-        add = batch(total, 1.0, slice(None))
+        total, mtotal = base + info[chosen].sum(axis=0), middle_of(chosen)
+        add = batch(total, 1.0, slice(None), mtotal)
         add[chosen] = -np.inf
         j = int(np.argmax(add))
         grown = chosen + [j]
-        drop = batch(total + info[j], -1.0, grown)
+        drop = batch(total + info[j], -1.0, grown, None if mid is None else mtotal + mid[j])
         k = int(np.argmax(drop))
         new = [c for i, c in enumerate(grown) if i != k]
         new_score = score_of(new)

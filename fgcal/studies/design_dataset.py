@@ -5,6 +5,16 @@ measure is what the dataset measured there (its balls, its levels), or, for cand
 as joints only, the balls the instrument reaches there (:func:`fgcal.studies.design_info.layout_from_access`,
 as many balls per pose as the dataset usually has). The plan keeps the candidates' pose ids.
 Its predicted accuracy is compared with random plans of the same size from the same candidates.
+
+The noise designed for is, by default, the one the calibration will use: each level's noise
+(variance component) estimated by calibrating the dataset once, and the information is
+linearised at that calibrated geometry (:func:`dataset_noise`). On real data the estimated noise
+holds the robot's unmodelled errors (on the Landgraf UR10 0.25 mm per pose against the tracker's
+stated 0.011 mm), so the plan's predicted accuracy is the one a calibration from it reaches.
+Where the estimator does not model joint noise, the excess of the estimated over the declared
+noise is taken for a random joint-space error (it grows with the lever arms, as the robot's
+unmodelled errors do) and ``pred`` is the covariance of the estimator as it weighs the data under
+that error (a sandwich, :mod:`fgcal.studies.design_info`).
 No file I/O here (see :func:`save_plan`).
 """
 from __future__ import annotations
@@ -17,16 +27,19 @@ import numpy as np
 from fgcal.measurements.dataset import Dataset
 from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
 from fgcal.studies.design import Candidates, design_plan, random_design_values
-from fgcal.studies.design_info import DESIGNED_LEVELS, Layout, layout_from_access
+from fgcal.studies.design_info import DESIGNED_LEVELS, Layout, joint_sensitivity, layout_from_access, sigmas_of
 from fgcal.errors import FgcalError
+from fgcal.estimation.graph import Sigmas
+from fgcal.estimation.noise import COMPONENTS, NoiseMode
 from fgcal.robots.model import RobotModel
 
-__all__ = ["DATASET_INDEX", "DatasetDesign", "dataset_layout", "design_from_dataset", "save_plan", "load_plan"]
+__all__ = ["DATASET_INDEX", "DatasetDesign", "DesignNoise", "dataset_noise", "dataset_layout", "design_from_dataset",
+           "save_plan", "load_plan"]
 
 log = logging.getLogger(__name__)
 
-# The criterion of a design from a dataset: as without one. On the Landgraf UR10 neither ``pred``
-# nor O1 plans robustly beat random ones at held-out poses (bench/bench_design_landgraf.py).
+# The criterion of a design from a dataset: the predicted position error RMS at the candidates
+# (I-optimality over the workspace the candidates sample), at the dataset's estimated noise.
 DATASET_INDEX = "pred"
 
 
@@ -51,6 +64,9 @@ class DatasetDesign:
         DETMAX exchanges made.
     dropped : dict of str to list of str
         Parameters no candidate can identify (not designed for), with those they are confused with.
+    noise : dict of str to (float, float, str)
+        Per variance component: declared and designed-for sigma and unit (see :class:`DesignNoise`).
+    noise_mode : NoiseMode
     """
 
     pose_ids: np.ndarray
@@ -63,6 +79,8 @@ class DatasetDesign:
     n_usable: int
     iterations: int
     dropped: dict = field(default_factory=dict)
+    noise: dict = field(default_factory=dict)
+    noise_mode: NoiseMode = NoiseMode.DECLARED
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
@@ -76,9 +94,84 @@ class DatasetDesign:
                  f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
                  f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
                  f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
+        if self.noise:
+            lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
+                f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
         if self.dropped:
             lines.append(f"  not identifiable from these candidates, not designed for: {', '.join(self.dropped)}")
         return lines
+
+
+@dataclass
+class DesignNoise:
+    """The noise a design is for, and where its information is linearised.
+
+    Attributes
+    ----------
+    sigmas : Sigmas or None
+        The estimator's noise per factor kind (its weights); None: the dataset's declared noise.
+    actual : Sigmas or None
+        The data's instrument noise, when it differs from ``sigmas``.
+    joint_error : float
+        Unmodelled random joint-space error per joint and pose (rad) the data shows.
+    slots : ndarray, shape (S,), or None
+        Linearisation point (internal units); None: the nominal geometry.
+    levels : dict of str to (float, float, str)
+        Per variance component (:data:`fgcal.noise.COMPONENTS`): declared sigma, sigma designed
+        for, unit.
+    mode : NoiseMode
+    """
+
+    sigmas: Sigmas | None
+    slots: np.ndarray | None
+    levels: dict
+    mode: NoiseMode
+    actual: Sigmas | None = None
+    joint_error: float = 0.0
+
+
+def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ESTIMATED, progress=None) -> DesignNoise:
+    """The noise to design for: ``estimated`` (default) calibrates ``ds`` once (all its poses,
+    the estimator's default options) and takes each level's noise as the calibration estimated
+    it (the variance components: measurement noise plus whatever the model does not explain),
+    linearised at the calibrated geometry; ``declared`` keeps dataset.yaml's noise at the
+    nominal geometry. A dataset that cannot be calibrated falls back to ``declared`` (logged).
+    """
+    mode = NoiseMode(mode)
+    if mode is NoiseMode.DECLARED:
+        return DesignNoise(None, _linearisation_point(ds, model), {}, mode)
+    from fgcal.estimation.calibrate import calibrate
+
+    if progress is not None:
+        progress(f"calibrating {ds.path or 'the dataset'} ({ds.n_poses} poses) for its noise")
+    try:
+        result = calibrate(ds, model)
+    except (FgcalError, RuntimeError, np.linalg.LinAlgError) as exc:
+        log.warning("design: %s could not be calibrated for its noise (%s); designing for the declared noise",
+                    ds.path or "the dataset", str(exc).strip().split("\n")[0])
+        return DesignNoise(None, _linearisation_point(ds, model), {}, NoiseMode.DECLARED)
+    sig = sigmas_of(ds.noise, model)
+    scaled, levels = {}, {}
+    for name, level in result.noise.items():
+        if name not in COMPONENTS or not level.declared > 0:
+            continue
+        attr = COMPONENTS[name][2]
+        scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
+        levels[name] = (float(level.declared), float(level.used), level.unit)
+    weights, slots = sig.replaced(**scaled), result.slot_vector(model)
+    if np.any(np.asarray(sig.joint) > 0):  # the estimator models joint noise and estimated it
+        return DesignNoise(weights, slots, levels, mode)
+    # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
+    # s^2 * sens / rows to a component's variance factor (pooled over the components).
+    sens = joint_sensitivity(model, ds.joints_rad, dataset_layout(ds, model), sig, slots)
+    excess = sum(max(levels[c][1] ** 2 / levels[c][0] ** 2 - 1.0, 0.0) * rows
+                 for c, (_, rows) in sens.items() if c in levels)
+    total = sum(v for c, (v, _) in sens.items() if c in levels)
+    if not excess > 0 or not total > 0:
+        return DesignNoise(weights, slots, levels, mode)
+    joint_error = float(np.sqrt(excess / total))
+    levels["unmodelled joint error"] = (0.0, float(np.degrees(joint_error)), "deg")
+    return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error)
 
 
 def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
@@ -128,7 +221,7 @@ def _linearisation_point(ds: Dataset, model: RobotModel):
 
 def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates=None, index: str = DATASET_INDEX,
                         random_sets: int = 200, rng: np.random.Generator | None = None, progress=None,
-                        max_iterations: int = 200) -> DatasetDesign:
+                        max_iterations: int = 200, noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED) -> DatasetDesign:
     """Choose ``n_poses`` of the dataset's poses (or of ``candidates``) for the dataset's robot,
     tool, measurement levels and noise.
 
@@ -140,6 +233,9 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         Random plans of ``n_poses`` from the same usable candidates to compare with.
     progress : callable(str), optional
         Told of each design step.
+    noise : NoiseMode or DesignNoise
+        The noise designed for (:func:`dataset_noise`): ``estimated`` from ``ds`` (default) or
+        ``declared``; a :class:`DesignNoise` already found is reused.
 
     Raises
     ------
@@ -165,14 +261,16 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     where = "the candidates" if candidates is not None else f"{ds.path or 'the dataset'}"
     if len(ids) < n_poses:
         raise FgcalError(f"{where}: {len(ids)} candidate poses for a plan of {n_poses}: fewer candidates than poses")
-    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=_linearisation_point(ds, model))
+    found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
+    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=found.slots, sigmas=found.sigmas,
+                            actual=found.actual, joint_error=found.joint_error)
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
                     progress=progress)
     rand = np.array([random_design_values(prep, n_poses, rng)[1]["pred"] for _ in range(random_sets)])
     return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
-                         int(prep.usable.sum()), d.iterations, prep.dropped)
+                         int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode)
 
 
 def save_plan(plan: DatasetDesign, path) -> None:

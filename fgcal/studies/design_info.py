@@ -14,7 +14,13 @@ predicted measurements of the model, never from a second copy of the measurement
 
 Each pose's local variables (its joints, its ball centres) are eliminated as the estimator
 eliminates them (a per-pose Schur complement, here by QR for accuracy), leaving that pose's
-information about the parameters; plans add these up. No I/O here.
+information about the parameters; plans add these up.
+
+When the data's error is not what the estimator weighs it by (the robot's unmodelled errors,
+seen as a random joint-space error that the joint readings do not show), the covariance of the
+estimate is the sandwich ``M^-1 B M^-1``: ``M`` the information at the estimator's weights and
+``B`` (:func:`information_and_middle`) the same rows' second moment under the actual error.
+No I/O here.
 """
 from __future__ import annotations
 
@@ -32,7 +38,8 @@ from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
 from fgcal.studies.simulate import UP, ball_access
 
-__all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information"]
+__all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
+           "information_and_middle", "joint_sensitivity"]
 
 DESIGNED_LEVELS = LEVELS  # every level: each measurement type brings its own rows
 
@@ -105,17 +112,31 @@ def layout_from_access(model: RobotModel, q, levels, n_balls: int = 3, slots=Non
     return Layout(tuple(levels), chosen, probes_per_ball)
 
 
-def _eliminate(J_theta, J_local) -> np.ndarray:
-    """Per-pose information about theta (n, P, P) with the local variables eliminated (QR)."""
-    if J_local.shape[2] == 0:
-        return np.einsum("nmp,nmq->npq", J_theta, J_theta)
-    Q, _ = np.linalg.qr(J_local)
-    Jp = J_theta - Q @ (np.swapaxes(Q, 1, 2) @ J_theta)
-    return np.einsum("nmp,nmq->npq", Jp, Jp)
+def _eliminate(J_theta, J_local, J_q=None, ratio=None, sigma_u=None):
+    """Per-pose information about theta (n, P, P) with the local variables eliminated (QR).
+
+    With ``ratio`` (m,), each row's actual over weighted variance, also the middle of the sandwich
+    (n, P, P); ``J_q`` (n, m, nj) and ``sigma_u`` (nj,) rad add a joint-space error the rows see
+    but the estimator does not model.
+    """
+    Jp = J_theta
+    if J_local.shape[2]:
+        Q, _ = np.linalg.qr(J_local)
+        Jp = J_theta - Q @ (np.swapaxes(Q, 1, 2) @ J_theta)
+    info = np.einsum("nmp,nmq->npq", Jp, Jp)
+    if ratio is None:
+        return info
+    middle = np.einsum("nmp,m,nmq->npq", Jp, ratio, Jp)
+    if sigma_u is not None and np.any(sigma_u > 0):
+        G = np.einsum("nmp,nmj->npj", Jp, J_q) * sigma_u[None, None, :]
+        middle = middle + G @ np.swapaxes(G, 1, 2)
+    return info, middle
 
 
-def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) -> np.ndarray:
-    """Information (n, P, P) of n poses that each measure the balls ``balls`` (n, k) (indices)."""
+def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, actual: Sigmas | None = None,
+                       sigma_u=None):
+    """Information (n, P, P) of n poses that each measure the balls ``balls`` (n, k) (indices);
+    with ``actual`` (the data's noise) also the sandwich's middle (see :func:`_eliminate`)."""
     n, nj = q.shape
     k = balls.shape[1]
     idx = params.index
@@ -126,10 +147,12 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
     with_joints = bool(np.all(sigma_q > 0))
     probes = "probes" in layout.levels and k > 0
     n_local = (nj if with_joints else 0) + (3 * k if probes else 0)
-    blocks_t, blocks_l = [], []
+    blocks_t, blocks_l, blocks_q, ratios = [], [], [], []
+    act = actual or sig
 
-    def add(rows_t, rows_q=None, rows_c=None):
-        """Whitened rows (n, r, P), their joint (n, r, nj) and centre (n, r, 3k) columns."""
+    def add(rows_t, rows_q=None, rows_c=None, ratio=1.0, seen=True):
+        """Whitened rows (n, r, P), their joint (n, r, nj) and centre (n, r, 3k) columns; ``ratio``
+        the rows' actual over weighted variance; ``seen``: a joint-space error moves them."""
         r = rows_t.shape[1]
         local = np.zeros((n, r, n_local))
         if with_joints and rows_q is not None:
@@ -138,6 +161,8 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
             local[:, :, n_local - 3 * k:] = rows_c
         blocks_t.append(rows_t)
         blocks_l.append(local)
+        blocks_q.append(rows_q if seen and rows_q is not None else np.zeros((n, r, nj)))
+        ratios.append(np.broadcast_to(np.asarray(ratio, dtype=float), (r,)))
 
     T = model.forward(x, q)
     for kind in kinematic_levels(layout.levels):  # each measurement type's own error and noise
@@ -148,13 +173,15 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
         off = offsets[balls].reshape(-1, 3) if kind.per_ball else np.zeros((n, 3))
         _, Jt, Jq = kind.error(theta, q_m, kind.design_data(T_m, off), idx, x, model.chain)
         w = 1.0 / kind.sigma(sig)
-        add((Jt * w[None, :, None]).reshape(n, -1, P), (Jq * w[None, :, None]).reshape(n, -1, nj))
+        ratio = np.tile((kind.sigma(act) * w) ** 2, k if kind.per_ball else 1)
+        add((Jt * w[None, :, None]).reshape(n, -1, P), (Jq * w[None, :, None]).reshape(n, -1, nj), ratio=ratio)
     if probes:  # probe points on spheres around ball-centre variables tied to the kinematics
         off = offsets[balls].reshape(-1, 3)
         centre, Jt, Jq = ball_centre_error(theta, np.repeat(q, k, axis=0), off, np.zeros_like(off), idx, x,
                                            model.chain)
         Jt, Jq = Jt.reshape(n, 3 * k, P), Jq.reshape(n, 3 * k, nj)
-        add(Jt / sig.kinematic, Jq / sig.kinematic, -np.eye(3 * k)[None].repeat(n, 0) / sig.kinematic)
+        add(Jt / sig.kinematic, Jq / sig.kinematic, -np.eye(3 * k)[None].repeat(n, 0) / sig.kinematic,
+            ratio=(act.kinematic / sig.kinematic) ** 2)
         ppb = layout.probes_per_ball
         pts, cs = [], []
         for i in range(n):
@@ -168,13 +195,20 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas) 
         rows_c = np.zeros((n, k, ppb, 3 * k))
         for j in range(k):
             rows_c[:, j, :, 3 * j:3 * j + 3] = Jc[:, j]
-        add(np.zeros((n, k * ppb, P)), None, rows_c.reshape(n, k * ppb, 3 * k))
+        add(np.zeros((n, k * ppb, P)), None, rows_c.reshape(n, k * ppb, 3 * k), ratio=(act.probe / sig.probe) ** 2)
     if with_joints:
         # the readings as priors on the joint variables (factors.errors.joint_error: Jacobian I)
-        add(np.zeros((n, nj, P)), np.broadcast_to(np.diag(1.0 / sigma_q), (n, nj, nj)))
+        actual_q = np.broadcast_to(np.asarray(act.joint, dtype=float), (nj,))
+        add(np.zeros((n, nj, P)), np.broadcast_to(np.diag(1.0 / sigma_q), (n, nj, nj)),
+            ratio=(actual_q / sigma_q) ** 2, seen=False)
+    middle = actual is not None or sigma_u is not None
     if not blocks_t:
-        return np.zeros((n, P, P))
-    return _eliminate(np.concatenate(blocks_t, axis=1), np.concatenate(blocks_l, axis=1))
+        return (np.zeros((n, P, P)), np.zeros((n, P, P))) if middle else np.zeros((n, P, P))
+    J_t, J_l = np.concatenate(blocks_t, axis=1), np.concatenate(blocks_l, axis=1)
+    if not middle:
+        return _eliminate(J_t, J_l)
+    su = None if sigma_u is None else np.broadcast_to(np.asarray(sigma_u, dtype=float), (nj,))
+    return _eliminate(J_t, J_l, np.concatenate(blocks_q, axis=1), np.concatenate(ratios), su)
 
 
 def information(model: RobotModel, q, layout: Layout, noise: Noise, params: ParameterSet | None = None,
@@ -193,7 +227,27 @@ def information(model: RobotModel, q, layout: Layout, noise: Noise, params: Para
         The estimated parameters (the model's identifiable ones by default).
     slots : array_like, optional
         Where to linearise (the nominal by default).
+    sigmas : Sigmas, optional
+        The estimator's noise, replacing ``noise``'s.
     """
+    return _per_pose(model, q, layout, noise, params, slots, sigmas)
+
+
+def information_and_middle(model: RobotModel, q, layout: Layout, noise: Noise, params: ParameterSet | None = None,
+                           slots=None, sigmas: Sigmas | None = None, actual: Sigmas | None = None, joint_error=0.0):
+    """Per-pose information ``M_i`` at the estimator's weights and the middle ``B_i`` of the
+    sandwich ``Cov = (sum M_i)^-1 (sum B_i) (sum M_i)^-1``, both (N, P, P).
+
+    ``actual`` is the data's noise per factor kind (the estimator's by default) and
+    ``joint_error`` (rad, scalar or per joint) a random joint-space error at each pose that the
+    readings do not show and the estimator does not model (the robot's unmodelled errors).
+    Other arguments as :func:`information`.
+    """
+    return _per_pose(model, q, layout, noise, params, slots, sigmas, actual or sigmas or sigmas_of(noise, model),
+                     joint_error)
+
+
+def _per_pose(model, q, layout, noise, params, slots, sigmas, actual=None, joint_error=None):
     params = params or model.parameters()
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -201,11 +255,49 @@ def information(model: RobotModel, q, layout: Layout, noise: Noise, params: Para
         raise FgcalError(f"robot model {model.name}: probe points need balls of positive radius; its tool has "
                          "reflectors (radius 0): design for ball centres (position only) or poses instead")
     sig = sigmas or sigmas_of(noise, model)
-    out = np.zeros((len(q), len(params.index), len(params.index)))
+    P = len(params.index)
+    out = np.zeros((len(q), P, P))
+    mid = np.zeros((len(q), P, P)) if actual is not None else None
     usable = layout.usable()
     counts = layout.balls.sum(axis=1) if layout.balls.size else np.zeros(len(q), dtype=int)
     for k in np.unique(counts[usable]):
         rows = np.nonzero(usable & (counts == k))[0]
         balls = np.array([np.nonzero(layout.balls[i])[0] for i in rows], dtype=int).reshape(len(rows), k)
-        out[rows] = _group_information(model, params, x, q[rows], balls, layout, sig)
+        got = _group_information(model, params, x, q[rows], balls, layout, sig, actual, joint_error)
+        if mid is None:
+            out[rows] = got
+        else:
+            out[rows], mid[rows] = got
+    return out if mid is None else (out, mid)
+
+
+def joint_sensitivity(model: RobotModel, q, layout: Layout, sigmas: Sigmas, slots=None) -> dict:
+    """How much a joint-space error shows in each variance component of the kinematic levels.
+
+    Returns ``{component: (s, rows)}`` (names of :data:`fgcal.estimation.noise.COMPONENTS`):
+    ``s`` the sum over the component's rows at poses ``q`` of the squared whitened (by
+    ``sigmas``) joint Jacobian, per rad^2 of joint error, and ``rows`` their number; a joint error
+    of ``sigma_u`` rad adds ``sigma_u^2 s / rows`` to the component's variance factor.
+    """
+    from fgcal.estimation.noise import COMPONENTS
+
+    x = model.nominal if slots is None else np.asarray(slots, dtype=float)
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    offsets = model.tooling.offsets() if model.tooling is not None else np.zeros((0, 3))
+    idx = model.parameters().index
+    T = model.forward(x, q)
+    out = {}
+    for kind in kinematic_levels(layout.levels):
+        if kind.per_ball:
+            pose, ball = np.nonzero(layout.balls)
+            if not len(pose):
+                continue
+            T_m, q_m, off = T[pose], q[pose], offsets[ball]
+        else:
+            T_m, q_m, off = T, q, np.zeros((len(q), 3))
+        _, _, Jq = kind.error(x[idx], q_m, kind.design_data(T_m, off), idx, x, model.chain)
+        w2 = np.einsum("mrj,mrj->r", Jq, Jq) / kind.sigma(sigmas) ** 2  # per component column
+        for name, (level, cols, *_rest) in COMPONENTS.items():
+            if level == kind.level:
+                out[name] = (float(w2[cols].sum()), int(len(q_m) * len(w2[cols])))
     return out

@@ -15,8 +15,9 @@ import numpy as np
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.measurements.dataset import Dataset
-from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, dataset_layout, design_from_dataset
+from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 from fgcal.errors import FgcalError
+from fgcal.estimation.noise import NoiseMode
 from fgcal.robots.model import RobotModel
 from fgcal.report.verify import verify
 
@@ -61,11 +62,13 @@ def _held_out_error(ds: Dataset, ids, held: Dataset, model: RobotModel, options:
 
 def compare_on_held_out(ds: Dataset, held: Dataset, model: RobotModel, n_poses: int, random_sets: int = 20,
                         rng: np.random.Generator | None = None, index: str = DATASET_INDEX,
-                        options: CalibrationOptions = CalibrationOptions()) -> HeldOutComparison:
-    """Design ``n_poses`` of ``ds``'s poses, calibrate on them and on ``random_sets`` random
-    plans of the same usable poses, and verify each at ``held``'s poses."""
+                        options: CalibrationOptions = CalibrationOptions(),
+                        noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED) -> HeldOutComparison:
+    """Design ``n_poses`` of ``ds``'s poses (for ``noise``, see
+    :func:`fgcal.design_dataset.design_from_dataset`), calibrate on them and on ``random_sets``
+    random plans of the same usable poses, and verify each at ``held``'s poses."""
     rng = rng if rng is not None else np.random.default_rng(0)
-    plan = design_from_dataset(ds, model, n_poses, index=index, rng=rng)
+    plan = design_from_dataset(ds, model, n_poses, index=index, rng=rng, noise=noise)
     plan_mean, plan_rms = _held_out_error(ds, plan.pose_ids, held, model, options)
     usable = ds.pose_ids[dataset_layout(ds, model).usable()]
     errors = []
