@@ -5,6 +5,8 @@ import numpy as np
 
 import factors as fx
 from fgcal.estimation.options import CalibrationOptions
+from fgcal.measurements.distance import DISTANCE
+from fgcal.measurements.pose import POSE
 from fgcal.online.base import _Engine
 from fgcal.online.measurement import UpdateReport
 from fgcal.online.records import PoseData
@@ -108,12 +110,13 @@ class ISAM2Engine(_Engine):
                 cov[3 * k:3 * k + 3, 3 * k:3 * k + 3] = c * f
             graph.add(fx.ball_centres_factor(self.params.index, self.held, [o for o, _, _ in parts],
                                              [c for _, c, _ in parts], cov, t_key=self.t_key, **qargs))
+        # The measurement types' own factors (fgcal.measurements), at the noise factor's sigmas.
         if rec.T is not None:
-            graph.add(fx.pose_factor(self.params.index, self.held, rec.T, sig.pose_rotation * np.sqrt(f),
-                                     sig.pose_position * np.sqrt(f), t_key=self.t_key, **qargs))
+            graph.add(POSE.factor((rec.T,), self.params.index, self.held, POSE.sigma(sig) * np.sqrt(f),
+                                  t_key=self.t_key, **qargs))
         for ball, length in rec.distances:
-            graph.add(fx.distance_factor(self.params.index, self.held, self.ds.tooling.balls[ball], length,
-                                         sig.distance * np.sqrt(f), t_key=self.t_key, **qargs))
+            graph.add(DISTANCE.factor((self.ds.tooling.balls[ball], length), self.params.index, self.held,
+                                      DISTANCE.sigma(sig) * np.sqrt(f), t_key=self.t_key, **qargs))
         self._keep.append(graph)
         self.isam.update(graph, values)
         self._linpoint = self.isam.getLinearizationPoint()  # keep a reference (DESIGN.md section 5)

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-import factors as fx
+from fgcal.measurements.distance import DISTANCE
+from fgcal.measurements.pose import POSE
 from fgcal.measurements.spherefit import chi2_quantile
 from fgcal.online.centres import INNOVATION_FALSE_ALARM
 from fgcal.online.records import PoseData
@@ -110,9 +111,9 @@ class PoseMeasurement:
         self.d_lengths = np.array([v for _, v in rec.distances], dtype=float)
         blocks = [p[2] for p in parts]
         if rec.T is not None:
-            blocks.append(np.diag([sig.pose_rotation**2] * 3 + [sig.pose_position**2] * 3))
+            blocks.append(np.diag(POSE.sigma(sig) ** 2))
         if len(self.d_lengths):
-            blocks.append(np.eye(len(self.d_lengths)) * sig.distance**2)
+            blocks.append(np.diag(np.tile(DISTANCE.sigma(sig) ** 2, len(self.d_lengths))))
         m = sum(len(b) for b in blocks)
         self.R0 = np.zeros((m, m))
         k = 0
@@ -140,13 +141,13 @@ def _centre_rows(engine, theta, q, offsets, centres):
 
 
 def _pose_rows(engine, theta, q, T):
-    """A measured tool pose: 6 rows (rotation log, rad; position, mm), J_theta, J_q."""
-    e, jt, jq = fx.pose_error(theta, q[None], T[None], engine.index, engine.held, engine.model.chain)
+    """A measured tool pose (:mod:`fgcal.measurements.pose`): 6 rows (rotation log, rad; position, mm), J_theta, J_q."""
+    e, jt, jq = POSE.error(theta, q[None], (T[None],), engine.index, engine.held, engine.model.chain)
     return e[0], jt[0], jq[0]
 
 
 def _distance_rows(engine, theta, q, offsets, lengths):
-    """Ballbar lengths: one row per ball (mm), J_theta, J_q."""
+    """Ballbar lengths (:mod:`fgcal.measurements.distance`): one row per ball (mm), J_theta, J_q."""
     qs = np.broadcast_to(q, (len(lengths), len(q)))
-    e, jt, jq = fx.distance_error(theta, qs, offsets, lengths, engine.index, engine.held, engine.model.chain)
+    e, jt, jq = DISTANCE.error(theta, qs, (offsets, lengths), engine.index, engine.held, engine.model.chain)
     return e[:, 0], jt[:, 0], jq[:, 0]
