@@ -68,3 +68,57 @@ def test_base_frame_of_a_dh_table_is_the_tables_base_frame(ur10):
     # in the instrument frame the same targets sit where the placement puts them
     c = compensate_targets(placed, placed.nominal, PLACEMENT @ targets, seeds=q_cmd + 0.02)
     np.testing.assert_allclose(c.q, q_cmd, atol=1e-8)
+
+
+def test_compensate_command_for_a_7_joint_arm(tmp_path):
+    """``fgcal compensate`` on a Franka Panda result: seeds ``q1..q7`` in, ``pose,q1..q7`` out, and the
+    commands bring the calibrated model to the targets, near the seeds."""
+    import csv
+    import subprocess
+    import sys
+
+    from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+    from fgcal.estimation.result import save_result
+    from fgcal.measurements.dataset import Dataset, Noise
+    from fgcal.measurements.pose import PoseObservations
+    from fgcal.robots.model import Tooling
+    from fgcal.robots.transforms import matrix_to_quaternion
+
+    chain = {"base": "panda_link0", "tip": "panda_hand"}
+    model = load_model(DATA / "panda.urdf", chain=chain)
+    assert model.n_joints == 7
+    rng = np.random.default_rng(5)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    inside = lambda n, margin: lo + margin * (hi - lo) + rng.uniform(size=(n, 7)) * (1 - 2 * margin) * (hi - lo)  # noqa: E731
+    q_train = inside(40, 0.05)
+    T = model.forward(model.nominal, q_train)
+    ids = np.arange(1, 41)
+    ds = Dataset(robot=str(DATA / "panda.urdf"), tooling=Tooling(0.0, {"F": np.zeros(3)}),
+                 noise=Noise(cmm_sigma=0.01, joint_resolution=0.0, pose_position_sigma=0.01,
+                             pose_orientation_sigma=float(np.degrees(1e-4))),
+                 provenance={}, pose_ids=ids, joints_deg=model.joints_to_file_units(q_train), chain=chain,
+                 poses=PoseObservations(ids, T[:, :3, 3] + rng.normal(0, 0.01, (40, 3)),
+                                        np.array([matrix_to_quaternion(R) for R in T[:, :3, :3]])))
+    result = calibrate(ds, model, CalibrationOptions())
+    save_result(result, tmp_path / "result.json")
+    slots = result.slot_vector(model)
+    q_cmd = inside(6, 0.2)
+    targets = model.forward(slots, q_cmd)
+    seeds = np.degrees(q_cmd) + 0.5  # the nominal commands a user would have, half a degree off
+    with open(tmp_path / "targets.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["pose", "x", "y", "z", "qw", "qx", "qy", "qz"] + [f"q{i}" for i in range(1, 8)])
+        for k, (Tk, s) in enumerate(zip(targets, seeds), start=1):
+            w.writerow([k, *Tk[:3, 3], *matrix_to_quaternion(Tk[:3, :3]), *s])
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "compensate", str(tmp_path / "result.json"),
+                          str(tmp_path / "targets.csv"), "--frame", "instrument", "--out", str(tmp_path / "cmd.csv")],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    rows = list(csv.reader(open(tmp_path / "cmd.csv")))
+    assert rows[0] == ["pose"] + [f"q{i}" for i in range(1, 8)]
+    got = np.radians(np.array([[float(v) for v in r[1:]] for r in rows[1:]]))
+    # Seven joints for six constraints: not q_cmd itself but a solution near the seed that reaches the target.
+    reached = model.forward(slots, got)
+    np.testing.assert_allclose(reached[:, :3, 3], targets[:, :3, 3], atol=1e-6)
+    np.testing.assert_allclose(reached[:, :3, :3], targets[:, :3, :3], atol=1e-9)
+    assert np.max(np.abs(np.degrees(got) - seeds)) < 10.0

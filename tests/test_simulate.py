@@ -5,7 +5,8 @@ from fgcal.measurements.dataset import Noise
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.errors import FgcalError
 from fgcal.robots.kinematics import forward
-from fgcal.studies.simulate import SimulationSettings, ball_access, simulate
+from fgcal.studies.plans import ball_access
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 from plain_dh import fk_from_truth
 

@@ -78,7 +78,8 @@ def _reference_trial(trial):
     from fgcal.measurements.dataset import Dataset, Noise
     from fgcal.robots.kinematics import forward
     from fgcal.robots.robot_file import load_model
-    from fgcal.studies.simulate import draw_truth, measure, paper_plan, random_plan
+    from fgcal.studies.plans import paper_plan, random_plan
+    from fgcal.studies.simulate import draw_truth, measure
     from fgcal.report.verify import compare_poses, measured_poses
 
     model = load_model(trial.robot)
@@ -146,7 +147,8 @@ def test_simulated_probes_are_measure_s(puma):
     """The vectorised probing draws the same random stream as fgcal.studies.simulate.measure: the same points,
     readings and kept poses (poses outside the volume dropped), and the generator ends in the same state."""
     from fgcal.measurements.dataset import Noise
-    from fgcal.studies.simulate import draw_truth, measure, random_plan
+    from fgcal.studies.plans import random_plan
+    from fgcal.studies.simulate import draw_truth, measure
     from fgcal.studies.probing import simulate_probes
 
     rng = np.random.default_rng(5)
@@ -170,7 +172,8 @@ def test_vectorised_verification_poses_match_measured_poses(puma):
     """Four balls a pose, a gross error on one ball of one pose and on two balls of another: the
     vectorised sphere and rigid fits accept and reject the same poses as measured_poses, same poses."""
     from fgcal.measurements.dataset import Noise
-    from fgcal.studies.simulate import draw_truth, random_plan
+    from fgcal.studies.plans import random_plan
+    from fgcal.studies.simulate import draw_truth
     from fgcal.studies.probing import simulate_probes
     from fgcal.report.verify import measured_poses
 

@@ -22,20 +22,18 @@ from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
 from fgcal.measurements.point import POINT
-from fgcal.measurements.pose import POSE
 from fgcal.measurements.types import kinematic_types
 from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
 from fgcal.io.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
-__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth", "read_targets"]
+__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth"]
 
 log = logging.getLogger(__name__)
 
 _SLOT_FIELDS = set(EULER_FIELDS) | set(LINK_FIELDS)
 
-JOINT_COLUMNS = ["pose", "q1", "q2", "q3", "q4", "q5", "q6"]
 MAX_JOINTS = 64
 
 
@@ -298,36 +296,6 @@ def load_dataset(directory) -> Dataset:
         log.warning("%s: no measurements (probes.csv, centres.csv, poses.csv or distances.csv); joint readings only",
                     directory)
     return ds
-
-
-def read_targets(path):
-    """Target tool poses: ``pose,x,y,z,qw,qx,qy,qz`` and optionally seed joints ``q1..q6`` (deg).
-
-    Returns ``(ids (N,), T (N, 4, 4) mm, seeds (N, 6) rad or None)``.
-    """
-    from fgcal.robots.transforms import pose_matrices
-
-    path = Path(path)
-    rows = _read_table(path, list(POSE.columns), optional=JOINT_COLUMNS[1:])
-    if not rows:
-        raise DatasetError(f"{path}: no targets")
-    has_q = [c in rows[0][1] for c in JOINT_COLUMNS[1:]]
-    if any(has_q) and not all(has_q):
-        raise DatasetError(f"{path}: line 1: give all of q1..q6 or none")
-    ids, T, seeds, seen = [], [], [], {}
-    for line, r in rows:
-        where = f"{path}: line {line}"
-        pid = _integer(r["pose"], where, "pose")
-        _, values = POSE.parse(where, r, {})
-        xyz, quat = values[:3], values[3:]
-        if pid in seen:
-            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
-        seen[pid] = line
-        ids.append(pid)
-        T.append(pose_matrices(xyz, quat))
-        if all(has_q):
-            seeds.append(np.radians([_number(r[c], where, c) for c in JOINT_COLUMNS[1:]]))
-    return np.array(ids), np.array(T), (np.array(seeds) if seeds else None)
 
 
 def dataset_model(ds: Dataset) -> RobotModel:

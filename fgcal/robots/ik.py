@@ -192,7 +192,22 @@ def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_s
 
     sol = least_squares(residual, seed, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
                         max_nfev=200, method="trf")
-    err = np.linalg.norm(sol.fun)
+    q, r = sol.x, sol.fun
+    err = np.linalg.norm(r)
+    # The bounded solver creeps the last digits on a redundant arm (7 joints, 6 equations): finish
+    # with minimum-norm Gauss-Newton steps while they stay inside the limits.
+    for _ in range(20):
+        if err <= tol_mm or err > 1.0:
+            break
+        step = -np.linalg.lstsq(jac(q), r, rcond=None)[0]
+        q_new = q + step
+        if np.any(q_new < lo) or np.any(q_new > hi):
+            break
+        r_new = residual(q_new)
+        if np.linalg.norm(r_new) >= err:
+            break
+        q, r, err = q_new, r_new, float(np.linalg.norm(r_new))
+    sol.x = q
     if err > 1e-6:
         at_limit = [model.joint_names[j] for j in range(model.n_joints) if min(sol.x[j] - lo[j], hi[j] - sol.x[j]) < 1e-6]
         why = f"; {', '.join(at_limit)} at the joint limit" if at_limit else ""

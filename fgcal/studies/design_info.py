@@ -36,7 +36,7 @@ from fgcal.measurements.types import LEVELS, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
-from fgcal.studies.simulate import UP, ball_access
+from fgcal.studies.plans import UP, ball_access
 
 __all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
            "information_and_middle", "joint_sensitivity"]
@@ -93,7 +93,7 @@ def cap_directions(axis, n_points: int, polar_deg: float = 60.0) -> np.ndarray:
 def layout_from_access(model: RobotModel, q, levels, n_balls: int = 3, slots=None, probes_per_ball: int = 4,
                        margin_mm: float = 0.0, margin_deg: float = 0.0) -> Layout:
     """The balls an instrument measures at joint sets ``q`` (N, n) rad: the ``n_balls`` most
-    accessible of those :func:`fgcal.studies.simulate.ball_access` allows (as the simulator picks them).
+    accessible of those :func:`fgcal.studies.plans.ball_access` allows (as the simulator picks them).
 
     Poses with fewer than ``n_balls`` accessible balls measure none (they are not usable for the
     ball levels). A model without a measuring volume is taken to see every ball (a tracker).

@@ -138,7 +138,7 @@ def simulate_probes(model, slots, q_commanded, rng: np.random.Generator, tooling
     q_commanded : array_like, shape (N, n)
         Commanded joints (rad, mm).
     """
-    from fgcal.studies.simulate import UP, ball_access
+    from fgcal.studies.plans import UP, ball_access
 
     q = np.atleast_2d(np.asarray(q_commanded, dtype=float))
     q_actual = q + rng.normal(size=q.shape) * model.joints_to_internal(np.full(model.n_joints, noise.repeatability))

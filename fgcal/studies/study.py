@@ -83,7 +83,7 @@ def _design(trials=8, poses=12, seed=0, candidates=2000, random_sets=40, **_):
     from fgcal.measurements.dataset import Noise
     from fgcal.robots.robot_file import load_model
     from fgcal.studies.design import INDICES, Candidates, candidate_pool, design_plan
-    from fgcal.studies.simulate import random_plan
+    from fgcal.studies.plans import random_plan
 
     model = load_model("puma560")
     rng = np.random.default_rng([seed, 9])
@@ -154,7 +154,7 @@ def prepare_process(robots) -> None:
 
 @lru_cache(maxsize=4)
 def _paper_plan(robot: str):
-    from fgcal.studies.simulate import paper_plan
+    from fgcal.studies.plans import paper_plan
 
     model = _model(robot)
     q, _, _ = paper_plan(model, np.random.default_rng(1993), model.tooling, model.volume)
@@ -174,7 +174,8 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     from fgcal.report.verify import compare_poses
     from fgcal.robots.kinematics import forward
     from fgcal.studies.probing import simulate_probes
-    from fgcal.studies.simulate import draw_truth, random_plan
+    from fgcal.studies.plans import random_plan
+    from fgcal.studies.simulate import draw_truth
 
     t0 = time.perf_counter()
     model = _model(trial.robot)

@@ -37,7 +37,8 @@ def _parse_branch(text):
 
 def _cmd_compensate(args) -> int:
     from fgcal.robots.compensate import Frame, compensate_targets
-    from fgcal.io.dataset_io import JOINT_COLUMNS, read_targets, write_csv
+    from fgcal.io.dataset_io import joint_columns, write_csv
+    from fgcal.io.targets import read_targets
     from fgcal.estimation.result import load_result
 
     if args.out:
@@ -45,8 +46,10 @@ def _cmd_compensate(args) -> int:
     tcp = _parse_tcp(args.tcp) if args.tcp else None
     branch = _parse_branch(args.branch) if args.branch else None
     result = load_result(args.result)
-    ids, T, seeds = read_targets(args.targets)
     model = result.model()
+    ids, T, seeds = read_targets(args.targets, model.n_joints)
+    if seeds is not None:
+        seeds = model.joints_to_internal(seeds)
     c = compensate_targets(model, result.slot_vector(model), T, seeds, frame=Frame(args.frame), tcp=tcp,
                            branch=branch, max_change_deg=args.max_change)
     for note in c.notes:
@@ -59,9 +62,9 @@ def _cmd_compensate(args) -> int:
         for message in outside_region(result, q[ok]):
             print(f"warning: {args.targets}: {message}", file=sys.stderr)
         q[ok] = commands_for(result, q[ok])
-    rows = [[int(p), *map(float, np.degrees(qi))] for p, qi, good in zip(ids, q, ok) if good]
+    rows = [[int(p), *map(float, model.joints_to_file_units(qi))] for p, qi, good in zip(ids, q, ok) if good]
     if args.out:
-        write_csv(args.out, JOINT_COLUMNS, rows)
+        write_csv(args.out, joint_columns(model.n_joints), rows)
         if ok.any():
             print(f"wrote {args.out}: {len(rows)} of {len(ids)} joint commands; the calibrated model reaches them "
                   f"within {np.nanmax(c.position_error_mm):.2g} mm and {np.nanmax(c.orientation_error_deg):.2g} deg, "
@@ -69,7 +72,7 @@ def _cmd_compensate(args) -> int:
         else:
             print(f"wrote {args.out}: no target was reachable")
     else:
-        print(",".join(JOINT_COLUMNS))
+        print(",".join(joint_columns(model.n_joints)))
         for r in rows:
             print(",".join([str(r[0])] + [repr(v) for v in r[1:]]))
     for p, why in zip(ids, c.reasons):

@@ -55,7 +55,7 @@ def _cmd_design(args) -> int:
     from fgcal.studies.design import INDICES, Candidates, candidate_pool, design_plan, random_design_values
     from fgcal.studies.design_info import layout_from_access
     from fgcal.robots.robot_file import load_model
-    from fgcal.studies.simulate import random_plan
+    from fgcal.studies.plans import random_plan
 
     if args.dataset is not None:
         return _cmd_design_dataset(args)

@@ -1,0 +1,54 @@
+"""Target tool poses for ``fgcal compensate``: ``pose,x,y,z,qw,qx,qy,qz`` and optional seed joints."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from fgcal.errors import DatasetError
+from fgcal.io.dataset_io import _read_table, joint_columns
+from fgcal.measurements.cells import MAX_DEG, integer, number
+from fgcal.measurements.pose import POSE
+from fgcal.robots.transforms import pose_matrices
+
+__all__ = ["read_targets"]
+
+
+def read_targets(path, n_joints: int = 6):
+    """Target tool poses (the columns of ``poses.csv``), optionally with seed joints ``q1..qn``.
+
+    Parameters
+    ----------
+    path : path-like
+    n_joints : int
+        The robot's joints: the seed columns are ``q1..q{n_joints}`` (all or none).
+
+    Returns
+    -------
+    ids : ndarray of int, shape (N,)
+    T : ndarray, shape (N, 4, 4)
+        Target poses (mm).
+    seeds : ndarray, shape (N, n_joints), or None
+        Seed joints in file units (deg; mm for prismatic joints), when given.
+    """
+    path = Path(path)
+    q_columns = joint_columns(n_joints)[1:]
+    rows = _read_table(path, list(POSE.columns), optional=q_columns)
+    if not rows:
+        raise DatasetError(f"{path}: no targets")
+    has_q = [c in rows[0][1] for c in q_columns]
+    if any(has_q) and not all(has_q):
+        raise DatasetError(f"{path}: line 1: give all of {q_columns[0]}..{q_columns[-1]} or none")
+    ids, T, seeds, seen = [], [], [], {}
+    for line, r in rows:
+        where = f"{path}: line {line}"
+        pid = integer(r["pose"], where, "pose")
+        _, values = POSE.parse(where, r, {})
+        if pid in seen:
+            raise DatasetError(f"{where}: duplicate pose {pid} (first on line {seen[pid]})")
+        seen[pid] = line
+        ids.append(pid)
+        T.append(pose_matrices(values[:3], values[3:]))
+        if all(has_q):
+            seeds.append([number(r[c], where, c, MAX_DEG) for c in q_columns])
+    return np.array(ids), np.array(T).reshape(-1, 4, 4), (np.array(seeds) if seeds else None)
