@@ -5,7 +5,9 @@
 2. online: the whole CLI step per pose and total CPU against one batch calibration, 1000 poses
    (``bench_online.py``);
 3. studies: a trial against its calibration, and the 2-worker study against bare calibrations
-   (``bench_study.py``).
+   (``bench_study.py``);
+4. the GTSAM engine and ``gtsam.Marginals`` against the batched solve and its covariance
+   (``bench_engines.py``).
 """
 import platform
 import subprocess
@@ -17,7 +19,7 @@ HERE = Path(__file__).resolve().parent
 if __name__ == "__main__":
     import os
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
-    for script in ("bench_batch.py", "bench_online.py", "bench_study.py"):
+    for script in ("bench_batch.py", "bench_online.py", "bench_study.py", "bench_engines.py"):
         print(f"\n== {script}")
         sys.stdout.flush()
         subprocess.run([sys.executable, str(HERE / script)], check=True)
