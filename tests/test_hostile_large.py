@@ -21,7 +21,7 @@ def test_probe_table_memory_per_row_is_small(tmp_path):
         fh.writelines(f"{p},{b},{x!r},{y!r},{z!r}\n" for p, b, (x, y, z) in zip(poses, balls, xyz.tolist()))
     known = set(range(1, poses.max() + 1))
     tracemalloc.start()
-    obs = _point_table(path, known, {"A": 0, "B": 0, "C": 0}, unique=False)
+    obs = _point_table(path, known, {"A": 0, "B": 0, "C": 0})
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     np.testing.assert_array_equal(obs.xyz, xyz)

@@ -20,7 +20,7 @@ from fgcal import __version__
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
-from fgcal.estimation.build import _initial_pivot, _levels, _sigmas, build_graph  # noqa: F401 (also reached here)
+from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401

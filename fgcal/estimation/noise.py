@@ -27,7 +27,7 @@ from scipy import special
 
 from fgcal.measurements.types import all_levels, kinematic_types
 
-__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "COMPONENTS", "component_table", "MIN_REDUNDANCY",
+__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "component_table", "MIN_REDUNDANCY",
            "OUTLIER_ALPHA", "components", "update_sigmas", "find_outliers", "fit_test", "scaled_inverse", "robust_scale"]
 
 log = logging.getLogger(__name__)
@@ -67,8 +67,6 @@ def component_table() -> dict:
     table["joints"] = ("joints", slice(0, None), "joint", "deg", float(np.degrees(1.0)))  # revolute joints: deg
     return table
 
-
-COMPONENTS = component_table()  # the built-in types' (the registry may grow: use component_table())
 
 
 @dataclass

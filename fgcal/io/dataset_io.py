@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.measurements.cells import MAX_DEG, pose_id
+from fgcal.measurements.cells import MAX_DEG, ball_name, pose_id
 from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
@@ -92,31 +92,22 @@ def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
     return [(line, dict(zip(header, cells))) for line, header, cells in _table_records(path, columns, optional)]
 
 
-def _point_table(path: Path, known_poses: set, balls: dict, unique: bool) -> PointObservations:
+def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations:
     """A ``pose,ball,x,y,z`` file (probe points), streamed into compact arrays (memory linear in the
     rows, small constant): probe files are the largest a dataset has."""
     names = list(balls)
     ball_index = {b: i for i, b in enumerate(names)}
     pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
-    seen = {}
     cols = None
     for line, header, cells in _table_records(path, POINT_COLUMNS):
         if cols is None:
             cols = [header.index(c) for c in POINT_COLUMNS]
         where = f"{path}: line {line}"
         p_txt, b, x, y, z = (cells[i] for i in cols)
-        pid = _integer(p_txt, where, "pose")
-        if pid not in known_poses:
-            raise DatasetError(f"{where}: pose {pid} has no joint readings in joints.csv")
+        pid = pose_id(p_txt, where, known_poses)
         k = ball_index.get(b)
         if k is None:
-            raise DatasetError(f"{where}: unknown ball {short_repr(b)} (dataset.yaml tool.balls has "
-                               f"{', '.join(balls)})")
-        if unique:
-            key = (pid, k)
-            if key in seen:
-                raise DatasetError(f"{where}: duplicate centre of ball {b} at pose {pid} (first on line {seen[key]})")
-            seen[key] = line
+            ball_name(b, where, balls)  # raises, naming the tool's balls
         pose.append(pid)
         ball.append(k)
         xyz.extend((_number(x, where, "x"), _number(y, where, "y"), _number(z, where, "z")))
@@ -286,7 +277,7 @@ def load_dataset(directory) -> Dataset:
     if os.path.lexists(directory / "probes.csv"):
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
-        ds.probes = _point_table(directory / "probes.csv", known, tooling.balls, unique=False)
+        ds.probes = _point_table(directory / "probes.csv", known, tooling.balls)
     for kind in kinematic_types():
         if os.path.lexists(directory / kind.file):
             setattr(ds, kind.level, _measurement_table(directory / kind.file, kind, known, tooling.balls))

@@ -314,12 +314,14 @@ def _verify_kind(kind, ds: Dataset, model: RobotModel, slots, truth) -> Verifica
     terms = kind.terms(obs, ds.tooling, {int(p): i for i, p in enumerate(ids)})
     everything = np.arange(len(model.slot_names))
 
+    count = np.bincount(terms.pose, minlength=len(ids))
+
+    def rms_per_pose(values):
+        return np.sqrt(np.bincount(terms.pose, weights=values**2, minlength=len(ids)) / count)
+
     def errors(x, data):
         distance, angle = kind.metric(kind.error(x, q[terms.pose], data, everything, x, model.chain)[0])
-        per_pose = [np.sqrt(np.mean(distance[terms.pose == i] ** 2)) for i in range(len(ids))]
-        angles = None if angle is None else np.array([np.sqrt(np.mean(angle[terms.pose == i] ** 2))
-                                                      for i in range(len(ids))])
-        return Comparison(np.array(per_pose), angles)
+        return Comparison(rms_per_pose(distance), None if angle is None else rms_per_pose(angle))
 
     out = Verification(ids, errors(slots, terms.data), errors(model.nominal, terms.data),
                        reference=f"measured {kind.title}", robot=model.name,

@@ -27,10 +27,10 @@ import numpy as np
 from fgcal.measurements.dataset import Dataset
 from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
 from fgcal.studies.design import Candidates, design_plan, random_design_values
-from fgcal.studies.design_info import DESIGNED_LEVELS, Layout, joint_sensitivity, layout_from_access, sigmas_of
+from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
-from fgcal.estimation.noise import COMPONENTS, NoiseMode
+from fgcal.estimation.noise import NoiseMode, component_table
 from fgcal.robots.model import RobotModel
 
 __all__ = ["DATASET_INDEX", "DatasetDesign", "DesignNoise", "dataset_noise", "dataset_layout", "design_from_dataset",
@@ -117,7 +117,7 @@ class DesignNoise:
     slots : ndarray, shape (S,), or None
         Linearisation point (internal units); None: the nominal geometry.
     levels : dict of str to (float, float, str)
-        Per variance component (:data:`fgcal.noise.COMPONENTS`): declared sigma, sigma designed
+        Per variance component (:func:`fgcal.estimation.noise.component_table`): declared sigma, sigma designed
         for, unit.
     mode : NoiseMode
     """
@@ -152,10 +152,11 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         return DesignNoise(None, _linearisation_point(ds, model), {}, NoiseMode.DECLARED)
     sig = sigmas_of(ds.noise, model)
     scaled, levels = {}, {}
+    table = component_table()
     for name, level in result.noise.items():
-        if name not in COMPONENTS or not level.declared > 0:
+        if name not in table or not level.declared > 0:
             continue
-        attr = COMPONENTS[name][2]
+        attr = table[name][2]
         scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
         levels[name] = (float(level.declared), float(level.used), level.unit)
     weights, slots = sig.replaced(**scaled), result.slot_vector(model)
@@ -178,13 +179,9 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
     """What is measured at each pose: the dataset's own measurements at its poses (``q`` None),
     or at joint sets ``q`` (N, joints) rad the balls the instrument reaches (as many as the
     dataset usually measures per pose) at the dataset's levels."""
-    levels = tuple(lv for lv in ds.levels() if lv in DESIGNED_LEVELS)
-    other = [lv for lv in ds.levels() if lv not in DESIGNED_LEVELS]
+    levels = tuple(ds.levels())  # every measurement type brings its own rows to the information
     if not levels:
-        raise FgcalError(f"{ds.path or 'dataset'}: design needs probes, centres or poses; this dataset has "
-                         f"{', '.join(other) or 'no measurements'}")
-    if other:
-        log.warning("design leaves out the dataset's %s (not yet part of the design's information)", ", ".join(other))
+        raise FgcalError(f"{ds.path or 'dataset'}: design needs measurements; this dataset has none")
     names = model.tooling.names if model.tooling is not None else []
     point_levels = [getattr(ds, lv) for lv in ("probes", "centres", "distances") if lv in levels]
     ppb = 4
@@ -212,7 +209,7 @@ def _linearisation_point(ds: Dataset, model: RobotModel):
     lengths as the estimator starts): a ballbar's information depends on where the pivot is."""
     if ds.distances is None or not len(ds.distances):
         return None
-    from fgcal.estimation.calibrate import _initial_pivot
+    from fgcal.estimation.build import _initial_pivot
 
     d = ds.distances
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(d.pose)])

@@ -30,18 +30,18 @@ import numpy as np
 
 from factors.errors import ball_centre_error, probe_error
 
-from fgcal.estimation.calibrate import CalibrationOptions, _sigmas
+from fgcal.estimation.build import _sigmas
+from fgcal.estimation.calibrate import CalibrationOptions
 from fgcal.measurements.dataset import Dataset, Noise
-from fgcal.measurements.types import LEVELS, kinematic_levels
+from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
 from fgcal.studies.plans import UP, ball_access
 
-__all__ = ["DESIGNED_LEVELS", "Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
+__all__ = ["Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
            "information_and_middle", "joint_sensitivity"]
 
-DESIGNED_LEVELS = LEVELS  # every level: each measurement type brings its own rows
 
 
 @dataclass
@@ -51,7 +51,7 @@ class Layout:
     Attributes
     ----------
     levels : tuple of str
-        Measurement levels, a subset of :data:`DESIGNED_LEVELS`.
+        Measurement levels: ``probes`` and any registered measurement type's.
     balls : ndarray of bool, shape (N, B)
         Balls (tooling order) measured at each pose, for the ``probes`` and ``centres`` levels.
     probes_per_ball : int
@@ -274,12 +274,12 @@ def _per_pose(model, q, layout, noise, params, slots, sigmas, actual=None, joint
 def joint_sensitivity(model: RobotModel, q, layout: Layout, sigmas: Sigmas, slots=None) -> dict:
     """How much a joint-space error shows in each variance component of the kinematic levels.
 
-    Returns ``{component: (s, rows)}`` (names of :data:`fgcal.estimation.noise.COMPONENTS`):
+    Returns ``{component: (s, rows)}`` (names of :func:`fgcal.estimation.noise.component_table`):
     ``s`` the sum over the component's rows at poses ``q`` of the squared whitened (by
     ``sigmas``) joint Jacobian, per rad^2 of joint error, and ``rows`` their number; a joint error
     of ``sigma_u`` rad adds ``sigma_u^2 s / rows`` to the component's variance factor.
     """
-    from fgcal.estimation.noise import COMPONENTS
+    from fgcal.estimation.noise import component_table
 
     x = model.nominal if slots is None else np.asarray(slots, dtype=float)
     q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -297,7 +297,7 @@ def joint_sensitivity(model: RobotModel, q, layout: Layout, sigmas: Sigmas, slot
             T_m, q_m, off = T, q, np.zeros((len(q), 3))
         _, _, Jq = kind.error(x[idx], q_m, kind.design_data(T_m, off), idx, x, model.chain)
         w2 = np.einsum("mrj,mrj->r", Jq, Jq) / kind.sigma(sigmas) ** 2  # per component column
-        for name, (level, cols, *_rest) in COMPONENTS.items():
+        for name, (level, cols, *_rest) in component_table().items():
             if level == kind.level:
                 out[name] = (float(w2[cols].sum()), int(len(q_m) * len(w2[cols])))
     return out
