@@ -91,10 +91,13 @@ def _initial_pivot(model: RobotModel, held, q, offsets, length):
     return model.with_world_origin_at(held, np.linalg.lstsq(A, b, rcond=None)[0][:3])
 
 
-def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None):
+def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None,
+                start=None):
     """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
 
-    Only poses with at least one measurement at the chosen levels take part.
+    Only poses with at least one measurement at the chosen levels take part. The state starts at
+    ``start`` (all slots (S,), internal units) when given, else at ``held`` (default the nominal
+    chain) with the base fitted to the measurements.
     """
     levels = _levels(ds, options)
     block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
@@ -148,7 +151,15 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
-    start = _initial_base(model, held, q, world_points) if pivot_start is None or world_points else pivot_start
+    warm = start
+    if start is not None:
+        start = np.asarray(start, dtype=float)
+        if start.shape != held.shape or not np.all(np.isfinite(start)):
+            raise FgcalError(f"the start must be {held.shape[0]} finite slots, got shape {start.shape}")
+    elif pivot_start is None or world_points:
+        start = _initial_base(model, held, q, world_points)
+    else:
+        start = pivot_start
     if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
         block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,
                                       model_inertials(model), block_names, model.chain)
@@ -161,7 +172,9 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     if init_c is not None and len(graph.ball_pose):
         # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
         # points equally well, the one near the prediction is the ball's. Balls whose points do
-        # not fit a sphere start at the prediction itself.
+        # not fit a sphere start at the prediction itself. A given start is near the optimum: its
+        # prediction decides alone (the noise may be many times the declared one, and a centre
+        # started at a mirror image stays in another minimum).
         T0 = model.forward(params.full(theta0, start), q)
         predicted = tool_points(T0[graph.ball_pose], graph.ball_offset[:, None, :])[:, 0]
         for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=3):
@@ -170,7 +183,8 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
             first_ok = np.where(ok[:, None], first, predicted[vs])
             candidates = [fit_spheres_batch(pts, ds.tooling.radius, guess=g)
                           for g in (first_ok, mirror_through_points(pts, first_ok), predicted[vs])]
-            init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates, ds.noise.cmm_sigma, predicted[vs])
+            init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates,
+                                            ds.noise.cmm_sigma if warm is None else np.inf, predicted[vs])
         bad = ~np.all(np.isfinite(init_c), axis=1) | (np.linalg.norm(init_c - predicted, axis=1) > 50.0)
         init_c[bad] = predicted[bad]
     state = graph.initial_state(theta0, init_c)

@@ -12,7 +12,7 @@ and outliers (:mod:`fgcal.estimation.noise`), held parameters (:mod:`fgcal.estim
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -21,9 +21,9 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.graph import Graph, State
+from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
-from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
+from fgcal.estimation.solve import _solve, levenberg_marquardt, settle_locals  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost
 from fgcal.estimation.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
@@ -33,7 +33,7 @@ from fgcal.estimation.residuals import at_readings, pose_residuals
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 from fgcal.estimation.joint_errors import BlockParameters
 
-__all__ = ["CalibrationOptions", "calibrate", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
+__all__ = ["CalibrationOptions", "calibrate", "solve_calibration", "Solution", "solution_covariance", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "identifiability_of"]
 
 # The GTSAM forms of the problem live in fgcal.estimation.gtsam_graph (which imports gtsam); reached through
@@ -51,6 +51,7 @@ def __getattr__(name):
 log = logging.getLogger(__name__)
 
 MAX_NOISE_ROUNDS = 40
+WARM_DAMPING = 1e-9  # Levenberg-Marquardt's first damping from a start near the optimum (see levenberg_marquardt)
 
 
 def _pose_dof(n_balls: int, full_pose: bool) -> int:
@@ -149,17 +150,38 @@ def _measured_points(ds: Dataset, levels) -> np.ndarray | str:
     return np.array([ds.tooling.balls[b] for b in balls]).reshape(-1, 3)
 
 
-def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
-    """Identify the kinematic parameters of ``model`` from ``ds`` by one factor-graph solve.
+@dataclass
+class Solution:
+    """Where the solve of :func:`solve_calibration` ended: its graph (with the noise estimated and
+    the outliers excluded) and state, what was held, and how it got there."""
 
-    By default each level's noise is estimated from the residuals where the redundancy allows
-    (:mod:`fgcal.estimation.noise`) and gross errors are excluded and named; the covariance is at the
-    estimated noise.
+    graph: Graph
+    state: State
+    pose_ids: np.ndarray
+    levels: tuple
+    iterations: int
+    converged: bool
+    rounds: int  # noise and outlier rounds
+    declared: Sigmas  # the noise before estimation
+    noise_mode: NoiseMode
+    outlier_mode: OutlierMode
+    held: list = field(default_factory=list)  # {"name", "value" (file units), "reason"} per held parameter
+    theta_start: np.ndarray | None = None  # the start (nominal chain, base fitted) in internal units
 
-    Raises
-    ------
-    FgcalError
-        If the data cannot determine the parameters (too few poses), naming how many are needed.
+
+def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
+                      start=None, decide_held: bool = True) -> Solution:
+    """The solve of :func:`calibrate` without the result's summaries.
+
+    Parameters
+    ----------
+    start : ndarray, shape (S,), optional
+        All slots (internal units) to start the solve from (a warm start: for example an online
+        engine's estimate); default the nominal chain with the base fitted to the measurements.
+        The optimum is the same; only the way there is shorter.
+    decide_held : bool
+        False: estimate every parameter of ``options`` (with ``prior="weak"`` the information is
+        never singular) instead of holding those the data cannot identify.
     """
     noise_mode = NoiseMode(options.noise)
     outlier_mode = OutlierMode(options.outliers)
@@ -168,29 +190,11 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if options.joint_errors is not None:
         names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
-    # Degrees of freedom per pose: full pose 6, two balls 5, one ball 3.
-    dof = 0
-    for p in ds.pose_ids:
-        balls = set()
-        full = False
-        for lv in levels:
-            obs = getattr(ds, lv)
-            width = BY_LEVEL[lv].width if lv in BY_LEVEL else 3  # a probed ball places a point
-            if width >= 6:
-                full |= bool(np.any(obs.pose == p))
-            elif width == 3:
-                balls |= set(obs.ball[obs.pose == p].tolist())
-            else:
-                dof += width * int(np.sum(obs.pose == p))
-        dof += _pose_dof(min(len(balls), 3), full)
-    if dof < len(names):
-        raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
-                         f"{len(names)} parameters need at least {len(names)} "
-                         f"(at least {int(np.ceil(len(names) / 6))} full poses; more to average the noise)")
+    _check_equations(ds, levels, len(names))
 
-    graph, state, pose_ids = build_graph(ds, model, names, options)
+    graph, state, pose_ids = build_graph(ds, model, names, options, start=start)
     held_info = []
-    redundant = held_parameters(graph, state, _unidentifiable)
+    redundant = held_parameters(graph, state, _unidentifiable) if decide_held else {}
     if redundant:
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
@@ -198,11 +202,15 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
                               "reason": reason})
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
-        graph, state, pose_ids = build_graph(ds, model, names, options)
-        lin = None
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=start)
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
-    state, iterations, converged = _solve(graph, state, options)
+    damping = 1e-4
+    if start is not None:
+        state, damping = settle_locals(graph, state), WARM_DAMPING
+    state, iterations, converged = _solve(graph, state, options, damping=damping)
+    # The re-solves below start where the noise or the exclusions changed, which can be far from
+    # the new optimum (a noise several times the declared one): they take the cold start's damping.
     declared = graph.sigmas
     if options.estimate_noise:
         noise_mode = NoiseMode.ESTIMATED
@@ -228,7 +236,53 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         iterations += it2
     else:
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
+    return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
+                    outlier_mode, held_info, theta_start)
 
+
+def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
+    """Refuse a dataset whose poses give fewer equations than there are parameters."""
+    dof = 0  # degrees of freedom per pose: full pose 6, two balls 5, one ball 3
+    for p in ds.pose_ids:
+        balls = set()
+        full = False
+        for lv in levels:
+            obs = getattr(ds, lv)
+            width = BY_LEVEL[lv].width if lv in BY_LEVEL else 3  # a probed ball places a point
+            if width >= 6:
+                full |= bool(np.any(obs.pose == p))
+            elif width == 3:
+                balls |= set(obs.ball[obs.pose == p].tolist())
+            else:
+                dof += width * int(np.sum(obs.pose == p))
+        dof += _pose_dof(min(len(balls), 3), full)
+    if dof < n_parameters:
+        raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
+                         f"{n_parameters} parameters need at least {n_parameters} "
+                         f"(at least {int(np.ceil(n_parameters / 6))} full poses; more to average the noise)")
+
+
+def solution_covariance(sol: Solution) -> np.ndarray:
+    """The parameters' covariance (P, P), internal units, at the solution's noise."""
+    return _covariance(sol.graph, sol.state, sol.graph.linearise(sol.state))
+
+
+def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
+    """Identify the kinematic parameters of ``model`` from ``ds`` by one factor-graph solve.
+
+    By default each level's noise is estimated from the residuals where the redundancy allows
+    (:mod:`fgcal.estimation.noise`) and gross errors are excluded and named; the covariance is at the
+    estimated noise.
+
+    Raises
+    ------
+    FgcalError
+        If the data cannot determine the parameters (too few poses), naming how many are needed.
+    """
+    sol = solve_calibration(ds, model, options)
+    graph, state, pose_ids, levels, declared = sol.graph, sol.state, sol.pose_ids, sol.levels, sol.declared
+    noise_mode, held_info, theta_start = sol.noise_mode, sol.held, sol.theta_start
+    iterations, converged, rounds = sol.iterations, sol.converged, sol.rounds
     # Everything below works from one linearisation at the solution.
     lin = graph.linearise(state)  # the solve's last one (remembered by the graph)
     cov = _covariance(graph, state, lin)
@@ -258,7 +312,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     opts = asdict(options)
     opts["noise_scale"] = {lv: n.used / n.declared for lv, n in noise_table.items()
                            if n.declared > 0 and abs(n.used / n.declared - 1) > 1e-12}
-    opts["noise"], opts["outliers"] = noise_mode.value, outlier_mode.value
+    opts["noise"], opts["outliers"] = noise_mode.value, sol.outlier_mode.value
     raw = lin.raw
     residuals = {}
     if "probes" in raw:

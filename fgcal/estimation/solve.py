@@ -9,7 +9,7 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
 
-__all__ = ["levenberg_marquardt", "COST_ROUNDING"]
+__all__ = ["levenberg_marquardt", "settle_locals", "COST_ROUNDING"]
 
 log = logging.getLogger(__name__)
 
@@ -18,16 +18,19 @@ log = logging.getLogger(__name__)
 COST_ROUNDING = 1e-10
 
 
-def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None):
+def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None,
+                        damping: float = 1e-4):
     """Minimise the graph's cost; returns ``(state, iterations, converged)``.
 
-    ``lin``: the linearisation at ``state`` when the caller has it. The solve stops when a step
+    ``lin``: the linearisation at ``state`` when the caller has it; ``damping``: the first step's
+    (relative to the diagonal of the normal equations; a start near the optimum takes a small
+    one, else the steps fall short of Gauss-Newton's by about half: the parameters' reduced
+    information is ~1e-4 of the diagonal under the 1e-4 mm kinematic sigma). The solve stops when a step
     (or the Gauss-Newton model's prediction of it) changes the cost by no more than
     ``tolerance`` relative, or by no more than rounding: such a step is not tried again damped.
     """
     lin = graph.linearise(state) if lin is None else lin
     cost = lin.cost
-    damping = 1e-4
     for it in range(1, max_iterations + 1):
         for _ in range(30):
             try:
@@ -57,9 +60,29 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
     return state, max_iterations, False
 
 
-def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None):
+def settle_locals(graph: Graph, state: State, max_steps: int = 10, tolerance: float = 1e-3) -> State:
+    """The per-pose variables (joints, centres) settled at a fixed theta by Gauss-Newton steps,
+    each taken only if it lowers the cost, until a step gains less than ``tolerance`` of it.
+
+    For a warm start (theta near the optimum, joints at their readings): without it the first
+    full step moves theta to fit the joints' and centres' misfit (seen: 1.5 rad from a start
+    0.4 sigma from the optimum, into another minimum)."""
+    lin = graph.linearise(state)
+    for _ in range(max_steps):
+        new, predicted = graph.local_step(state, lin)
+        new_lin = graph.linearise(new)
+        if not np.isfinite(new_lin.cost) or new_lin.cost >= lin.cost:
+            break
+        gain = lin.cost - new_lin.cost
+        state, lin = new, new_lin
+        if gain <= tolerance * lin.cost:
+            break
+    return state
+
+
+def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None, damping: float = 1e-4):
     if options.engine == "batch":
-        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance, lin=lin)
+        return levenberg_marquardt(graph, state, options.max_iterations, options.tolerance, lin=lin, damping=damping)
     if options.engine == "gtsam":
         from fgcal.estimation.gtsam_graph import gtsam_levenberg_marquardt
 

@@ -189,23 +189,27 @@ class _Engine:
         """The final smoothing: one batch solve over every pose fed (weak prior, noise estimated and
         gross errors excluded as in ``calibrate``), so that the end depends neither on the order
         the poses came in nor on what the running estimate refused on the way (a pose refused
-        against an early, poor estimate is judged again, as the batch judges it). Returns
-        ``(theta, covariance)`` in internal units, or None while the poses cannot determine the
-        parameters without the prior (the running estimate stands then)."""
+        against an early, poor estimate is judged again, as the batch judges it). The solve starts
+        from the running estimate (the same optimum as from the nominal start, in fewer steps) and
+        estimates the engine's parameters, none held (the weak prior determines what the data do
+        not). Returns ``(theta, covariance)`` in internal units, or None while the poses cannot
+        determine the parameters (the running estimate stands then)."""
         from dataclasses import replace
 
-        from fgcal.estimation.calibrate import calibrate
+        from fgcal.estimation.calibrate import solution_covariance, solve_calibration
 
         ident = self.model.identifiable_names()
         names = list(self.params.names)
         options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
                           exclude=tuple(n for n in ident if n not in names))
+        start = self.params.full(self._current(), self.held)
         try:
-            r = calibrate(records_dataset(self.ds, list(self.seen.values()), self.model), self.model, options)
+            sol = solve_calibration(records_dataset(self.ds, list(self.seen.values()), self.model), self.model,
+                                    options, start=start, decide_held=False)
+            cov = solution_covariance(sol)
         except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
             log.info("final smoothing skipped: %s", exc)
             return None
-        if r.names != names:
-            raise FgcalError(f"final smoothing: the batch solve holds {', '.join(h['name'] for h in r.held)}")
-        scale = np.where(self.params.is_angle, np.radians(1.0), 1.0)
-        return self.params.from_file_units(r.estimate), r.covariance * np.outer(scale, scale)
+        if list(sol.graph.params.names) != names:
+            raise FgcalError(f"final smoothing: the batch solve estimates {', '.join(sol.graph.params.names)}")
+        return sol.state.theta.copy(), cov
