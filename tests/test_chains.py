@@ -266,3 +266,40 @@ def test_design_from_a_ballbar_dataset(puma):
     assert plan.levels == ("distances",) and len(plan.pose_ids) == 40
     assert set(plan.pose_ids.tolist()) <= set(ds.pose_ids.tolist())
     assert plan.values["pred"] < np.median(plan.random_pred)
+
+
+@pytest.mark.parametrize("kind", ["6R", "7R", "prismatic", "coupled_with_tool_offset"])
+def test_single_pose_kinematics_match_the_operation_walk(kind):
+    """One joint set goes through the scan of 4x4 operation matrices (fgcal.robots.single_pose);
+    its pose, points and every Jacobian equal those of the operation-by-operation walk (which
+    a batch of two poses takes), to rounding, and the Jacobians equal central differences."""
+    from fgcal.robots.kinematics import Chain
+    from fgcal.robots.single_pose import jacobians_one
+
+    rng = np.random.default_rng(31)
+    chain = {"6R": lambda: Chain(("revolute",) * 6), "7R": lambda: Chain(("revolute",) * 7),
+             "prismatic": lambda: Chain(("revolute", "revolute", "prismatic", "revolute", "revolute", "revolute")),
+             "coupled_with_tool_offset": lambda: Chain(
+                 ("revolute",) * 6, joint_map=np.eye(6) + 0.3 * np.eye(6, k=1), joint_offset=rng.normal(size=6),
+                 tool_offset=np.array([[0, -1, 0, 5], [1, 0, 0, 6], [0, 0, 1, 7], [0, 0, 0, 1.0]]))}[kind]()
+    for _ in range(4):
+        x = rng.normal(size=chain.n_slots) * 200
+        x[:3] = rng.normal(size=3)
+        q = rng.normal(size=chain.n_joints)
+        offsets = rng.normal(size=(3, 3)) * 60
+        one = jacobians_one(chain, x, q, offsets)
+        walk = chain.jacobians(x, np.vstack([q, q]), offsets)  # two poses: the walk
+        for field in ("T", "pose_slots", "pose_joints", "points", "point_slots", "point_joints"):
+            a, b = getattr(one, field), getattr(walk, field)[:1]
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * max(1.0, np.abs(b).max()), err_msg=field)
+        h = 1e-6
+        for s in rng.choice(chain.n_slots, 5, replace=False):
+            dx = np.zeros(chain.n_slots)
+            dx[s] = h
+            diff = (jacobians_one(chain, x + dx, q, offsets).points - jacobians_one(chain, x - dx, q, offsets).points) / (2 * h)
+            np.testing.assert_allclose(one.point_slots[..., s], diff, atol=1e-5 * max(1.0, np.abs(diff).max()))
+        for j in range(chain.n_joints):
+            dq = np.zeros(chain.n_joints)
+            dq[j] = h
+            diff = (jacobians_one(chain, x, q + dq, offsets).points - jacobians_one(chain, x, q - dq, offsets).points) / (2 * h)
+            np.testing.assert_allclose(one.point_joints[..., j], diff, atol=1e-5 * max(1.0, np.abs(diff).max()))

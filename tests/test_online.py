@@ -330,3 +330,29 @@ def test_ukf_reused_equals_a_fresh_filter_per_pose(puma, dataset):
     assert reused._ukf is not None
     for a, b in zip(reused.estimate(), fresh.estimate()):
         np.testing.assert_array_equal(a, b)
+
+
+def test_noise_factor_is_the_weighted_median_of_the_estimates():
+    """The two-heap running median gives, after every pose, the weighted median of all estimates
+    so far (the smallest value at which the cumulative weight reaches half; at least 1), ties
+    and repeated values included."""
+    from fgcal.online.measurement import NoiseTracker
+
+    def reference(pairs):
+        v = np.array([a for a, _ in pairs])
+        w = np.array([b for _, b in pairs])
+        order = np.argsort(v, kind="stable")
+        cum = np.cumsum(w[order])
+        return float(max(v[order][np.searchsorted(cum, 0.5 * cum[-1])], 1.0))
+
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        tracker, pairs = NoiseTracker(), []
+        for _ in range(int(rng.integers(1, 80))):
+            v = float(rng.choice([rng.exponential(2.0), 0.0, 1.5, 3.0]))
+            w = float(rng.choice([rng.uniform(0.1, 5.0), 1.0, 2.0]))
+            tracker.add(v, w)
+            pairs.append((v, w))
+            assert tracker.factor() == reference(pairs)
+    assert NoiseTracker().factor() == 1.0
+    assert NoiseTracker(pairs).factor() == reference(pairs)

@@ -23,7 +23,7 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
-from fgcal.estimation.solve import _solve, levenberg_marquardt, settle_locals  # noqa: F401
+from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost
 from fgcal.estimation.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
@@ -52,10 +52,6 @@ log = logging.getLogger(__name__)
 
 MAX_NOISE_ROUNDS = 40
 WARM_DAMPING = 1e-9  # Levenberg-Marquardt's first damping from a start near the optimum (see levenberg_marquardt)
-
-
-def _pose_dof(n_balls: int, full_pose: bool) -> int:
-    return 6 if full_pose or n_balls >= 3 else {0: 0, 1: 3, 2: 5}[n_balls]
 
 
 def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
@@ -205,9 +201,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         graph, state, pose_ids = build_graph(ds, model, names, options, start=start)
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
-    damping = 1e-4
-    if start is not None:
-        state, damping = settle_locals(graph, state), WARM_DAMPING
+    damping = 1e-4 if start is None else WARM_DAMPING
     state, iterations, converged = _solve(graph, state, options, damping=damping)
     # The re-solves below start where the noise or the exclusions changed, which can be far from
     # the new optimum (a noise several times the declared one): they take the cold start's damping.
@@ -242,20 +236,29 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
 
 def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
     """Refuse a dataset whose poses give fewer equations than there are parameters."""
-    dof = 0  # degrees of freedom per pose: full pose 6, two balls 5, one ball 3
-    for p in ds.pose_ids:
-        balls = set()
-        full = False
-        for lv in levels:
-            obs = getattr(ds, lv)
-            width = BY_LEVEL[lv].width if lv in BY_LEVEL else 3  # a probed ball places a point
-            if width >= 6:
-                full |= bool(np.any(obs.pose == p))
-            elif width == 3:
-                balls |= set(obs.ball[obs.pose == p].tolist())
-            else:
-                dof += width * int(np.sum(obs.pose == p))
-        dof += _pose_dof(min(len(balls), 3), full)
+    pose_ids = np.asarray(ds.pose_ids)
+    order = np.argsort(pose_ids)
+
+    def rows(obs_pose):  # the dataset row of each observation's pose (-1: not a pose of ds)
+        k = np.minimum(np.searchsorted(pose_ids[order], obs_pose), len(order) - 1)
+        return np.where(pose_ids[order][k] == obs_pose, order[k], -1)
+
+    full = np.zeros(len(pose_ids), dtype=bool)
+    dof = 0
+    ball_pairs = []
+    for lv in levels:
+        obs = getattr(ds, lv)
+        r = rows(np.asarray(obs.pose))
+        width = BY_LEVEL[lv].width if lv in BY_LEVEL else 3  # a probed ball places a point
+        if width >= 6:
+            full[r[r >= 0]] = True
+        elif width == 3:
+            ball_pairs += [(int(i), str(b)) for i, b in zip(r.tolist(), obs.ball.tolist()) if i >= 0]
+        else:
+            dof += width * int(np.sum(r >= 0))
+    balls = np.bincount(np.array([i for i, _ in set(ball_pairs)], dtype=int), minlength=len(pose_ids))
+    # Degrees of freedom per pose: full pose 6, three balls or more 6, two balls 5, one ball 3.
+    dof += int(np.sum(np.where(full, 6, np.array([0, 3, 5, 6])[np.minimum(balls, 3)])))
     if dof < n_parameters:
         raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
                          f"{n_parameters} parameters need at least {n_parameters} "

@@ -86,23 +86,6 @@ class ArrowElimination:
             lin.cache["reduced"] = (S, Dinv)
         return lin.cache["reduced"]
 
-    def local_step(self, state: State, lin: Linearisation):
-        """A Gauss-Newton step of the per-pose variables alone, theta fixed: ``(new state,
-        predicted cost decrease)``. Settles joints and centres at a start whose theta is already
-        good, so that the first full step is not spent (and theta thrown off) on them."""
-        _, _, D, _, g_z = self.normal_equations(lin)
-        d_z = -np.linalg.solve(D, g_z[:, :, None])[:, :, 0]
-        new = state.copy()
-        self._apply_local(new, state, d_z)
-        return new, float(-np.einsum("nz,nz->", g_z, d_z) - 0.5 * np.einsum("nz,nzy,ny->", d_z, D, d_z))
-
-    def _apply_local(self, new: State, state: State, d_z) -> None:
-        if self.joint_vars:
-            new.q = state.q + d_z[:, :self.n_joints]
-        if len(self.ball_pose):
-            cols = self.ball_col[:, None] + np.arange(3)
-            new.c = state.c + d_z[self.ball_pose[:, None], cols]
-
     def step(self, state: State, lin: Linearisation, damping: float):
         """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
         A, B, D, g_t, g_z = self.normal_equations(lin)
@@ -111,7 +94,11 @@ class ArrowElimination:
         d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
         new = state.copy()
         new.theta = state.theta + d_theta
-        self._apply_local(new, state, d_z)
+        if self.joint_vars:
+            new.q = state.q + d_z[:, :self.n_joints]
+        if len(self.ball_pose):
+            cols = self.ball_col[:, None] + np.arange(3)
+            new.c = state.c + d_z[self.ball_pose[:, None], cols]
         # The Gauss-Newton model's decrease: -g.d - d.H.d / 2 over all variables (H undamped).
         g_dot = g_t @ d_theta + np.einsum("nz,nz->", g_z, d_z)
         Hd_t = A @ d_theta + np.einsum("npz,nz->p", B, d_z)

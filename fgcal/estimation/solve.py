@@ -9,7 +9,7 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
 
-__all__ = ["levenberg_marquardt", "settle_locals", "COST_ROUNDING"]
+__all__ = ["levenberg_marquardt", "COST_ROUNDING"]
 
 log = logging.getLogger(__name__)
 
@@ -58,26 +58,6 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
             return state, it, True
         cost = new_lin.cost
     return state, max_iterations, False
-
-
-def settle_locals(graph: Graph, state: State, max_steps: int = 10, tolerance: float = 1e-3) -> State:
-    """The per-pose variables (joints, centres) settled at a fixed theta by Gauss-Newton steps,
-    each taken only if it lowers the cost, until a step gains less than ``tolerance`` of it.
-
-    For a warm start (theta near the optimum, joints at their readings): without it the first
-    full step moves theta to fit the joints' and centres' misfit (seen: 1.5 rad from a start
-    0.4 sigma from the optimum, into another minimum)."""
-    lin = graph.linearise(state)
-    for _ in range(max_steps):
-        new, predicted = graph.local_step(state, lin)
-        new_lin = graph.linearise(new)
-        if not np.isfinite(new_lin.cost) or new_lin.cost >= lin.cost:
-            break
-        gain = lin.cost - new_lin.cost
-        state, lin = new, new_lin
-        if gain <= tolerance * lin.cost:
-            break
-    return state
 
 
 def _solve(graph: Graph, state: State, options: CalibrationOptions, lin=None, damping: float = 1e-4):

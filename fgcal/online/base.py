@@ -22,6 +22,8 @@ __all__ = ["weak_prior"]
 
 log = logging.getLogger(__name__)
 
+WARM_START_SHARE = 0.9  # share of the poses seen the engine must have taken for its estimate to start the smoothing
+
 
 def weak_prior(params: ParameterSet) -> np.ndarray:
     """Standard deviations (P,) of the weak prior, internal units."""
@@ -190,7 +192,8 @@ class _Engine:
         gross errors excluded as in ``calibrate``), so that the end depends neither on the order
         the poses came in nor on what the running estimate refused on the way (a pose refused
         against an early, poor estimate is judged again, as the batch judges it). The solve starts
-        from the running estimate (the same optimum as from the nominal start, in fewer steps) and
+        from the running estimate when the engine took at least :data:`WARM_START_SHARE` of the
+        poses (the same optimum as from the nominal start, in fewer steps) and
         estimates the engine's parameters, none held (the weak prior determines what the data do
         not). Returns ``(theta, covariance)`` in internal units, or None while the poses cannot
         determine the parameters (the running estimate stands then)."""
@@ -202,7 +205,11 @@ class _Engine:
         names = list(self.params.names)
         options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
                           exclude=tuple(n for n in ident if n not in names))
-        start = self.params.full(self._current(), self.held)
+        # The running estimate is a start only when it fits what came: an engine that refused a
+        # tenth of the poses (a ballbar's pivot unknown at first) may be far off, and a solve
+        # started there can end in another minimum; the batch's own start is taken then.
+        trusted = self.n_accepted >= WARM_START_SHARE * len(self.seen)
+        start = self.params.full(self._current(), self.held) if trusted else None
         try:
             sol = solve_calibration(records_dataset(self.ds, list(self.seen.values()), self.model), self.model,
                                     options, start=start, decide_held=False)

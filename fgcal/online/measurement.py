@@ -2,6 +2,7 @@
 builds its rows), the innovation gate and the noise factor estimated from the innovations."""
 from __future__ import annotations
 
+import heapq
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,25 +44,42 @@ class NoiseTracker:
 
     def __init__(self, values=()):
         self.values: list[tuple[float, float]] = []  # (estimate of f, weight), in the order seen
-        self._v = np.empty(0)  # the estimates sorted, and their weights: the median in linear time
-        self._w = np.empty(0)
+        # The weighted median in logarithmic time per pose: the estimates below it in a max-heap,
+        # the median and those above in a min-heap, split so that the weight below is under half.
+        self._low: list[tuple[float, float]] = []  # (-value, weight)
+        self._high: list[tuple[float, float]] = []  # (value, weight)
+        self._w_low = 0.0
+        self._w_total = 0.0
         self.last: tuple[float, float] | None = None  # what the last :meth:`observe` added
         for v, w in values:
             self.add(v, w)
 
     def add(self, v: float, w: float) -> None:
         """Pool one estimate ``v`` of the factor with weight ``w``."""
-        self.values.append((float(v), float(w)))
-        k = int(np.searchsorted(self._v, v, side="right"))
-        self._v = np.insert(self._v, k, v)
-        self._w = np.insert(self._w, k, w)
+        v, w = float(v), float(w)
+        self.values.append((v, w))
+        if self._high and v >= self._high[0][0]:
+            heapq.heappush(self._high, (v, w))
+        else:
+            heapq.heappush(self._low, (-v, w))
+            self._w_low += w
+        self._w_total += w
+        half = 0.5 * self._w_total
+        # The median is the smallest estimate at which the cumulative weight reaches half.
+        while self._low and self._w_low >= half:
+            nv, nw = heapq.heappop(self._low)
+            self._w_low -= nw
+            heapq.heappush(self._high, (-nv, nw))
+        while self._high and self._w_low + self._high[0][1] < half:
+            hv, hw = heapq.heappop(self._high)
+            self._w_low += hw
+            heapq.heappush(self._low, (-hv, hw))
 
     def factor(self) -> float:
         """The weighted median of the estimates so far, at least 1 (1 before any)."""
-        if not len(self._v):
+        if not self._high:
             return 1.0
-        cum = np.cumsum(self._w)
-        return float(max(self._v[np.searchsorted(cum, 0.5 * cum[-1])], 1.0))
+        return max(self._high[0][0], 1.0)
 
     def observe(self, v, A, R) -> float:
         """Record innovation ``v`` (A, R as above); returns the factor to gate and update it with."""

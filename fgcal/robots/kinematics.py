@@ -23,6 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from fgcal.robots.single_pose import jacobians_one
 from fgcal.robots.transforms import rot
 
 __all__ = ["ChainOp", "Chain", "chain_for", "default_chain", "check_joints", "forward", "forward_frames",
@@ -232,6 +233,9 @@ class Chain:
         offsets : array_like, shape (B, 3) or (N, B, 3), optional
             Tool-frame points (mm), for example ball centres: the same at every pose, or per pose.
         """
+        q = self.check_joints(q)
+        if len(q) == 1 and (offsets is None or np.ndim(offsets) < 3 or np.shape(offsets)[0] == 1):
+            return jacobians_one(self, self.check_slots(x), q, offsets)  # one pose: by a scan, not op by op
         R_before, p_before, T = self.forward_frames(x, q)
         n = T.shape[0]
         p_tool = T[:, :3, 3]

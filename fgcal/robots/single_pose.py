@@ -1,0 +1,125 @@
+"""Forward kinematics and Jacobians of one joint set, for the callers that take one pose at a time
+(the online engines, GTSAM's per-pose factors, inverse kinematics).
+
+:class:`~fgcal.robots.kinematics.Chain` walks its operations one by one, vectorised over the poses:
+for a single pose that is ~40 steps of numpy calls on 3x3 arrays, dominated by call overhead.
+Here every operation becomes a 4x4 matrix at once, and the frames before each operation are the
+running products of those matrices, formed by a scan of ``ceil(log2 K)`` batched products. The
+results are those of :meth:`Chain.jacobians` up to rounding (the products are associated
+differently: ~1e-13 relative). Units and shapes as there. No I/O here.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["OperationTables", "jacobians_one"]
+
+
+class OperationTables:
+    """What a chain's single-pose kinematics needs, built once per chain.
+
+    Attributes
+    ----------
+    rot : ndarray of bool, shape (K,)
+        Rotation operations.
+    slot, joint : ndarray of int, shape (K,)
+        Each operation's slot and joint variable (-1: none).
+    cells : tuple of ndarray
+        Flat indices into the (K, 16) operation matrices: ``cos_a``, ``cos_b``, ``minus_sin``,
+        ``plus_sin`` for the rotations (rows of ``rot``), ``shift`` for the translations.
+    """
+
+    def __init__(self, chain):
+        ops = chain.ops
+        self.K = len(ops)
+        self.rot = np.array([op.kind == "R" for op in ops])
+        self.axis = np.array([op.axis for op in ops])
+        self.slot = chain.slot_of_op
+        self.joint = chain.joint_of_op
+        self.has_slot = self.slot >= 0
+        self.has_joint = self.joint >= 0
+        r = np.flatnonzero(self.rot)
+        t = np.flatnonzero(~self.rot)
+        self.rot_ops, self.trans_ops = r, t
+        i = (self.axis[r] + 1) % 3  # a rotation about axis a mixes the two other axes i, j
+        j = (self.axis[r] + 2) % 3
+        self.cos_a, self.cos_b = r * 16 + i * 5, r * 16 + j * 5
+        self.minus_sin, self.plus_sin = r * 16 + i * 4 + j, r * 16 + j * 4 + i
+        self.shift = t * 16 + self.axis[t] * 4 + 3
+        self.axis_of_op = self.axis
+        self.slot_map = chain.slot_map  # (K, S)
+        self.joint_op_map = chain.joint_op_map  # (K, n)
+
+
+def _tables(chain) -> OperationTables:
+    tables = getattr(chain, "_single_pose_tables", None)
+    if tables is None:
+        tables = chain._single_pose_tables = OperationTables(chain)
+    return tables
+
+
+def _frames(chain, x, v):
+    """``(B (K, 4, 4), T (4, 4))``: the frame before each operation and the tool frame."""
+    tb = _tables(chain)
+    value = np.where(tb.has_slot, x[tb.slot], 0.0) + np.where(tb.has_joint, v[tb.joint], 0.0)
+    M = np.zeros((tb.K, 16))
+    M[:, [0, 5, 10, 15]] = 1.0
+    angle = value[tb.rot_ops]
+    c, s = np.cos(angle), np.sin(angle)
+    flat = M.reshape(-1)
+    flat[tb.cos_a] = c
+    flat[tb.cos_b] = c
+    flat[tb.minus_sin] = -s
+    flat[tb.plus_sin] = s
+    flat[tb.shift] = value[tb.trans_ops]
+    F = M.reshape(tb.K, 4, 4)
+    shift = 1
+    while shift < tb.K:  # inclusive scan: F[k] = M[0] ... M[k]
+        F[shift:] = np.matmul(F[:-shift], F[shift:])
+        shift *= 2
+    B = np.empty_like(F)
+    B[0] = np.eye(4)
+    B[1:] = F[:-1]
+    T = F[-1] if chain.tool_offset is None else F[-1] @ chain.tool_offset
+    return B, T
+
+
+# Levi-Civita symbol: (a x p)_i = eps_ijk a_j p_k, so that a x p for many a and p is one product.
+_EPS = np.zeros((3, 3, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _EPS[_i, _j, _k], _EPS[_i, _k, _j] = 1.0, -1.0
+
+
+def jacobians_one(chain, x, readings, offsets=None):
+    """:meth:`Chain.jacobians` at one joint set ``readings`` (n,) or (1, n); the same
+    :class:`~fgcal.robots.kinematics.ChainJacobians` (leading dimension 1).
+
+    ``offsets``: tool-frame points (B, 3) or (1, B, 3), mm.
+    """
+    from fgcal.robots.kinematics import ChainJacobians
+
+    tb = _tables(chain)
+    v = chain.joint_values(np.asarray(readings, dtype=float).reshape(1, -1))[0]
+    B, T = _frames(chain, x, v)
+    K = tb.K
+    axes = B[np.arange(K), :3, tb.axis_of_op]  # (K, 3) world axis of each operation
+    origins = B[:, :3, 3]
+    offsets = np.zeros((0, 3)) if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 3)
+    n_pts = len(offsets)
+    points = np.empty((n_pts + 1, 3))  # the tool origin, then the points
+    points[0] = T[:3, 3]
+    points[1:] = T[:3, 3] + offsets @ T[:3, :3].T
+    # A rotation moves a point P by a x (P - o) = a x P - a x o; a translation by a itself.
+    cross_p = np.tensordot(points, _EPS, axes=([1], [2])).transpose(2, 0, 1).reshape(3, -1)  # (j, point, i)
+    moment = axes[:, [1, 2, 0]] * origins[:, [2, 0, 1]] - axes[:, [2, 0, 1]] * origins[:, [1, 2, 0]]
+    d = (axes @ cross_p).reshape(K, n_pts + 1, 3) - moment[:, None, :]
+    d = np.where(tb.rot[:, None, None], d, axes[:, None, :])
+    rows = np.concatenate([d[:, 0], np.where(tb.rot[:, None], axes, 0.0), d[:, 1:].reshape(K, -1)], axis=1).T
+    by_slot = rows @ tb.slot_map  # (6 + 3B, S)
+    by_joint = chain._to_readings(rows @ tb.joint_op_map)  # (6 + 3B, n)
+    out = ChainJacobians(T=T[None], pose_slots=by_slot[None, :6], pose_joints=by_joint[None, :6])
+    if n_pts:
+        out.points = points[None, 1:]
+        out.point_slots = by_slot[6:].reshape(1, n_pts, 3, -1)
+        out.point_joints = by_joint[6:].reshape(1, n_pts, 3, -1)
+    return out
