@@ -7,7 +7,9 @@ terminal), and the time between lines is the whole step: sphere fits, the engine
 estimate, the checkpoint's journal record (fsync) and the display. Its total CPU (user + sys,
 ``os.wait4``) is compared with ``fgcal calibrate`` of the same dataset. Goals (issue 16): the step
 flat from the first to the last poses; total CPU at most 1.5x the batch's (EKF), 3x (iSAM2).
-Run: ``python bench/bench_online.py [--poses 1000] [--engines ekf isam2]``.
+Each process runs ``--repeat`` times (3 by default), interleaved, and the least CPU of each counts
+(the machine is shared: other jobs only ever add to a run's CPU).
+Run: ``python bench/bench_online.py [--poses 1000] [--engines ekf isam2] [--repeat 3]``.
 """
 from __future__ import annotations
 
@@ -44,6 +46,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--poses", type=int, nargs="+", default=[1000])
     ap.add_argument("--engines", nargs="+", default=["ekf", "isam2"])
+    ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
     from fgcal import SimulationSettings, load_model, save_dataset, simulate
 
@@ -55,12 +58,19 @@ def main():
             path = Path(tmp) / f"d{n}"
             save_dataset(ds, path)
             cli = [sys.executable, "-m", "fgcal.cli"]
-            batch, _, _ = run(cli + ["calibrate", str(path), "--out", str(Path(tmp) / f"b{n}.json")])
+            best = {}
+            for _ in range(args.repeat):  # interleaved: a slow spell of the machine hits every process alike
+                cpu, _, _ = run(cli + ["calibrate", str(path), "--out", str(Path(tmp) / f"b{n}.json")])
+                best["batch"] = min(best.get("batch", (np.inf,)), (cpu,))
+                for engine in args.engines:
+                    cpu, mb, t = run(cli + ["online", str(path), "--engine", engine, "--restart", "--out",
+                                            str(Path(tmp) / f"{engine}{n}.json")])
+                    step = np.diff(t) * 1000
+                    best[engine] = min(best.get(engine, (np.inf,)),
+                                       (cpu, mb, np.median(step[:100]), np.median(step[-100:])))
             for engine in args.engines:
-                cpu, mb, t = run(cli + ["online", str(path), "--engine", engine, "--out",
-                                        str(Path(tmp) / f"{engine}{n}.json")])
-                step = np.diff(t) * 1000
-                rows.append((engine, n, np.median(step[:100]), np.median(step[-100:]), cpu, batch, mb))
+                cpu, mb, first, last = best[engine]
+                rows.append((engine, n, first, last, cpu, best["batch"][0], mb))
     print(f"{'engine':>6} {'poses':>6} {'first 100 ms':>12} {'last 100 ms':>11} {'CPU s':>7} {'batch s':>7} "
           f"{'ratio':>6} {'peak MB':>7}")
     for engine, n, first, last, cpu, batch, mb in rows:

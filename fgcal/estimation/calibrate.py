@@ -203,8 +203,6 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     damping = 1e-4 if start is None else WARM_DAMPING
     state, iterations, converged = _solve(graph, state, options, damping=damping)
-    # The re-solves below start where the noise or the exclusions changed, which can be far from
-    # the new optimum (a noise several times the declared one): they take the cold start's damping.
     declared = graph.sigmas
     if options.estimate_noise:
         noise_mode = NoiseMode.ESTIMATED
@@ -226,7 +224,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
             changed |= moved
         if not changed:
             break
-        state, it2, converged = _solve(graph, state, options)
+        state, it2, converged = _solve(graph, state, options, damping=damping)
         iterations += it2
     else:
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
