@@ -55,7 +55,10 @@ class Sigmas:
         raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
 
     def replaced(self, **values) -> "Sigmas":
-        """A copy with the given sigmas changed (fields or ``other`` ones)."""
+        """A copy with the given sigmas changed (fields or ``other`` ones); itself when none are
+        given (the same object means the same noise: a linearisation stays valid)."""
+        if not values:
+            return self
         known = {f.name for f in fields(self)}
         other = dict(self.other)
         other.update({k: v for k, v in values.items() if k not in known})

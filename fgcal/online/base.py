@@ -78,7 +78,8 @@ class _Engine:
         if not balls:
             return {}, {}
         h, jt, _ = self._ball_kinematics(theta, rec.q, np.array([self.ds.tooling.balls[b] for b in balls]))
-        var = np.einsum("bip,pq,biq->b", jt, self._covariance(), jt)
+        rows = jt.reshape(-1, jt.shape[-1])
+        var = np.sum((rows @ self._covariance()) * rows, axis=1).reshape(len(balls), -1).sum(axis=1)
         return dict(zip(balls, h)), dict(zip(balls, np.sqrt(np.maximum(var, 0.0))))
 
     def _measurement(self, rec: PoseData, flip=(), search: bool = False):

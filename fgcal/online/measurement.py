@@ -139,8 +139,16 @@ class PoseMeasurement:
             self.R0[k:k + len(block), k:k + len(block)] = block
             k += len(block)
         self.Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
+        self._last = None  # (theta's bytes, value) of the last call
 
     def __call__(self, theta):
+        key = np.asarray(theta, dtype=float).tobytes()
+        if self._last is not None and self._last[0] == key:  # the gate's and the update's first look
+            return self._last[1]
+        self._last = (key, self._evaluate(theta))
+        return self._last[1]
+
+    def _evaluate(self, theta):
         rows = []
         if len(self.offsets):
             rows.append(_centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs))

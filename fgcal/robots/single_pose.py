@@ -84,12 +84,6 @@ def _frames(chain, x, v):
     return B, T
 
 
-# Levi-Civita symbol: (a x p)_i = eps_ijk a_j p_k, so that a x p for many a and p is one product.
-_EPS = np.zeros((3, 3, 3))
-for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
-    _EPS[_i, _j, _k], _EPS[_i, _k, _j] = 1.0, -1.0
-
-
 def jacobians_one(chain, x, readings, offsets=None):
     """:meth:`Chain.jacobians` at one joint set ``readings`` (n,) or (1, n); the same
     :class:`~fgcal.robots.kinematics.ChainJacobians` (leading dimension 1).
@@ -110,7 +104,12 @@ def jacobians_one(chain, x, readings, offsets=None):
     points[0] = T[:3, 3]
     points[1:] = T[:3, 3] + offsets @ T[:3, :3].T
     # A rotation moves a point P by a x (P - o) = a x P - a x o; a translation by a itself.
-    cross_p = np.tensordot(points, _EPS, axes=([1], [2])).transpose(2, 0, 1).reshape(3, -1)  # (j, point, i)
+    # (a x P)_i = sum_j a_j C[j, i] with C = [[0, -P2, P1], [P2, 0, -P0], [-P1, P0, 0]], per point
+    cross_p = np.zeros((3, n_pts + 1, 3))
+    cross_p[0, :, 1], cross_p[0, :, 2] = -points[:, 2], points[:, 1]
+    cross_p[1, :, 0], cross_p[1, :, 2] = points[:, 2], -points[:, 0]
+    cross_p[2, :, 0], cross_p[2, :, 1] = -points[:, 1], points[:, 0]
+    cross_p = cross_p.reshape(3, -1)
     moment = axes[:, [1, 2, 0]] * origins[:, [2, 0, 1]] - axes[:, [2, 0, 1]] * origins[:, [1, 2, 0]]
     d = (axes @ cross_p).reshape(K, n_pts + 1, 3) - moment[:, None, :]
     d = np.where(tb.rot[:, None, None], d, axes[:, None, :])
