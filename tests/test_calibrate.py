@@ -205,3 +205,31 @@ def test_cli_bad_input_leaves_no_result(puma, tmp_path):
     assert run.returncode == 2 and "joints.csv: line 2" in run.stderr and not (tmp_path / "r.json").exists()
     run = _run("verify", tmp_path / "nope.json", tmp_path / "d")
     assert run.returncode == 2 and "nope.json: file not found" in run.stderr
+
+
+@pytest.mark.parametrize("levels", [("probes",), ("centres",)])
+def test_a_warm_start_ends_at_the_cold_optimum_in_fewer_steps(puma, levels):
+    """``solve_calibration(start=...)`` (how the online engines' final smoothing starts from their
+    estimate) reaches the optimum, noise and covariance of the cold start (the nominal chain with
+    the base fitted), in fewer Levenberg-Marquardt iterations; the equation check still refuses
+    too few poses."""
+    from fgcal.estimation.calibrate import solution_covariance, solve_calibration
+
+    settings = SimulationSettings(n_poses=40, levels=levels, noise=Noise(0.02, 0.02))
+    ds, truth = simulate(puma, np.random.default_rng(77), settings)
+    options = CalibrationOptions(prior="weak")
+    cold = solve_calibration(ds, puma, options, decide_held=False)
+    cov = solution_covariance(cold)
+    sigma = np.sqrt(np.diag(cov))
+    start = cold.graph.params.full(cold.state.theta + 0.5 * sigma * np.random.default_rng(5).standard_normal(len(sigma)),
+                                   cold.graph.held)
+    warm = solve_calibration(ds, puma, options, start=start, decide_held=False)
+    assert warm.graph.params.names == cold.graph.params.names
+    assert np.max(np.abs(warm.state.theta - cold.state.theta) / sigma) < 1e-4
+    np.testing.assert_allclose(np.sqrt(np.diag(solution_covariance(warm))), sigma, rtol=1e-5)
+    assert warm.graph.sigmas.probe == pytest.approx(cold.graph.sigmas.probe, rel=1e-6)
+    assert warm.iterations < cold.iterations
+    with pytest.raises(FgcalError, match="poses give"):
+        solve_calibration(ds.select(ds.pose_ids[:3]), puma, options, start=start, decide_held=False)
+    with pytest.raises(FgcalError, match="finite slots"):
+        solve_calibration(ds, puma, options, start=start[:-1], decide_held=False)

@@ -29,7 +29,7 @@ from fgcal.estimation.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
                     scaled_inverse, update_sigmas)
-from fgcal.estimation.residuals import at_readings, pose_residuals
+from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 from fgcal.estimation.joint_errors import BlockParameters
 
@@ -323,6 +323,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if "joints" in raw:
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]
+    read_raw = raw_at_readings(graph, state.theta) if graph.joint_vars else None  # once, for both summaries
     from fgcal.robots.robot_file import model_to_dict
 
     return CalibrationResult(
@@ -337,7 +338,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         noise_mode=noise_mode.value, noise=noise_table, outliers=outliers,
         fit_test={"statistic": float(ssq_declared), "redundancy": float(red_total),
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
-        at_readings=at_readings(graph, state), pose_residuals=pose_residuals(graph, state, theta_start, pose_ids),
+        at_readings=at_readings(graph, state, read_raw),
+        pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
 
 

@@ -37,23 +37,25 @@ def _rms(values) -> float:
 
 def raw_at_readings(graph: Graph, theta) -> dict:
     """Raw residuals per level (``{level: (e, s, w)}``) at ``theta`` with the joints at their
-    readings and each ball centre on the forward kinematics."""
+    readings and each ball centre on the forward kinematics. The linearisation behind them is not
+    kept (nor remembered by the graph): only the residuals outlive the call."""
     at = State(np.asarray(theta, dtype=float).copy(), graph.readings.copy(), np.zeros((len(graph.ball_pose), 3)))
     if len(graph.ball_pose):
         T = graph.params.model.forward(graph.params.full(at.theta, graph.held), graph.joints(at)[graph.ball_pose])
         at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
-    return graph.linearise(at).raw
+    return graph._linearise(at).raw
 
 
 def _kept(graph: Graph, level: str, n: int) -> np.ndarray:
     return ~graph.excluded.get(level, np.zeros(n, dtype=bool))
 
 
-def at_readings(graph: Graph, state: State) -> dict[str, ResidualSummary]:
-    """RMS residual per measurement level at the readings (empty when the readings are exact)."""
+def at_readings(graph: Graph, state: State, raw=None) -> dict[str, ResidualSummary]:
+    """RMS residual per measurement level at the readings (empty when the readings are exact).
+    ``raw``: :func:`raw_at_readings` at ``state.theta`` when the caller has it."""
     if not graph.joint_vars:
         return {}
-    raw = raw_at_readings(graph, state.theta)
+    raw = raw_at_readings(graph, state.theta) if raw is None else raw
     out = {}
     for level in _levels():
         if level not in raw:
@@ -86,14 +88,18 @@ def _per_pose(graph: Graph, raw: dict):
     return ssq, cnt, big, rssq, rcnt, excl
 
 
-def pose_residuals(graph: Graph, state: State, start_theta, pose_ids) -> list[PoseResidual]:
+def pose_residuals(graph: Graph, state: State, start_theta, pose_ids, raw=None, solution_raw=None) -> list[PoseResidual]:
     """One :class:`PoseResidual` per pose of ``graph`` (``pose_ids`` (N,) their ids).
 
-    ``state`` is the solution, ``start_theta`` the nominal parameters the solve started from.
+    ``state`` is the solution, ``start_theta`` the nominal parameters the solve started from;
+    ``raw`` (:func:`raw_at_readings` at the solution) and ``solution_raw`` (the raw residuals of
+    the solution's linearisation) when the caller has them (each costs a linearisation).
     """
+    raw = raw_at_readings(graph, state.theta) if raw is None else raw
+    solution_raw = graph.linearise(state).raw if solution_raw is None else solution_raw
     with np.errstate(invalid="ignore", divide="ignore"):
-        ssq, cnt, big, rssq, rcnt, excl = _per_pose(graph, raw_at_readings(graph, state.theta))
-        moved = np.sqrt(_per_pose(graph, graph.linearise(state).raw)[0] / cnt)
+        ssq, cnt, big, rssq, rcnt, excl = _per_pose(graph, raw)
+        moved = np.sqrt(_per_pose(graph, solution_raw)[0] / cnt)
         nominal = np.sqrt(_per_pose(graph, raw_at_readings(graph, start_theta))[0] / cnt)
         rms = np.sqrt(ssq / cnt)
         rot = np.sqrt(rssq / rcnt)
