@@ -22,11 +22,13 @@ class OperationTables:
     ----------
     rot : ndarray of bool, shape (K,)
         Rotation operations.
+    axis : ndarray of int, shape (K,)
+        Each operation's axis (0, 1, 2: x, y, z).
     slot, joint : ndarray of int, shape (K,)
         Each operation's slot and joint variable (-1: none).
-    cells : tuple of ndarray
-        Flat indices into the (K, 16) operation matrices: ``cos_a``, ``cos_b``, ``minus_sin``,
-        ``plus_sin`` for the rotations (rows of ``rot``), ``shift`` for the translations.
+    cos_a, cos_b, minus_sin, plus_sin, shift : ndarray of int
+        Flat indices into the (K, 16) operation matrices: where each rotation's cosines and sines
+        go, and each translation's value.
     """
 
     def __init__(self, chain):
@@ -46,7 +48,6 @@ class OperationTables:
         self.cos_a, self.cos_b = r * 16 + i * 5, r * 16 + j * 5
         self.minus_sin, self.plus_sin = r * 16 + i * 4 + j, r * 16 + j * 4 + i
         self.shift = t * 16 + self.axis[t] * 4 + 3
-        self.axis_of_op = self.axis
         self.slot_map = chain.slot_map  # (K, S)
         self.joint_op_map = chain.joint_op_map  # (K, n)
 
@@ -96,7 +97,7 @@ def jacobians_one(chain, x, readings, offsets=None):
     v = chain.joint_values(np.asarray(readings, dtype=float).reshape(1, -1))[0]
     B, T = _frames(chain, x, v)
     K = tb.K
-    axes = B[np.arange(K), :3, tb.axis_of_op]  # (K, 3) world axis of each operation
+    axes = B[np.arange(K), :3, tb.axis]  # (K, 3) world axis of each operation
     origins = B[:, :3, 3]
     offsets = np.zeros((0, 3)) if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 3)
     n_pts = len(offsets)
