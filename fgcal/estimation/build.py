@@ -151,8 +151,8 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
-    warm = start
-    if start is not None:
+    warm = start is not None
+    if warm:
         start = np.asarray(start, dtype=float)
         if start.shape != held.shape or not np.all(np.isfinite(start)):
             raise FgcalError(f"the start must be {held.shape[0]} finite slots, got shape {start.shape}")
@@ -184,7 +184,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
             candidates = [fit_spheres_batch(pts, ds.tooling.radius, guess=g)
                           for g in (first_ok, mirror_through_points(pts, first_ok), predicted[vs])]
             init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates,
-                                            ds.noise.cmm_sigma if warm is None else np.inf, predicted[vs])
+                                            np.inf if warm else ds.noise.cmm_sigma, predicted[vs])
         bad = ~np.all(np.isfinite(init_c), axis=1) | (np.linalg.norm(init_c - predicted, axis=1) > 50.0)
         init_c[bad] = predicted[bad]
     state = graph.initial_state(theta0, init_c)
