@@ -7,7 +7,9 @@
 3. studies: a trial against its calibration, and the 2-worker study against bare calibrations
    (``bench_study.py``);
 4. the GTSAM engine and ``gtsam.Marginals`` against the batched solve and its covariance
-   (``bench_engines.py``).
+   (``bench_engines.py``);
+5. one joint set's kinematics: the scan of operation matrices against the operation walk
+   (``bench_kinematics.py``).
 """
 import platform
 import subprocess
@@ -19,7 +21,8 @@ HERE = Path(__file__).resolve().parent
 if __name__ == "__main__":
     import os
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}")
-    for script in ("bench_batch.py", "bench_online.py", "bench_study.py", "bench_engines.py"):
+    for script in ("bench_batch.py", "bench_online.py", "bench_study.py", "bench_engines.py",
+                   "bench_kinematics.py"):
         print(f"\n== {script}")
         sys.stdout.flush()
         subprocess.run([sys.executable, str(HERE / script)], check=True)

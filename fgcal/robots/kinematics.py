@@ -236,6 +236,11 @@ class Chain:
         q = self.check_joints(q)
         if len(q) == 1 and (offsets is None or np.ndim(offsets) < 3 or np.shape(offsets)[0] == 1):
             return jacobians_one(self, self.check_slots(x), q, offsets)  # one pose: by a scan, not op by op
+        return self.jacobians_walk(x, q, offsets)
+
+    def jacobians_walk(self, x, q, offsets=None) -> "ChainJacobians":
+        """:meth:`jacobians` by walking the operations one by one, vectorised over the poses (what
+        :meth:`jacobians` does for more than one pose)."""
         R_before, p_before, T = self.forward_frames(x, q)
         n = T.shape[0]
         p_tool = T[:, :3, 3]
