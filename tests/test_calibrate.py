@@ -233,3 +233,36 @@ def test_a_warm_start_ends_at_the_cold_optimum_in_fewer_steps(puma, levels):
         solve_calibration(ds.select(ds.pose_ids[:3]), puma, options, start=start, decide_held=False)
     with pytest.raises(FgcalError, match="finite slots"):
         solve_calibration(ds, puma, options, start=start[:-1], decide_held=False)
+
+
+@pytest.mark.parametrize("settings", [
+    SimulationSettings(n_poses=5, levels=("probes",)),
+    SimulationSettings(n_poses=9, levels=("centres",), n_balls=1),
+    SimulationSettings(n_poses=7, levels=("centres",), n_balls=2),
+    SimulationSettings(n_poses=4, levels=("poses",)),
+    SimulationSettings(n_poses=20, levels=("distances",), n_balls=1),
+    SimulationSettings(n_poses=6, levels=("centres", "distances"), n_balls=2),
+])
+def test_the_equation_count_is_the_poses_degrees_of_freedom(puma, settings):
+    """The count calibrate refuses on equals a plain per-pose count written here: a full pose or
+    three balls give 6, two balls 5, one ball 3, a ballbar length 1."""
+    import re
+
+    from fgcal.estimation.calibrate import _check_equations
+
+    ds, _ = simulate(puma, np.random.default_rng(len(settings.levels) + settings.n_poses), settings)
+    expected = 0
+    for p in ds.pose_ids:
+        balls = set()
+        for lv in settings.levels:
+            obs = getattr(ds, lv)
+            if lv == "distances":
+                expected += int(np.sum(obs.pose == p))
+            elif lv != "poses":
+                balls |= set(obs.ball[obs.pose == p].tolist())
+        full = "poses" in settings.levels and bool(np.any(ds.poses.pose == p))
+        expected += 6 if full else (0, 3, 5, 6)[min(len(balls), 3)]
+    with pytest.raises(FgcalError) as err:
+        _check_equations(ds, settings.levels, 10**6)
+    assert int(re.search(r"give (\d+) equations", str(err.value)).group(1)) == expected
+    _check_equations(ds, settings.levels, expected)  # exactly enough: no error

@@ -87,13 +87,18 @@ def files_digest(folder: Path) -> str:
 
 # ---------------------------------------------------------------- mutations
 
-def write(rel, text, mode="w"):
+def _remove(p) -> None:
+    """Whatever is at ``p`` (file, link or folder) gone."""
+    if p.is_symlink() or p.is_file():
+        p.unlink()
+    elif p.is_dir():
+        shutil.rmtree(p)
+
+
+def write(rel, text):
     def f(w):
         p = w / rel
-        if p.is_symlink() or p.is_file():
-            p.unlink()
-        elif p.is_dir():
-            shutil.rmtree(p)
+        _remove(p)
         p.write_bytes(text) if isinstance(text, bytes) else p.write_text(text)
     return f
 
@@ -138,10 +143,7 @@ def scale_probes(factor):
 def replace_with(rel, kind):
     def f(w):
         p = w / rel
-        if p.is_symlink() or p.is_file():
-            p.unlink()
-        elif p.is_dir():
-            shutil.rmtree(p)
+        _remove(p)
         if kind == "fifo":
             os.mkfifo(p)
         elif kind == "dir":

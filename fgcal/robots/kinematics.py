@@ -23,7 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from fgcal.robots.single_pose import jacobians_one
+from fgcal.robots.single_pose import OperationTables, jacobians_one
 from fgcal.robots.transforms import rot
 
 __all__ = ["ChainOp", "Chain", "chain_for", "default_chain", "check_joints", "forward", "forward_frames",
@@ -114,6 +114,7 @@ class Chain:
         self._const_rot = [[k for k, op in enumerate(ops) if op.kind == "R" and op.joint is None and op.axis == a]
                            for a in range(3)]
         self._joint_rot = [k for k, op in enumerate(ops) if op.kind == "R" and op.joint is not None]
+        self.single_pose = OperationTables(self)  # for one joint set (fgcal.robots.single_pose)
 
     def __repr__(self) -> str:
         return f"Chain({self.joint_types!r}, coupled={self.joint_map is not None})"

@@ -16,54 +16,38 @@ __all__ = ["OperationTables", "jacobians_one"]
 
 
 class OperationTables:
-    """What a chain's single-pose kinematics needs, built once per chain.
+    """Where each operation's values go in the (K, 16) flat operation matrices, built once per
+    chain (:attr:`Chain.single_pose`); the rest (kinds, axes, slot and joint maps) is the chain's.
 
     Attributes
     ----------
-    rot : ndarray of bool, shape (K,)
-        Rotation operations.
-    axis : ndarray of int, shape (K,)
-        Each operation's axis (0, 1, 2: x, y, z).
-    slot, joint : ndarray of int, shape (K,)
-        Each operation's slot and joint variable (-1: none).
-    cos_a, cos_b, minus_sin, plus_sin, shift : ndarray of int
-        Flat indices into the (K, 16) operation matrices: where each rotation's cosines and sines
-        go, and each translation's value.
+    rot_ops, trans_ops : ndarray of int
+        The rotations and the translations among the K operations.
+    cos_a, cos_b, minus_sin, plus_sin : ndarray of int, shape (len(rot_ops),)
+        Flat indices of each rotation's cosines and sines.
+    shift : ndarray of int, shape (len(trans_ops),)
+        Flat index of each translation's value.
     """
 
     def __init__(self, chain):
-        ops = chain.ops
-        self.K = len(ops)
-        self.rot = np.array([op.kind == "R" for op in ops])
-        self.axis = np.array([op.axis for op in ops])
-        self.slot = chain.slot_of_op
-        self.joint = chain.joint_of_op
-        self.has_slot = self.slot >= 0
-        self.has_joint = self.joint >= 0
-        r = np.flatnonzero(self.rot)
-        t = np.flatnonzero(~self.rot)
+        axis = chain.axis
+        r = np.flatnonzero(chain.kind_rot)
+        t = np.flatnonzero(~chain.kind_rot)
         self.rot_ops, self.trans_ops = r, t
-        i = (self.axis[r] + 1) % 3  # a rotation about axis a mixes the two other axes i, j
-        j = (self.axis[r] + 2) % 3
+        i = (axis[r] + 1) % 3  # a rotation about axis a mixes the two other axes i, j
+        j = (axis[r] + 2) % 3
         self.cos_a, self.cos_b = r * 16 + i * 5, r * 16 + j * 5
         self.minus_sin, self.plus_sin = r * 16 + i * 4 + j, r * 16 + j * 4 + i
-        self.shift = t * 16 + self.axis[t] * 4 + 3
-        self.slot_map = chain.slot_map  # (K, S)
-        self.joint_op_map = chain.joint_op_map  # (K, n)
-
-
-def _tables(chain) -> OperationTables:
-    tables = getattr(chain, "_single_pose_tables", None)
-    if tables is None:
-        tables = chain._single_pose_tables = OperationTables(chain)
-    return tables
+        self.shift = t * 16 + axis[t] * 4 + 3
 
 
 def _frames(chain, x, v):
     """``(B (K, 4, 4), T (4, 4))``: the frame before each operation and the tool frame."""
-    tb = _tables(chain)
-    value = np.where(tb.has_slot, x[tb.slot], 0.0) + np.where(tb.has_joint, v[tb.joint], 0.0)
-    M = np.zeros((tb.K, 16))
+    tb = chain.single_pose
+    K = len(chain.ops)
+    slot, joint = chain.slot_of_op, chain.joint_of_op
+    value = np.where(slot >= 0, x[slot], 0.0) + np.where(joint >= 0, v[joint], 0.0)
+    M = np.zeros((K, 16))
     M[:, [0, 5, 10, 15]] = 1.0
     angle = value[tb.rot_ops]
     c, s = np.cos(angle), np.sin(angle)
@@ -73,9 +57,9 @@ def _frames(chain, x, v):
     flat[tb.minus_sin] = -s
     flat[tb.plus_sin] = s
     flat[tb.shift] = value[tb.trans_ops]
-    F = M.reshape(tb.K, 4, 4)
+    F = M.reshape(K, 4, 4)
     shift = 1
-    while shift < tb.K:  # inclusive scan: F[k] = M[0] ... M[k]
+    while shift < K:  # inclusive scan: F[k] = M[0] ... M[k]
         F[shift:] = np.matmul(F[:-shift], F[shift:])
         shift *= 2
     B = np.empty_like(F)
@@ -93,11 +77,10 @@ def jacobians_one(chain, x, readings, offsets=None):
     """
     from fgcal.robots.kinematics import ChainJacobians
 
-    tb = _tables(chain)
     v = chain.joint_values(np.asarray(readings, dtype=float).reshape(1, -1))[0]
     B, T = _frames(chain, x, v)
-    K = tb.K
-    axes = B[np.arange(K), :3, tb.axis]  # (K, 3) world axis of each operation
+    K = len(chain.ops)
+    axes = B[np.arange(K), :3, chain.axis]  # (K, 3) world axis of each operation
     origins = B[:, :3, 3]
     offsets = np.zeros((0, 3)) if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 3)
     n_pts = len(offsets)
@@ -113,10 +96,11 @@ def jacobians_one(chain, x, readings, offsets=None):
     cross_p = cross_p.reshape(3, -1)
     moment = axes[:, [1, 2, 0]] * origins[:, [2, 0, 1]] - axes[:, [2, 0, 1]] * origins[:, [1, 2, 0]]
     d = (axes @ cross_p).reshape(K, n_pts + 1, 3) - moment[:, None, :]
-    d = np.where(tb.rot[:, None, None], d, axes[:, None, :])
-    rows = np.concatenate([d[:, 0], np.where(tb.rot[:, None], axes, 0.0), d[:, 1:].reshape(K, -1)], axis=1).T
-    by_slot = rows @ tb.slot_map  # (6 + 3B, S)
-    by_joint = chain._to_readings(rows @ tb.joint_op_map)  # (6 + 3B, n)
+    rot = chain.kind_rot
+    d = np.where(rot[:, None, None], d, axes[:, None, :])
+    rows = np.concatenate([d[:, 0], np.where(rot[:, None], axes, 0.0), d[:, 1:].reshape(K, -1)], axis=1).T
+    by_slot = rows @ chain.slot_map  # (6 + 3B, S)
+    by_joint = chain._to_readings(rows @ chain.joint_op_map)  # (6 + 3B, n)
     out = ChainJacobians(T=T[None], pose_slots=by_slot[None, :6], pose_joints=by_joint[None, :6])
     if n_pts:
         out.points = points[None, 1:]
