@@ -1,0 +1,499 @@
+#!/usr/bin/env python3
+"""MUKCa baseline: the authors' two-socket calibration, reimplemented standalone.
+
+What the method is
+------------------
+MUKCa (Franzese, Spahn, Kober, Della Santina, "MUKCa: Accurate and Affordable
+Cobot Calibration Without External Measurement Devices", arXiv:2503.12584)
+calibrates a serial arm from joint readings alone.  A plate with two spherical
+sockets a known distance apart (50 mm) is placed in front of the robot; a ball
+on the flange is seated in socket 0 and then socket 1 in many arm
+configurations.  The calibration changes the URDF's joint <origin> elements
+(xyz and rpy, six numbers per joint) so that
+
+  * consistency: for every socket, the ball centres predicted by forward
+    kinematics gather at one point (their spread about their own mean, the
+    mean being recomputed from the current parameters, is minimised), and
+  * distortion: the distance between the two socket means equals 50 mm,
+
+with a small Tikhonov pull of the parameters towards the nominal URDF.
+
+Source read
+-----------
+github.com/platonics-delft/kinematics_calibration, commit
+05a05ab4cbbe328c8f5bfcc76479c752ed07b82e (the same commit the data in
+/work/shared/data/mukca-panda were copied from).  Files read:
+calibrate_fk/parameter_optimizer.py (objective, regulariser, solver),
+calibrate_fk/utils.py (data reading, outlier step, evaluation metrics),
+config_optimizer/panda.yaml (which joints), scripts/run_optimizer.py,
+scripts/comparison_with_sota.py, scripts/statistical_analysis_one_to_many.py,
+scripts/statistical_analysis_many_to_one.py (how the pieces are called) and
+README.md.  No code of theirs is copied here; this is a reimplementation.
+
+Their method as found in that code (SI units: metres, radians)
+--------------------------------------------------------------
+* Parameters: xyz + rpy of the <origin> of panda_joint1 ... panda_joint7 and
+  ball_joint (config_optimizer/panda.yaml): 8 x 6 = 48 numbers.  The fixed
+  joints panda_joint8, panda_hand_joint and panda_hand_tcp_joint are NOT
+  optimised ("We are not optimizing the transformation from joint_7 to end
+  effector"); ball_joint (panda_hand_tcp -> ball_link) is.  Joint offsets,
+  axes and the socket positions are not parameters (the socket positions are
+  eliminated by the per-socket means).  Start point: the nominal URDF values.
+* Objective, summed over training placements p:
+      (N0 * var0 + N1 * var1) / (N0 + N1)          [consistency, m^2]
+    + (|mean0 - mean1| - 0.05)^2                   [distortion, m^2]
+  where var_k = sum over x,y,z of the population variance of socket k's
+  predicted ball centres (= mean squared distance from their mean); both terms
+  weight 1.  Plus the regulariser
+      n_placements * 1e-4 * sum (theta - theta_nominal)^2
+  over all optimised numbers EXCEPT those of ball_joint (metres and radians
+  mixed, unweighted).  (ParameterOptimizer.optimize() defaults: dynamic means,
+  distortion term and regulariser all on; regulariser weight 1e-4 and
+  distance 0.05 m are the defaults of every script.)
+* Optimiser: CasADi nlpsol 'ipopt', unconstrained, exact derivatives from
+  CasADi's symbolic FK, options {'print_level': 0, 'max_iter': 30}, x0 =
+  nominal.
+* Outliers: utils.remove_outliers computes an IQR mask (alpha = 2) but the line
+  applying it is commented out, so all recorded configurations are used.
+* Evaluation (utils.evaluate_model): per placement, the socket means, the
+  pooled RMS spread sqrt((N0 var0 + N1 var1)/(N0+N1)) ("std_dev_fk",
+  consistency) and | |mean0 - mean1| - 0.05 | (distortion).
+
+What differs here
+-----------------
+* The objective, parameters, regulariser and weights are the same.  The
+  optimiser is not IPOPT: the objective is a plain sum of squares, so it is
+  written as residuals and solved by scipy.optimize.least_squares (trust-region
+  reflective, analytic Jacobian) to convergence from the nominal values.  IPOPT
+  capped at 30 iterations reaches the same minimum when it converges within
+  the cap (see the report of the commit that added this file for the check).
+* Forward kinematics are this file's own (URDF rpy = Rz(yaw) Ry(pitch)
+  Rx(roll), the convention of the authors' FK package).
+* Note: the repository's scripts/run_optimizer.py at that commit calls
+  optimize(use_dynamic_means=True, use_distortion_error=False,
+  use_regularization=False), i.e. variance only; the paper's method, the
+  optimize() defaults and their statistical-analysis scripts use all three
+  terms.  The default here is the full method; `--variant variance-only`
+  reproduces run_optimizer.py's setting (no regulariser: the problem then has
+  flat directions, and the answer depends on the optimiser's path).
+* Reported metrics here are per socket (RMS and max distance of the predicted
+  centres from their mean) and the signed distance error, in mm; the authors'
+  pooled figure is reported too.
+
+Usage
+-----
+  python bench/mukca_baseline.py [--data DIR] [--train a,b,c] [--all-single]
+                                 [--variant full|variance-only] [--out r.json]
+
+Importable by path: calibrate_mukca(train_sets, urdf_path) -> params and
+evaluate(params, sets) -> dict; load_sets(data_dir) reads the placements.
+Standalone: numpy and scipy only.
+"""
+import argparse
+import json
+import os
+import sys
+import time
+import xml.etree.ElementTree as ET
+
+import numpy as np
+from scipy.optimize import least_squares
+
+DEFAULT_DATA = "/work/shared/data/mukca-panda"
+ROOT_LINK = "panda_link0"
+TIP_LINK = "ball_link"
+OPTIMISED_JOINTS = [f"panda_joint{i}" for i in range(1, 8)] + ["ball_joint"]
+UNREGULARISED_JOINTS = ("ball_joint",)
+SOCKET_DISTANCE = 0.05     # m
+REG_WEIGHT = 1e-4          # per training placement
+PARAM_NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+# --------------------------------------------------------------------- URDF
+def _floats(text, default):
+    return [float(v) for v in text.split()] if text else list(default)
+
+
+def parse_chain(urdf_path, root=ROOT_LINK, tip=TIP_LINK):
+    """The joints from root to tip, in order, as plain dicts."""
+    tree = ET.parse(urdf_path)
+    by_child = {}
+    for j in tree.getroot().findall("joint"):
+        origin = j.find("origin")
+        axis = j.find("axis")
+        by_child[j.find("child").get("link")] = {
+            "name": j.get("name"),
+            "type": j.get("type"),
+            "parent": j.find("parent").get("link"),
+            "xyz": _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0)),
+            "rpy": _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0)),
+            "axis": _floats(axis.get("xyz") if axis is not None else None, (1, 0, 0)),
+        }
+    chain, link = [], tip
+    while link != root:
+        if link not in by_child:
+            raise ValueError(f"{tip} is not below {root} in {urdf_path}")
+        chain.append(by_child[link])
+        link = by_child[link]["parent"]
+    chain.reverse()
+    for j in chain:
+        if j["type"] not in ("revolute", "continuous", "fixed"):
+            raise ValueError(f"joint type {j['type']} of {j['name']} not handled")
+    return chain
+
+
+def nominal_params(urdf_path):
+    """Parameter dict for the nominal URDF (the format calibrate_mukca returns)."""
+    chain = parse_chain(urdf_path)
+    return {
+        "urdf": os.path.abspath(urdf_path),
+        "chain": chain,
+        "origins": {j["name"]: list(j["xyz"]) + list(j["rpy"]) for j in chain},
+        "optimised": [],
+    }
+
+
+# ----------------------------------------------------------------------- FK
+def _rx(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _ry(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _rz(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _axis_angle(axis, q):
+    """Rotation matrices (N,3,3) about a unit axis by angles q (N,)."""
+    k = np.asarray(axis, float)
+    k = k / np.linalg.norm(k)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    s, c = np.sin(q)[:, None, None], np.cos(q)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def fk(params, Q, jac_joints=()):
+    """Ball centres (N,3) in metres for joint sets Q (N,7), in the root frame.
+
+    With jac_joints, also d(centre)/d(x,y,z,roll,pitch,yaw) of each named
+    joint's origin: array (N, 3, 6*len(jac_joints)).
+    """
+    Q = np.atleast_2d(np.asarray(Q, float))
+    n = Q.shape[0]
+    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    p = np.zeros((n, 3))
+    frames = {}          # joint name -> (R, p, Rz, Ry, t) of the frame before its origin
+    qi = 0
+    for j in params["chain"]:
+        o = params["origins"][j["name"]]
+        t, (r_, p_, y_) = np.asarray(o[:3]), o[3:]
+        Rz, Ry, Rx = _rz(y_), _ry(p_), _rx(r_)
+        if j["name"] in jac_joints:
+            frames[j["name"]] = (R.copy(), p.copy(), Rz, Ry, t)
+        p = p + R @ t
+        R = R @ (Rz @ Ry @ Rx)
+        if j["type"] != "fixed":
+            R = R @ _axis_angle(j["axis"], Q[:, qi])
+            qi += 1
+    if not jac_joints:
+        return p
+    J = np.zeros((n, 3, 6 * len(jac_joints)))
+    ex, ey, ez = np.eye(3)
+    for k, name in enumerate(jac_joints):
+        A, a, Rz, Ry, t = frames[name]
+        # s = R_origin u: the centre relative to the origin's translated point,
+        # expressed in the parent frame
+        s = np.einsum("nji,nj->ni", A, p - a) - t
+        J[:, :, 6 * k:6 * k + 3] = A
+        d_yaw = np.cross(ez, s)
+        d_pitch = np.cross(ey, s @ Rz) @ Rz.T
+        d_roll = np.cross(ex, s @ (Rz @ Ry)) @ (Rz @ Ry).T
+        for c, d in ((3, d_roll), (4, d_pitch), (5, d_yaw)):
+            J[:, :, 6 * k + c] = np.einsum("nij,nj->ni", A, d)
+    return p, J
+
+
+# --------------------------------------------------------------------- data
+def load_sets(data_dir=DEFAULT_DATA, names=None, robot="panda_2"):
+    """{placement: (Q_socket0, Q_socket1)} in sorted placement order."""
+    base = os.path.join(data_dir, robot)
+    if names is None:
+        names = sorted(d for d in os.listdir(base)
+                       if os.path.isfile(os.path.join(base, d, "hole_0.csv")))
+    out = {}
+    for name in names:
+        out[name] = tuple(np.loadtxt(os.path.join(base, name, f"hole_{k}.csv"),
+                                     delimiter=",", ndmin=2) for k in (0, 1))
+    return out
+
+
+def _as_list(sets):
+    if isinstance(sets, dict):
+        return list(sets.items())
+    return [(f"set{i}", s) for i, s in enumerate(sets)]
+
+
+# -------------------------------------------------------------- calibration
+def _vector(params, joints):
+    return np.concatenate([np.asarray(params["origins"][j], float) for j in joints])
+
+
+def _with_vector(params, joints, x):
+    new = dict(params)
+    new["origins"] = {k: list(v) for k, v in params["origins"].items()}
+    for k, j in enumerate(joints):
+        new["origins"][j] = [float(v) for v in x[6 * k:6 * k + 6]]
+    return new
+
+
+def mukca_objective_terms(params, sets, joints=OPTIMISED_JOINTS, x0=None,
+                          distortion=True, regularise=True, jacobian=False):
+    """Residual vector r (objective = r.r, exactly the authors' sum) and optionally dr/dx."""
+    sets = _as_list(sets)
+    res, jac = [], []
+    for _, (Q0, Q1) in sets:
+        n_tot = len(Q0) + len(Q1)
+        means, mjac = [], []
+        for Q in (Q0, Q1):
+            P, J = fk(params, Q, joints)
+            m, Jm = P.mean(0), J.mean(0)
+            res.append(((P - m) / np.sqrt(n_tot)).ravel())
+            jac.append(((J - Jm) / np.sqrt(n_tot)).reshape(-1, J.shape[2]))
+            means.append(m)
+            mjac.append(Jm)
+        if distortion:
+            d = means[0] - means[1]
+            dn = np.linalg.norm(d)
+            res.append(np.array([dn - SOCKET_DISTANCE]))
+            jac.append(((d / dn) @ (mjac[0] - mjac[1]))[None, :])
+    if regularise:
+        w = np.sqrt(len(sets) * REG_WEIGHT)
+        x = _vector(params, joints)
+        mask = np.concatenate([np.full(6, j not in UNREGULARISED_JOINTS, float) for j in joints])
+        sel = mask > 0
+        res.append(w * (x - x0)[sel])
+        jac.append((w * np.eye(len(x)))[sel])
+    r = np.concatenate(res)
+    return (r, np.vstack(jac)) if jacobian else r
+
+
+def calibrate_mukca(train_sets, urdf_path, variant="full", verbose=False):
+    """The authors' calibration on train_sets ({name: (Q0, Q1)} or a list of pairs).
+
+    Returns a params dict (JSON-serialisable) for evaluate()/fk().
+    variant: "full" (consistency + distortion + regulariser: the MUKCa method)
+    or "variance-only" (run_optimizer.py's setting at the commit read).
+    """
+    if variant not in ("full", "variance-only"):
+        raise ValueError(variant)
+    nominal = nominal_params(urdf_path)
+    joints = [j for j in OPTIMISED_JOINTS if j in nominal["origins"]]
+    x0 = _vector(nominal, joints)
+    full = variant == "full"
+
+    def fun(x):
+        return mukca_objective_terms(_with_vector(nominal, joints, x), train_sets, joints,
+                                     x0, distortion=full, regularise=full, jacobian=True)
+
+    cache = {}
+
+    def residuals(x):
+        key = x.tobytes()
+        if key not in cache:
+            cache.clear()
+            cache[key] = fun(x)
+        return cache[key][0]
+
+    def jacobian(x):
+        residuals(x)
+        return cache[x.tobytes()][1]
+
+    t0 = time.time()
+    sol = least_squares(residuals, x0, jac=jacobian, method="trf", x_scale=1.0,
+                        ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=500)
+    out = _with_vector(nominal, joints, sol.x)
+    out["optimised"] = joints
+    out["variant"] = variant
+    out["train"] = [name for name, _ in _as_list(train_sets)]
+    out["solver"] = {"method": "scipy least_squares trf", "nfev": int(sol.nfev),
+                     "status": int(sol.status), "cost": float(2 * sol.cost),
+                     "cost_nominal": float(residuals(x0) @ residuals(x0)),
+                     "seconds": round(time.time() - t0, 3)}
+    if verbose:
+        print(f"  calibrated on {out['train']}: objective {out['solver']['cost_nominal']:.4e}"
+              f" -> {out['solver']['cost']:.4e} m^2 in {sol.nfev} evaluations", file=sys.stderr)
+    return out
+
+
+def write_urdf(params, out_path):
+    """The URDF with the calibrated origins written in (like the authors' output)."""
+    tree = ET.parse(params["urdf"])
+    for j in tree.getroot().findall("joint"):
+        if j.get("name") in params.get("optimised", []):
+            o = params["origins"][j.get("name")]
+            origin = j.find("origin")
+            origin.set("xyz", " ".join(repr(v) for v in o[:3]))
+            origin.set("rpy", " ".join(repr(v) for v in o[3:]))
+    tree.write(out_path, xml_declaration=True, encoding="utf-8")
+
+
+# --------------------------------------------------------------- evaluation
+def evaluate(params, sets):
+    """Per placement: per-socket consistency and the distance error, in mm.
+
+    params: from calibrate_mukca() or nominal_params(), or a URDF path (nominal).
+    """
+    if isinstance(params, str):
+        params = nominal_params(params)
+    out = {}
+    for name, (Q0, Q1) in _as_list(sets):
+        sockets, means, sq, counts = [], [], [], []
+        for Q in (Q0, Q1):
+            P = fk(params, Q)
+            m = P.mean(0)
+            d = np.linalg.norm(P - m, axis=1)
+            sockets.append({"n": int(len(P)),
+                            "rms_mm": float(1e3 * np.sqrt(np.mean(d ** 2))),
+                            "max_mm": float(1e3 * d.max()),
+                            "mean_mm": [float(v) for v in 1e3 * m]})
+            means.append(m)
+            sq.append(np.sum(d ** 2))
+            counts.append(len(P))
+        dist = float(np.linalg.norm(means[0] - means[1]))
+        out[name] = {
+            "socket": sockets,
+            "consistency_rms_mm": float(np.mean([s["rms_mm"] for s in sockets])),
+            "pooled_rms_mm": float(1e3 * np.sqrt(sum(sq) / sum(counts))),
+            "distance_mm": 1e3 * dist,
+            "distance_error_mm": 1e3 * (dist - SOCKET_DISTANCE),
+            "abs_distance_error_mm": 1e3 * abs(dist - SOCKET_DISTANCE),
+        }
+    return out
+
+
+def summarise(per_placement):
+    rows = list(per_placement.values())
+    if not rows:
+        return {}
+    return {
+        "n_placements": len(rows),
+        "consistency_rms_mm": float(np.mean([r["consistency_rms_mm"] for r in rows])),
+        "consistency_max_mm": float(np.mean([max(s["max_mm"] for s in r["socket"]) for r in rows])),
+        "pooled_rms_mm": float(np.mean([r["pooled_rms_mm"] for r in rows])),
+        "abs_distance_error_mm": float(np.mean([r["abs_distance_error_mm"] for r in rows])),
+        "max_abs_distance_error_mm": float(np.max([r["abs_distance_error_mm"] for r in rows])),
+    }
+
+
+# ---------------------------------------------------------------------- CLI
+def run_protocol(urdf, sets, train_names, variant, verbose=True):
+    train = {k: sets[k] for k in train_names}
+    test = {k: v for k, v in sets.items() if k not in train_names}
+    nominal = nominal_params(urdf)
+    calibrated = calibrate_mukca(train, urdf, variant=variant, verbose=verbose)
+    res = {"train": list(train_names), "test": list(test),
+           "nominal": {"per_placement": evaluate(nominal, test)},
+           "calibrated": {"per_placement": evaluate(calibrated, test)},
+           "calibrated_on_train": {"per_placement": evaluate(calibrated, train)},
+           "solver": calibrated["solver"],
+           "params": {j: calibrated["origins"][j] for j in calibrated["optimised"]},
+           "param_change": {j: [a - b for a, b in zip(calibrated["origins"][j], nominal["origins"][j])]
+                            for j in calibrated["optimised"]}}
+    for key in ("nominal", "calibrated", "calibrated_on_train"):
+        res[key]["mean"] = summarise(res[key]["per_placement"])
+    return res
+
+
+def print_protocol(label, res):
+    print(f"\n== {label}: trained on {', '.join(res['train'])}; held out {len(res['test'])}")
+    print(f"{'placement':<14}{'model':<11}{'s0 rms':>8}{'s0 max':>8}{'s1 rms':>8}{'s1 max':>8}"
+          f"{'dist err':>10}   (mm)")
+    for name in res["test"]:
+        for key in ("nominal", "calibrated"):
+            r = res[key]["per_placement"][name]
+            s0, s1 = r["socket"]
+            print(f"{name:<14}{key:<11}{s0['rms_mm']:8.3f}{s0['max_mm']:8.3f}"
+                  f"{s1['rms_mm']:8.3f}{s1['max_mm']:8.3f}{r['distance_error_mm']:10.3f}")
+    for key in ("nominal", "calibrated", "calibrated_on_train"):
+        m = res[key]["mean"]
+        print(f"mean {key:<20} consistency rms {m['consistency_rms_mm']:.3f}  "
+              f"max {m['consistency_max_mm']:.3f}  |dist err| {m['abs_distance_error_mm']:.3f} mm")
+
+
+def _average_runs(runs):
+    out = {}
+    for key in ("nominal", "calibrated", "calibrated_on_train"):
+        ms = [r[key]["mean"] for r in runs]
+        out[key] = {k: float(np.mean([m[k] for m in ms])) for k in ms[0] if k != "n_placements"}
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", default=DEFAULT_DATA)
+    ap.add_argument("--train", help="comma-separated placements to train on (one protocol)")
+    ap.add_argument("--all-single", action="store_true",
+                    help="also train on each placement in turn and average the held-out results")
+    ap.add_argument("--variant", choices=("full", "variance-only"), default="full")
+    ap.add_argument("--out", help="write the results as JSON here")
+    ap.add_argument("--urdf-out", help="directory: write each calibrated URDF there")
+    args = ap.parse_args(argv)
+
+    urdf = os.path.join(args.data, "panda.urdf")
+    sets = load_sets(args.data)
+    names = list(sets)
+    if args.train:
+        protocols = {"custom": [t.strip() for t in args.train.split(",") if t.strip()]}
+        unknown = [t for t in protocols["custom"] if t not in sets]
+        if unknown:
+            ap.error(f"unknown placements {unknown}; have {names}")
+    else:
+        protocols = {"train1": names[:1], "train3": names[:3]}
+
+    t0 = time.time()
+    result = {"method": "MUKCa (platonics-delft/kinematics_calibration @ 05a05ab), reimplemented",
+              "variant": args.variant, "data": os.path.abspath(args.data),
+              "placements": names, "protocols": {}}
+    for label, train in protocols.items():
+        res = run_protocol(urdf, sets, train, args.variant)
+        result["protocols"][label] = res
+        print_protocol(label, res)
+        if args.urdf_out:
+            os.makedirs(args.urdf_out, exist_ok=True)
+            p = nominal_params(urdf)
+            p["origins"].update(res["params"])
+            p["optimised"] = list(res["params"])
+            write_urdf(p, os.path.join(args.urdf_out, f"panda_{label}.urdf"))
+    if args.all_single:
+        runs = [run_protocol(urdf, sets, [n], args.variant, verbose=False) for n in names]
+        avg = _average_runs(runs)
+        result["all_single"] = {"runs": {r["train"][0]: {k: r[k] for k in
+                                                          ("nominal", "calibrated", "calibrated_on_train", "solver")}
+                                         for r in runs},
+                                "mean": avg}
+        print(f"\n== all-single: trained on each of {len(names)} placements in turn, "
+              f"held-out means averaged over the runs")
+        print(f"{'trained on':<14}{'nominal rms':>12}{'calib rms':>11}{'nominal |de|':>14}{'calib |de|':>12}   (mm)")
+        for r in runs:
+            a, b = r["nominal"]["mean"], r["calibrated"]["mean"]
+            print(f"{r['train'][0]:<14}{a['consistency_rms_mm']:12.3f}{b['consistency_rms_mm']:11.3f}"
+                  f"{a['abs_distance_error_mm']:14.3f}{b['abs_distance_error_mm']:12.3f}")
+        print(f"{'average':<14}{avg['nominal']['consistency_rms_mm']:12.3f}"
+              f"{avg['calibrated']['consistency_rms_mm']:11.3f}"
+              f"{avg['nominal']['abs_distance_error_mm']:14.3f}{avg['calibrated']['abs_distance_error_mm']:12.3f}")
+    result["seconds"] = round(time.time() - t0, 2)
+    print(f"\n({result['seconds']} s)")
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=1)
+    return result
+
+
+if __name__ == "__main__":
+    main()
