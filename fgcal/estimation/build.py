@@ -11,7 +11,9 @@ from fgcal.estimation.graph import Graph, Sigmas
 from fgcal.estimation.gravity import model_inertials
 from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.setup_params import SetupParameters, is_setup_name
 from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.posefit import rigid_fit
 from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from fgcal.measurements.types import all_levels, kinematic_levels, kinematic_types
@@ -91,6 +93,38 @@ def _initial_pivot(model: RobotModel, held, q, offsets, length):
     return model.with_world_origin_at(held, np.linalg.lstsq(A, b, rcond=None)[0][:3])
 
 
+def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> SetupLayout:
+    """The set-up blocks the measurements use, each unknown one started from the robot's start:
+    a fixture point at the mean of its predicted ball centres, a plane fitted to them (its normal
+    towards the tool: the ball's centre lies on the side the normal points to)."""
+    used, centres, flange = {}, {}, {}
+    T = model.forward(start, q)
+    for kind in kinds:
+        obs = getattr(ds, kind.level)
+        i = np.array([row[p] for p in obs.pose.tolist()], dtype=int)
+        pts = tool_points(T[i], ds.tooling.offsets(obs.ball)[:, None, :])[:, 0]
+        for f in np.unique(obs.fixture):
+            sel = obs.fixture == f
+            used[str(f)] = True
+            centres[str(f)] = pts[sel]
+            flange[str(f)] = T[i[sel], :3, 3]
+    spec = ds.setup.subset(used)
+    starts = {}
+    for name, f in spec.fixtures.items():
+        c = centres[name]
+        if f.type == "point":
+            starts[name] = c.mean(axis=0)
+            continue
+        if len(c) < 3 or np.linalg.matrix_rank(c - c.mean(0), tol=1e-6) < 2:
+            raise FgcalError(f"{ds.path or 'dataset'}: plane {name} needs contacts at three or more points "
+                             f"not on one line (it has {len(c)})")
+        n = np.linalg.svd(c - c.mean(0))[2][2]
+        if np.mean((flange[name] - c) @ n) < 0:
+            n = -n
+        starts[name] = (n, float(np.mean(c @ n)) - ds.tooling.radius)
+    return SetupLayout.build(spec, starts)
+
+
 def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None,
                 start=None):
     """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
@@ -101,7 +135,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     """
     levels = _levels(ds, options)
     block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
-    names = [n for n in names if not is_block_name(n)]
+    names = [n for n in names if not is_block_name(n) and not is_setup_name(n)]
     params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
     params = type(params)(model, tuple(names))
     held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
@@ -136,7 +170,10 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
                           np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int),
                           pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset, radius=ds.tooling.radius)
     kw["measurements"] = {}
+    setup_kinds = [k for k in kinematic_levels(levels) if getattr(k, "uses_setup", False)]
     for kind in kinematic_levels(levels):
+        if kind in setup_kinds:
+            continue  # their terms need the set-up layout, which starts from the robot's start
         terms = kind.terms(getattr(ds, kind.level), ds.tooling, row)
         kw["measurements"][kind.level] = terms
         for i, (offs, pts_w) in kind.world_points(terms).items():
@@ -160,6 +197,12 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         start = _initial_base(model, held, q, world_points)
     else:
         start = pivot_start
+    layout = None
+    if setup_kinds:
+        layout = _setup_layout(ds, model, setup_kinds, start, q, row)
+        for kind in setup_kinds:
+            kw["measurements"][kind.level] = kind.terms(getattr(ds, kind.level), ds.tooling, row, layout)
+        # the measurements in registry order (the graph's row layout does not depend on this dict)
     if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
         block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,
                                       model_inertials(model), block_names, model.chain)
@@ -167,6 +210,12 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         params = BlockParameters(params, block)
         kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
         kw["joint_errors"] = block.design(q, start)
+    if layout is not None:  # --- set-up unknowns close theta, with their priors (inf: none)
+        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
+        s_mean, s_sd = layout.prior()
+        params = SetupParameters(params, layout)
+        kw["prior"] = (np.concatenate([mean, s_mean]), np.concatenate([sd, s_sd]))
+        kw["setup"] = layout
     graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
     theta0 = params.take(start)
     if init_c is not None and len(graph.ball_pose):

@@ -31,7 +31,6 @@ from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_out
                     scaled_inverse, update_sigmas)
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
-from fgcal.estimation.joint_errors import BlockParameters
 
 __all__ = ["CalibrationOptions", "calibrate", "solve_calibration", "Solution", "solution_covariance", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
            "identifiability_of"]
@@ -58,7 +57,7 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
     lin = graph.linearise(state) if lin is None else lin
     red = graph.leverage_by_level(state, cov_internal, lin)
     out = {}
-    units = {"probes": "mm", "kinematic": "mm", "joints": "deg", "prior": "-"}
+    units = {"probes": "mm", "kinematic": "mm", "joints": "deg", "prior": "-", "constraints": "mm"}
     sig = graph.sigmas
     for level, (e, s, w) in lin.raw.items():
         n_rows, h = red.get(level, (0, 0.0))
@@ -76,7 +75,8 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
         norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
         scale = np.degrees(1.0) if level == "joints" else 1.0
         sigma = {"probes": sig.probe, "kinematic": sig.kinematic,
-                 "joints": _joint_sigma_file_units(graph), "prior": float("nan")}[level]
+                 "joints": _joint_sigma_file_units(graph), "prior": float("nan"),
+                 "constraints": float("nan")}[level]
         out[level] = LevelSummary(len(e), float(np.sqrt(np.mean(norms**2)) * scale), units[level], float(sigma),
                                   vf, redundancy)
     return out
@@ -107,7 +107,11 @@ def _hold_order(names) -> list[int]:
 def _identifiability(graph: Graph, state: State, lin=None):
     names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
     order = _hold_order(names)
-    S = graph.parameter_information(state, lin)[np.ix_(order, order)]
+    info = graph.parameter_information(state, lin)
+    if graph.S:  # the set-up unknowns are estimated with the robot: their information is marginalised
+        g, s = np.arange(graph.n_geo), np.arange(graph.n_geo + graph.K, graph.n_geo + graph.K + graph.S)
+        info = info[np.ix_(g, g)] - info[np.ix_(g, s)] @ np.linalg.pinv(info[np.ix_(s, s)]) @ info[np.ix_(s, g)]
+    S = info[np.ix_(order, order)]
     return analyse_information(S, [names[i] for i in order])
 
 
@@ -121,8 +125,10 @@ def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptio
     Every level the dataset has counts (probe points, centres, poses, with the joint readings'
     noise), linearised at the nominal model with the base fitted to the data.
     """
-    graph, state, _ = build_graph(ds, model, model.parameters(extra=options.extra, exclude=options.exclude).names,
-                                  options)
+    names = model.parameters(extra=options.extra, exclude=options.exclude).names
+    if not world_is_fixed(ds, _levels(ds, options)):
+        names = tuple(n for n in names if not n.startswith("base."))
+    graph, state, _ = build_graph(ds, model, names, options)
     return _identifiability(graph, state)
 
 
@@ -186,10 +192,17 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     if options.joint_errors is not None:
         names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
-    _check_equations(ds, levels, len(names))
+    held_info = []
+    if not world_is_fixed(ds, levels):  # the gauge: nothing in the data fixes the world frame
+        for n in [n for n in names if n.startswith("base.")]:
+            held_info.append({"name": n, "value": float(model.slots_to_file_units(model.nominal)[model.slot(n)]),
+                              "reason": GAUGE_REASON})
+        names = [n for n in names if not n.startswith("base.")]
+        if held_info:
+            log.info("the world frame: %s", GAUGE_REASON)
+    _check_equations(ds, levels, len(names) + _setup_size(ds, levels))
 
     graph, state, pose_ids = build_graph(ds, model, names, options, start=start)
-    held_info = []
     redundant = held_parameters(graph, state, _unidentifiable) if decide_held else {}
     if redundant:
         for n, partners in redundant.items():
@@ -230,6 +243,30 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
     return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
                     outlier_mode, held_info, theta_start)
+
+
+GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "
+                "so the base is held at nominal and the fixtures are in its frame")
+
+
+def world_is_fixed(ds: Dataset, levels) -> bool:
+    """Whether the data fix the world frame: an instrument level, or a fixture that is known or
+    has a prior (contacts with unknown fixtures alone leave the base free)."""
+    setup_levels = [lv for lv in levels if getattr(BY_LEVEL.get(lv), "uses_setup", False)]
+    if len(setup_levels) < len(levels):
+        return True
+    used = set().union(*(set(getattr(ds, lv).fixture.tolist()) for lv in setup_levels)) if setup_levels else set()
+    return any(ds.setup.fixtures[f].value is not None for f in used)
+
+
+def _setup_size(ds: Dataset, levels) -> int:
+    """Free set-up parameters the levels use, less the known distances between them."""
+    used = set()
+    for lv in levels:
+        if getattr(BY_LEVEL.get(lv), "uses_setup", False):
+            used |= set(getattr(ds, lv).fixture.tolist())
+    spec = ds.setup.subset(used)
+    return 3 * sum(not f.fixed for f in spec.fixtures.values()) - len(spec.distances)
 
 
 def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
@@ -306,7 +343,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     red_total = sum(n.redundancy for n in noise_table.values())
     outliers = name_outliers(graph, lin, h, ds, pose_ids)
     if held_info:
-        cost = holding_cost(model, slots, final.names, [h_["name"] for h_ in held_info], graph.readings,
+        cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in held_info], graph.readings,
                             _measured_points(ds, levels))
         for h_ in held_info:
             h_["cost_mm"] = cost[h_["name"]]
@@ -340,12 +377,23 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
         at_readings=at_readings(graph, state, read_raw),
         pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
-        joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)))
+        joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
+        setup=_setup_info(graph, state, held_info))
+
+
+def _setup_info(graph: Graph, state: State, held_info) -> dict:
+    """What a result keeps of the set-up unknowns (see :class:`CalibrationResult`)."""
+    if graph.setup is None:
+        return {}
+    out = {**graph.setup.spec.to_dict(), "estimated": graph.setup.describe(graph.setup_values(state.theta))}
+    if any(h["reason"] == GAUGE_REASON for h in held_info):
+        out["gauge"] = GAUGE_REASON
+    return out
 
 
 def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
     """What a result keeps of its joint-error block: the spec, the names, the joint region (file units)."""
-    if not isinstance(params, BlockParameters):
+    if getattr(params, "block", None) is None:  # BlockParameters, or set-up parameters around them
         return {}
     names = list(params.block.names)
     return {"spec": options.joint_errors.to_dict(), "names": names,

@@ -139,12 +139,16 @@ class Graph(ArrowElimination):
     robust : {None, "huber", "cauchy"}, robust_k : float
     joint_errors : ndarray, shape (N, n, K), optional
         ``G`` of a joint-error block (:mod:`fgcal.estimation.joint_errors`) whose K parameters follow the
-        geometric ones in ``theta``: the joints are ``reading + G @ theta[-K:]``.
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[n_geo:n_geo + K]``.
+    setup : fgcal.measurements.setup.SetupLayout, optional
+        The set-up unknowns (fixtures, planes); their free entries close ``theta`` (after the
+        joint-error block). Measurement types with ``uses_setup`` see them; the known distances
+        between fixture points are global rows beside the prior's.
     """
 
     def __init__(self, params: ParameterSet, held, readings, sigmas: Sigmas, *, probes=None, ball_pose=None,
                  ball_offset=None, radius=0.0, measurements=None, prior=None, robust=None,
-                 robust_k=None, joint_errors=None):
+                 robust_k=None, joint_errors=None, setup=None):
         self.params = params
         self.index = params.index
         self.held = np.asarray(held, dtype=float)
@@ -162,6 +166,9 @@ class Graph(ArrowElimination):
         self.n_geo = len(self.index)
         self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
         self.K = 0 if self.G is None else self.G.shape[2]
+        self.setup = setup
+        self.S = 0 if setup is None else setup.n_free
+        self._setup_col = None if setup is None else self.n_geo + self.K + setup.column()  # < n_geo+K: fixed
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -257,14 +264,56 @@ class Graph(ArrowElimination):
     def joints(self, state: State) -> np.ndarray:
         if self.joint_vars:
             return state.q
-        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:]
+        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K]
 
     def _with_block(self, pose, J_t, J_q):
-        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0)."""
-        if not self.K:
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0) and
+        zeros for the set-up columns."""
+        if not self.K and not self.S:
             return J_t
-        extra = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else np.einsum("nmj,njk->nmk", J_q, self.G[pose])
-        return np.concatenate([J_t, extra], axis=2)
+        parts = [J_t]
+        if self.K:
+            parts.append(np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars
+                         else np.einsum("nmj,njk->nmk", J_q, self.G[pose]))
+        if self.S:
+            parts.append(np.zeros(J_t.shape[:2] + (self.S,)))
+        return np.concatenate(parts, axis=2)
+
+    def setup_values(self, theta) -> np.ndarray:
+        """The whole set-up vector (fixed entries included) at ``theta``."""
+        return self.setup.full(np.asarray(theta)[self.n_geo + self.K:])
+
+    def _with_setup(self, J_t, J_s, cols):
+        """Scatter a set-up Jacobian ``J_s`` (M, w, k) at set-up entries ``cols`` (M, k) into ``J_t``."""
+        where = self._setup_col[cols]  # (M, k) columns of theta; fixed entries map below n_geo + K
+        free = where >= self.n_geo + self.K
+        m, w, k = J_s.shape
+        rows = np.broadcast_to(np.arange(m)[:, None, None], (m, w, k))
+        wr = np.broadcast_to(np.arange(w)[None, :, None], (m, w, k))
+        sel = np.broadcast_to(free[:, None, :], (m, w, k))
+        J_t[rows[sel], wr[sel], np.broadcast_to(where[:, None, :], (m, w, k))[sel]] += J_s[sel]
+        return J_t
+
+    def constraint_rows(self, theta):
+        """Whitened rows of the known distances between fixture points: ``(r (k,), J (k, P), e (k,))``."""
+        P = len(theta)
+        cons = () if self.setup is None else self.setup.spec.distances
+        r, J, e = np.zeros(len(cons)), np.zeros((len(cons), P)), np.zeros(len(cons))
+        if not cons:
+            return r, J, e
+        s = self.setup_values(theta)
+        for i, c in enumerate(cons):
+            ka, kb = self.setup.offset[c.a], self.setup.offset[c.b]
+            diff = s[ka:ka + 3] - s[kb:kb + 3]
+            dist = np.linalg.norm(diff)
+            u = diff / max(dist, 1e-300)
+            e[i] = dist - c.distance
+            r[i] = e[i] / c.sigma
+            for k, sign in ((ka, 1.0), (kb, -1.0)):
+                cols = self._setup_col[k:k + 3]
+                ok = cols >= self.n_geo + self.K
+                J[i, cols[ok]] += sign * u[ok] / c.sigma
+        return r, J, e
 
     def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.
@@ -284,7 +333,7 @@ class Graph(ArrowElimination):
         return lin
 
     def _linearise(self, state: State) -> Linearisation:
-        n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K, self.nz
+        n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K + self.S, self.nz
         theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
         Jt = np.zeros((n, mt, P))
@@ -343,15 +392,21 @@ class Graph(ArrowElimination):
                 sigma=self.sigmas.kinematic)
         for level, terms in self.measurements.items():
             kind = BY_LEVEL[level]
-            e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
-            J_t = self._with_block(terms.pose, J_t, J_q)
+            if getattr(kind, "uses_setup", False):
+                e, J_t, J_q, J_s, cols = kind.setup_error(theta, q[terms.pose], terms.data,
+                                                          self.setup_values(state.theta), self.index, self.held,
+                                                          self.chain)
+                J_t = self._with_setup(self._with_block(terms.pose, J_t, J_q), J_s, cols)
+            else:
+                e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
+                J_t = self._with_block(terms.pose, J_t, J_q)
             put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
         if self.joint_vars:
             nj = self.n_joints
             J_t = None
             if self.K:  # the joint variable is the reading plus the block's correction
-                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:])
-                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G], axis=2)
+                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K])
+                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G, np.zeros((n, nj, self.S))], axis=2)
             else:
                 e = fx.joint_error(state.q, self.readings)
             put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
@@ -364,6 +419,11 @@ class Graph(ArrowElimination):
             prior_J = np.diag(1.0 / sig)
             raw["prior"] = (state.theta - mean, np.abs(prior_r), np.ones(P))
             cost += 0.5 * float(prior_r @ prior_r)
+        if self.setup is not None and self.setup.spec.distances:
+            c_r, c_J, c_e = self.constraint_rows(state.theta)
+            prior_r, prior_J = np.concatenate([prior_r, c_r]), np.vstack([prior_J, c_J])
+            raw["constraints"] = (c_e[:, None], np.abs(c_r), np.ones(len(c_r)))
+            cost += 0.5 * float(c_r @ c_r)
         return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw)
 
     def cost(self, state: State) -> float:

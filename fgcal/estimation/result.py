@@ -132,6 +132,12 @@ class CalibrationResult:
         ``names``, ``map_terms``, ``joint_ranges_deg`` (the region a map is valid in), ``validity``
         and, after a model comparison, ``selection`` (:mod:`fgcal.estimation.model_select`). Empty for the
         geometric model.
+    setup : dict
+        The set-up unknowns (DESIGN.md 8.1), if any: ``fixtures`` (the dataset's definitions, as in
+        ``dataset.yaml``), ``constraints`` and ``estimated`` (each fixture's calibrated value: a
+        point's ``position`` (mm), a plane's unit ``normal`` and ``offset`` (mm)), and ``gauge`` (how
+        the world frame was fixed, when nothing in the data fixes it). Their parameters
+        (``fixture.NAME.x``, ``plane.NAME.d``, ...) are rows of ``parameters``.
     noise_mode : str
         ``estimated`` (each level's noise from the residuals where the redundancy allows) or
         ``declared``.
@@ -171,6 +177,7 @@ class CalibrationResult:
     tool_xyz: list[list[float]] = field(default_factory=list)
     robot_model: dict = field(default_factory=dict)
     joint_errors: dict = field(default_factory=dict)
+    setup: dict = field(default_factory=dict)
     noise_mode: str = "declared"
     noise: dict[str, LevelNoise] = field(default_factory=dict)
     outliers: list[Outlier] = field(default_factory=list)
@@ -223,7 +230,7 @@ class CalibrationResult:
              "covariance": np.asarray(self.covariance).tolist()}
         for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
                     "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model",
-                    "joint_errors"):
+                    "joint_errors", "setup"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         d["noise_mode"], d["fit_test"] = self.noise_mode, self.fit_test
@@ -300,7 +307,7 @@ def load_result(path) -> CalibrationResult:
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
             tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
             robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}),
-            noise_mode=str(d.get("noise_mode", "declared")),
+            setup=dict(d.get("setup") or {}), noise_mode=str(d.get("noise_mode", "declared")),
             noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
             outliers=[Outlier(**o) for o in d.get("outliers", [])],
             fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},

@@ -22,7 +22,9 @@ from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
 from fgcal.measurements.point import POINT
-from fgcal.measurements.types import kinematic_types
+from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
+from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec
+from fgcal.measurements.types import kinematic_types, noise_keys
 from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
@@ -145,6 +147,95 @@ def _measurement_table(path: Path, kind, known_poses: set, balls: dict):
                              np.array(values, dtype=float).reshape(len(values), width), np.array(lines, dtype=int))
 
 
+def _fixtures(path: Path, data: dict, num) -> SetupSpec:
+    """``fixtures:`` and ``constraints:`` of ``dataset.yaml`` (DESIGN.md 8.2)."""
+    raw = data.get("fixtures") or {}
+    if not isinstance(raw, dict):
+        raise DatasetError(f"{path}: fixtures must be a mapping {{NAME: {{type: point|plane, ...}}}}")
+    fixtures = {}
+    for name, f in raw.items():
+        where = f"{path}: fixtures.{short_repr(name)}"
+        if not isinstance(name, str) or not name or "," in name or name != name.strip():
+            raise DatasetError(f"{where}: a fixture name must be non-empty text without commas or edge spaces")
+        if not isinstance(f, dict) or f.get("type") not in ("point", "plane"):
+            raise DatasetError(f"{where}: must be a mapping with type: point or type: plane")
+        allowed = {"type", "sigma", "fixed"} | ({"position"} if f["type"] == "point" else {"normal", "offset"})
+        unknown = set(f) - allowed
+        if unknown:
+            raise DatasetError(f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))[:80]} "
+                               f"(a {f['type']} takes {', '.join(sorted(allowed))})")
+        value = None
+        if f["type"] == "point" and "position" in f:
+            if not isinstance(f["position"], list) or len(f["position"]) != 3:
+                raise DatasetError(f"{where}: position must be [x, y, z] (mm)")
+            value = np.array([num(v, f"fixtures.{name}.position") for v in f["position"]])
+        if f["type"] == "plane" and ("normal" in f or "offset" in f):
+            if not isinstance(f.get("normal"), list) or len(f["normal"]) != 3 or "offset" not in f:
+                raise DatasetError(f"{where}: a known plane needs normal: [nx, ny, nz] and offset: D (mm)")
+            n = np.array([num(v, f"fixtures.{name}.normal") for v in f["normal"]])
+            if np.linalg.norm(n) < 1e-9:
+                raise DatasetError(f"{where}: normal must not be zero")
+            value = np.concatenate([n / np.linalg.norm(n), [num(f["offset"], f"fixtures.{name}.offset")]])
+        sigma = None if f.get("sigma") is None else num(f["sigma"], f"fixtures.{name}.sigma", 0.0)
+        fixed = f.get("fixed", False)
+        if not isinstance(fixed, bool):
+            raise DatasetError(f"{where}: fixed must be true or false")
+        if (fixed or sigma is not None) and value is None:
+            raise DatasetError(f"{where}: {'fixed' if fixed else 'sigma'} needs the fixture's "
+                               f"{'position' if f['type'] == 'point' else 'normal and offset'}")
+        if sigma is not None and sigma <= 0 and not fixed:
+            raise DatasetError(f"{where}: sigma must be positive (or fixed: true for a known fixture)")
+        fixtures[name] = FixtureSpec(name, f["type"], value, sigma, fixed)
+    cons = data.get("constraints") or {}
+    if not isinstance(cons, dict) or set(cons) - {"distances"}:
+        raise DatasetError(f"{path}: constraints must be a mapping with distances: [[A, B, mm, sigma], ...]")
+    distances = []
+    items = cons.get("distances") or []
+    if not isinstance(items, list):
+        raise DatasetError(f"{path}: constraints.distances must be a list of [A, B, mm, sigma]")
+    for i, item in enumerate(items):
+        where = f"{path}: constraints.distances[{i}]"
+        if not isinstance(item, list) or len(item) != 4:
+            raise DatasetError(f"{where}: must be [fixture A, fixture B, distance (mm), sigma (mm)]")
+        a, b = item[0], item[1]
+        for x in (a, b):
+            if not isinstance(x, str) or fixtures.get(x) is None or fixtures[x].type != "point":
+                raise DatasetError(f"{where}: {short_repr(x)} is not a point fixture of fixtures:")
+        if a == b:
+            raise DatasetError(f"{where}: a distance needs two different fixtures")
+        dist, sig = num(item[2], f"{where} distance", 0.0), num(item[3], f"{where} sigma", 0.0)
+        if dist <= 0 or sig <= 0:
+            raise DatasetError(f"{where}: the distance and its sigma must be positive (mm)")
+        distances.append(DistanceConstraint(a, b, dist, sig))
+    return SetupSpec(fixtures, tuple(distances))
+
+
+def _contact_tables(path: Path, kinds, known_poses: set, balls: dict, setup: SetupSpec) -> dict:
+    """``contacts.csv`` (``pose,ball,fixture``) split by the kind of each row's fixture."""
+    by_type = {k.fixture_type: k for k in kinds}
+    rows: dict = {k: ([], [], [], []) for k in kinds}
+    seen: dict = {}
+    for line, header, cells in _table_records(path, list(CONTACT_COLUMNS)):
+        where = f"{path}: line {line}"
+        record = dict(zip(header, cells))
+        pid = pose_id(record["pose"], where, known_poses)
+        b = ball_name(record["ball"], where, balls)
+        f = record["fixture"]
+        kind_name = setup.kind_of(f)
+        if kind_name is None:
+            names = ", ".join(list(setup.fixtures)[:6]) or "none"
+            raise DatasetError(f"{where}: fixture {short_repr(f)} is not in dataset.yaml's fixtures: ({names})")
+        key = (pid, b)
+        if key in seen:
+            raise DatasetError(f"{where}: ball {b} at pose {pid} has a contact already (line {seen[key]})")
+        seen[key] = line
+        for lst, v in zip(rows[by_type[kind_name]], (pid, b, f, line)):
+            lst.append(v)
+    return {k: ContactObservations(np.array(p, dtype=int), np.array(b, dtype=str), np.array(f, dtype=str),
+                                   np.array(ln, dtype=int))
+            for k, (p, b, f, ln) in rows.items() if p}
+
+
 def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     data = read_yaml(path, error=DatasetError)
     if not isinstance(data, dict):
@@ -156,7 +247,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
         raise DatasetError(f"{path}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
     if not isinstance(data["robot"], str) or not data["robot"]:
         raise DatasetError(f"{path}: robot must be a model name or a model file path")
-    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance"}
+    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance", "fixtures", "constraints"}
     if unknown:
         raise DatasetError(f"{path}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
     chain = data.get("chain")
@@ -184,17 +275,19 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
 
     noise_raw = data["noise"]
     allowed = ("cmm_sigma", "joint_resolution", "repeatability", "pose_position_sigma", "pose_orientation_sigma",
-               "centre_sigma", "distance_sigma")
+               "centre_sigma", "distance_sigma") + noise_keys()
     if not isinstance(noise_raw, dict):
         raise DatasetError(f"{path}: noise must be a mapping with {', '.join(allowed)}")
     unknown = set(noise_raw) - set(allowed)
     if unknown:
         raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(str(k)[:24] for k in unknown))}")
-    noise = Noise(**{k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()})
+    values = {k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()}
+    extra = tuple(sorted((k, v) for k, v in values.items() if k in noise_keys()))
+    noise = Noise(**{k: v for k, v in values.items() if k not in noise_keys()}, extra=extra)
     provenance = data["provenance"]
     if not isinstance(provenance, dict):
         provenance = {"text": str(provenance)}
-    return data["robot"], tooling, noise, provenance, chain
+    return data["robot"], tooling, noise, provenance, chain, _fixtures(path, data, num)
 
 
 def load_truth(path) -> tuple[dict, list]:
@@ -226,9 +319,9 @@ def load_dataset_meta(directory) -> Dataset:
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    robot, tooling, noise, provenance, chain, setup = _meta(directory / "dataset.yaml")
     return Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.zeros(0, dtype=int),
-                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain)
+                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain, setup=setup)
 
 
 def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
@@ -269,18 +362,25 @@ def load_dataset(directory) -> Dataset:
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance, chain = _meta(directory / "dataset.yaml")
+    robot, tooling, noise, provenance, chain, setup = _meta(directory / "dataset.yaml")
     ids, q = read_joints(directory / "joints.csv")
     known = set(ids.tolist())
     ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=ids,
-                 joints_deg=q, path=directory, chain=chain)
+                 joints_deg=q, path=directory, chain=chain, setup=setup)
     if os.path.lexists(directory / "probes.csv"):
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls)
+    shared = {}
     for kind in kinematic_types():
-        if os.path.lexists(directory / kind.file):
+        if kind.file == CONTACT_FILE:  # contacts at points and on planes share one file
+            shared.setdefault(kind.file, []).append(kind)
+        elif os.path.lexists(directory / kind.file):
             setattr(ds, kind.level, _measurement_table(directory / kind.file, kind, known, tooling.balls))
+    for name, kinds in shared.items():
+        if os.path.lexists(directory / name):
+            for kind, obs in _contact_tables(directory / name, kinds, known, tooling.balls, setup).items():
+                setattr(ds, kind.level, obs)
     if os.path.lexists(directory / "truth.yaml"):
         ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
@@ -332,18 +432,22 @@ def _write_into(ds: Dataset, directory: Path) -> None:
         **({"chain": dict(ds.chain)} if ds.chain else {}),
         "tool": {"radius": float(ds.tooling.radius),
                  "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
-        "noise": {k: v for k, v in vars(ds.noise).items() if v is not None},
+        "noise": ds.noise.items(),
         "provenance": ds.provenance,
+        **ds.setup.to_dict(),
     }
     atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
     write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
               ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
     if ds.probes is not None:
         write_csv(directory / "probes.csv", POINT_COLUMNS, POINT.rows(ds.probes))
+    files: dict = {}
     for kind in kinematic_types():
         obs = getattr(ds, kind.level, None)
-        if obs is not None:
-            write_csv(directory / kind.file, kind.columns, kind.rows(obs))
+        if obs is not None:  # types sharing a file (contacts) write its rows in file order
+            files.setdefault(kind.file, (kind.columns, []))[1].extend(zip(obs.line.tolist(), kind.rows(obs)))
+    for name, (columns, rows) in files.items():
+        write_csv(directory / name, columns, (r for _, r in sorted(rows, key=lambda lr: lr[0])))
     if ds.truth is not None:
         truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
         if ds.truth_outliers:

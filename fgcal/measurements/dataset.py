@@ -12,9 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.robots.model import Tooling
+from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.distance import DistanceObservations
 from fgcal.measurements.point import PointObservations
 from fgcal.measurements.pose import PoseObservations
+from fgcal.measurements.setup import SetupSpec
 from fgcal.measurements.types import LEVELS, all_levels
 
 __all__ = ["FORMAT", "LEVELS", "Noise", "PointObservations", "PoseObservations", "DistanceObservations", "Dataset"]
@@ -41,6 +43,10 @@ class Noise:
         rather than measured directly; ``cmm_sigma`` applies when it is None.
     distance_sigma : float or None
         Noise of a ballbar length (mm); ``cmm_sigma`` applies when it is None.
+    extra : tuple of (str, float)
+        Noise keys declared by measurement types beyond the built-in ones
+        (:attr:`fgcal.measurements.base.KinematicMeasurement.noise_key`), such as ``contact_sigma``
+        (mm): the seating error per axis of a ball in a fixture or on a plane.
     """
 
     cmm_sigma: float = 0.01
@@ -50,6 +56,13 @@ class Noise:
     pose_orientation_sigma: float | None = None
     centre_sigma: float | None = None
     distance_sigma: float | None = None
+    extra: tuple = ()
+
+    def items(self) -> dict:
+        """The noise as ``dataset.yaml`` writes it: the given fields and the extra keys."""
+        out = {k: v for k, v in vars(self).items() if k != "extra" and v is not None}
+        out.update({k: v for k, v in self.extra if v is not None})
+        return out
 
     @property
     def joint_sigma_deg(self) -> float:
@@ -76,6 +89,10 @@ class Dataset:
     poses : PoseObservations or None
     distances : DistanceObservations or None
         Ballbar lengths (distances.csv); the world origin is the pivot.
+    contacts, plane_contacts : ContactObservations or None
+        The tool ball at a fixture point, or on a plane (both in contacts.csv).
+    setup : SetupSpec
+        The set-up's fixtures and known distances (``fixtures:``, ``constraints:``).
     truth : dict of str to float or None
         True parameter values (mm, deg) of a simulated robot; all 37 slots.
     truth_outliers : list of (int, str, int)
@@ -96,6 +113,9 @@ class Dataset:
     centres: PointObservations | None = None
     poses: PoseObservations | None = None
     distances: DistanceObservations | None = None
+    contacts: ContactObservations | None = None
+    plane_contacts: ContactObservations | None = None
+    setup: SetupSpec = field(default_factory=SetupSpec)
     truth: dict[str, float] | None = None
     truth_outliers: list = field(default_factory=list)
     path: Path | None = None
@@ -133,7 +153,7 @@ class Dataset:
         out = Dataset(robot=self.robot, tooling=self.tooling, noise=self.noise, provenance=dict(self.provenance),
                       pose_ids=self.pose_ids[keep], joints_deg=self.joints_deg[keep], truth=self.truth,
                       truth_outliers=[o for o in self.truth_outliers if o[0] in set(self.pose_ids[keep].tolist())],
-                      path=self.path, chain=self.chain)
+                      path=self.path, chain=self.chain, setup=self.setup)
         for level in all_levels():
             obs = getattr(self, level, None)
             if obs is not None:

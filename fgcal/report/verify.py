@@ -78,6 +78,7 @@ class Verification:
     robot: str | None = None
     xyz_mm: np.ndarray | None = None  # (K, 3) measured tool positions (mean of a pose's points), world frame
     joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
+    contacts: dict | None = None  # contacts: {"after": ..., "before": ...} of ContactConsistency.summary()
 
     def to_dict(self) -> dict:
         d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
@@ -110,6 +111,9 @@ class Verification:
             if self.truth_after is not None:
                 pose["truth_position_mm"] = float(self.truth_after.position_mm[k])
         d["skipped"] = self.skipped
+        if self.contacts is not None:
+            d.update(self.contacts["after"])
+            d["before"].update(self.contacts["before"])
         return d
 
 
@@ -263,6 +267,8 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         if missing:
             raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
         truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if ds.levels() and set(ds.levels()) <= {"contacts", "plane_contacts"}:
+        return _verify_contacts(result, ds, model, slots)
     if not ({"probes", "centres", "poses"} & set(ds.levels())):  # another type: verified by its own metric
         kinds = kinematic_levels(ds.levels())
         if kinds:
@@ -301,6 +307,32 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
             true_pts = [tool_points(T[None], o)[0] for T, o in zip(T_true, offs)]
             out.truth_after = compare_points(T_cal, offs, true_pts)
             out.truth_before = compare_points(T_nom, offs, true_pts)
+    return out
+
+
+def _verify_contacts(result: CalibrationResult, ds: Dataset, model: RobotModel, slots) -> Verification:
+    """Contacts: per contact, its ball centre's distance from its fixture's refitted point or plane
+    (the pose's position error), and per fixture and known distance the consistency
+    (:mod:`fgcal.estimation.consistency`), at the calibrated and nominal models."""
+    from fgcal.estimation.consistency import contact_consistency
+
+    parts = [getattr(ds, lv) for lv in ("contacts", "plane_contacts") if getattr(ds, lv) is not None]
+    pose = np.concatenate([p.pose for p in parts])
+    ball = np.concatenate([p.ball for p in parts])
+    fixture = np.concatenate([p.fixture for p in parts])
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose)])
+    for message in outside_region(result, q):
+        log.warning("%s: %s", ds.path or "dataset", message)
+
+    def check(x, joints):
+        return contact_consistency(model, x, joints, pose, ball, fixture, ds.tooling.offsets, ds.setup,
+                                   ds.tooling.radius)
+
+    after, before = check(slots, corrected_joints(result, q, model)), check(model.nominal, q)
+    out = Verification(pose, Comparison(after.distance_mm, None), Comparison(before.distance_mm, None),
+                       reference="contacts (consistency at each fixture)", robot=result.model().name,
+                       joints_deg=np.asarray(ds.joints_deg[ds.row_of(pose)], dtype=float))
+    out.contacts = {"after": after.summary(), "before": before.summary()}
     return out
 
 

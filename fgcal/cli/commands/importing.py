@@ -135,3 +135,54 @@ def add_import_parser(sub) -> None:
 
     lg = formats.add_parser("landgraf", help="the UR10 laser-tracker series of Landgraf et al. (2021)")
     _common(lg, robot=False)
+
+    mk = formats.add_parser("mukca", help="the MUKCa two-socket tool: one folder per placement with hole_0.csv, "
+                                          "hole_1.csv (joint sets, rad)")
+    mk.add_argument("file", type=Path, metavar="DIR", help="folder of placement folders")
+    mk.add_argument("out", type=Path, help="dataset directory to write (OUT-holdout too with --holdout-placements)")
+    mk.add_argument("--robot", type=Path, required=True, help="the robot's URDF or model file (copied into OUT)")
+    mk.add_argument("--chain", default=None, help="BASE,TIP links of a URDF with more than one leaf "
+                                                  "(TIP: the link at the ball's centre)")
+    mk.add_argument("--distance", type=positive_float, default=50.0, help="distance between the sockets, mm (default 50)")
+    mk.add_argument("--distance-sigma", type=positive_float, default=0.05,
+                    help="uncertainty of that distance, mm (default 0.05)")
+    mk.add_argument("--contact-sigma", type=positive_float, default=0.05,
+                    help="declared seating error of the ball per axis, mm (default 0.05; estimated by calibrate)")
+    mk.add_argument("--holdout-placements", default=None, help="placements (folder names) to write to OUT-holdout")
+    mk.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    mk.set_defaults(func=_cmd_import_mukca)
+
+
+def _cmd_import_mukca(args) -> int:
+    """``fgcal import mukca``: the two-socket tool's placements as contacts at unknown fixture points."""
+    from fgcal.io.dataset_io import save_dataset
+    from fgcal.io.mukca import read_mukca
+    from fgcal.io.yamlio import read_text_file
+    from fgcal.robots.robot_file import load_model
+
+    chain = None
+    if args.chain is not None:
+        parts = [p.strip() for p in args.chain.split(",")]
+        if len(parts) != 2 or not all(parts):
+            raise FgcalError(f"--chain {args.chain!r}: expected BASE,TIP (two link names)")
+        chain = {"base": parts[0], "tip": parts[1]}
+    held = _columns(args.holdout_placements) or ()
+    inputs = [args.file, args.robot]
+    check_output_dir(args.out, inputs, option="OUT", must_be_new=True, force=args.force)
+    holdout_dir = args.out.with_name(args.out.name + "-holdout")
+    if held:
+        check_output_dir(holdout_dir, inputs, option="OUT-holdout", must_be_new=True, force=args.force)
+    model = load_model(args.robot, chain=chain)
+    robot_name = "robot" + args.robot.suffix.lower()
+    robot_text = read_text_file(args.robot, FgcalError, max_bytes=20 << 20)
+    imp = read_mukca(args.file, robot_name, model.n_joints, chain, args.distance, args.distance_sigma,
+                     args.contact_sigma, held)
+    written = [(save_dataset(imp.calibration, args.out, overwrite=args.force,
+                             extra_files={robot_name: robot_text}), imp.calibration, imp.placements)]
+    if imp.holdout is not None:
+        written.append((save_dataset(imp.holdout, holdout_dir, overwrite=args.force,
+                                     extra_files={robot_name: robot_text}), imp.holdout, imp.held_out))
+    for path, ds, names in written:
+        print(f"wrote {path}: {ds.n_poses} contacts at {len(ds.setup.fixtures)} sockets of {len(names)} "
+              f"placement(s) ({', '.join(names)}); {len(ds.setup.distances)} distance(s) of {args.distance:g} mm")
+    return 0

@@ -1,0 +1,163 @@
+"""Contacts: the tool ball seated at a fixture point or touching a plane (DESIGN.md 8.2).
+
+File ``contacts.csv``: ``pose,ball,fixture``. At this pose the centre of tool ball ``ball`` sits at
+fixture point ``fixture`` (a socket, a cone, a pivot), or the ball touches plane ``fixture`` (its
+centre ``tool.radius`` from the plane on the side the normal points to). The fixtures are set-up
+unknowns (:mod:`fgcal.measurements.setup`); one file holds both kinds, and the dataset keeps them
+as two levels, ``contacts`` (points: 3 rows ``FK offset - p``, mm) and ``plane_contacts`` (1 row
+``n . (FK offset) - d - r``, mm), each with its own noise component.
+
+The errors depend on the parameters, one pose's joints and one fixture's block:
+:meth:`SetupMeasurement.setup_error` gives their Jacobians with respect to all three.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
+from fgcal.measurements.setup import plane_normal
+
+__all__ = ["ContactObservations", "SetupMeasurement", "PointContact", "PlaneContact", "CONTACT", "PLANE_CONTACT",
+           "CONTACT_COLUMNS", "CONTACT_FILE"]
+
+CONTACT_FILE = "contacts.csv"
+CONTACT_COLUMNS = ("pose", "ball", "fixture")
+
+
+@dataclass
+class ContactObservations(ObservationRows):
+    """Contacts, one row each: pose ids (M,), balls (M,), fixture names (M,), file lines (M,)."""
+
+    pose: np.ndarray
+    ball: np.ndarray
+    fixture: np.ndarray
+    line: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.fixture = np.asarray(self.fixture, dtype=str).reshape(-1)
+        super().__post_init__()
+
+
+class SetupMeasurement(KinematicMeasurement):
+    """A kinematic measurement that also depends on a set-up block (a fixture, a plane).
+
+    ``terms`` takes the solve's :class:`~fgcal.measurements.setup.SetupLayout`; ``setup_error``
+    returns, besides the error and its Jacobians in the parameters and the joints, those in the
+    block: ``J_s`` (M, width, 3) for the entries ``cols`` (M, 3) of the layout's vector.
+    """
+
+    uses_setup = True
+    file = CONTACT_FILE
+    columns = CONTACT_COLUMNS
+    fixture_type = ""
+    noise_key = "contact_sigma"
+    noun = "contact"
+
+    def declared_sigmas(self, noise) -> dict:
+        value = dict(noise.extra).get(self.noise_key)
+        return {"contact": float(value if value is not None else noise.cmm_sigma)}
+
+    def sigma(self, sigmas) -> np.ndarray:
+        return np.full(self.width, sigmas.contact)
+
+    def error(self, theta, q, data, index, held, chain):
+        raise NotImplementedError(f"{self.title} depend on set-up unknowns: use setup_error")
+
+    def setup_error(self, theta, q, data, s, index, held, chain):
+        raise NotImplementedError
+
+    def observations(self, pose, ball, values, line=None):
+        return ContactObservations(pose, ball, values, line)
+
+    def rows(self, obs: ContactObservations):
+        return ([int(p), b, f] for p, b, f in zip(obs.pose, obs.ball, obs.fixture))
+
+    def parse(self, where, record, balls):
+        raise NotImplementedError("contacts.csv is read with the dataset's fixtures (fgcal.io.dataset_io)")
+
+    def design_data(self, forward, offsets) -> tuple:
+        raise NotImplementedError(f"design for {self.title} is not available yet")
+
+    def simulate(self, T, offsets, rng, noise) -> np.ndarray:
+        raise NotImplementedError(f"fgcal's simulator does not simulate {self.title}")
+
+    def _ball_points(self, theta, q, offset, index, held, chain):
+        from factors.errors import ball_centre_error
+
+        return ball_centre_error(theta, q, offset, np.zeros((len(offset), 3)), index, held, chain)
+
+
+class PointContact(SetupMeasurement):
+    """The ball centre at a fixture point: 3 rows ``FK offset - p`` (mm)."""
+
+    level = "contacts"
+    fixture_type = "point"
+    width = 3
+    title = "contacts at fixture points"
+    noise_components = (NoiseComponent("contacts", slice(0, 3), "contact"),)
+
+    def terms(self, obs: ContactObservations, tooling, row_of_pose, layout=None) -> Terms:
+        pose = np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int)
+        start = np.array([layout.offset[f] for f in obs.fixture.tolist()], dtype=int)
+        return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), start))
+
+    def setup_error(self, theta, q, data, s, index, held, chain):
+        offset, start = data
+        cols = start[:, None] + np.arange(3)
+        p, J_t, J_q = self._ball_points(theta, q, offset, index, held, chain)
+        J_s = np.broadcast_to(-np.eye(3), (len(start), 3, 3))
+        return p - s[cols], J_t, J_q, J_s, cols
+
+    def metric(self, e):
+        return np.linalg.norm(e, axis=1), None
+
+    def residual_summary(self, e) -> dict:
+        return {"contacts_mm": np.asarray(e).ravel().tolist()}
+
+
+class PlaneContact(SetupMeasurement):
+    """The ball touching a plane: 1 row ``n . (FK offset) - d - radius`` (mm)."""
+
+    level = "plane_contacts"
+    fixture_type = "plane"
+    width = 1
+    title = "contacts on planes"
+    noise_components = (NoiseComponent("plane_contacts", slice(0, 1), "contact"),)
+
+    def terms(self, obs: ContactObservations, tooling, row_of_pose, layout=None) -> Terms:
+        pose = np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int)
+        start = np.array([layout.offset[f] for f in obs.fixture.tolist()], dtype=int)
+        n0 = np.array([layout.reference[f] for f in obs.fixture.tolist()]).reshape(-1, 3)
+        return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), start, n0,
+                            np.full(len(pose), float(tooling.radius))))
+
+    def setup_error(self, theta, q, data, s, index, held, chain):
+        offset, start, n0, radius = data
+        p, J_t, J_q = self._ball_points(theta, q, offset, index, held, chain)
+        m = len(start)
+        e = np.empty((m, 1))
+        J_s = np.empty((m, 1, 3))
+        n_all = np.empty((m, 3))
+        # Rows share a plane: its normal is computed once per plane.
+        for k in np.unique(start):
+            rows = np.nonzero(start == k)[0]
+            n, dn = plane_normal(n0[rows[0]], s[k:k + 2])
+            n_all[rows] = n
+            e[rows, 0] = p[rows] @ n - s[k + 2] - radius[rows]
+            J_s[rows, 0, :2] = p[rows] @ dn
+            J_s[rows, 0, 2] = -1.0
+        cols = start[:, None] + np.arange(3)
+        u = n_all[:, None, :]
+        return e, u @ J_t, u @ J_q, J_s, cols
+
+    def metric(self, e):
+        return np.abs(np.asarray(e)[:, 0]), None
+
+    def residual_summary(self, e) -> dict:
+        return {"plane_contacts_mm": np.asarray(e)[:, 0].tolist()}
+
+
+CONTACT = PointContact()
+PLANE_CONTACT = PlaneContact()
