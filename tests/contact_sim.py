@@ -355,7 +355,7 @@ def _write_dataset(out_dir: Path, urdf_path: Path, chain: UrdfChain, ball, radiu
         lines += ["constraints:", "  distances:"]
         lines += [f"    - [{a}, {b}, {_fmt(d)}, {_fmt(s)}]" for a, b, d, s in distances]
     lines += ["provenance:"]
-    lines += [f"  {k}: {v}" for k, v in provenance.items()]
+    lines += [f"  {k}: {'null' if v is None else v}" for k, v in provenance.items()]
     (out_dir / "dataset.yaml").write_text("\n".join(lines) + "\n")
     header = "pose," + ",".join(f"q{k + 1}" for k in range(chain.n))
     rows = [f"{p}," + ",".join(_fmt(v) for v in r) for p, r in zip(poses, readings)]
