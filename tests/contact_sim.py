@@ -243,21 +243,31 @@ def solve_ik(chain: UrdfChain, target, ball, q0, tol_mm: float = 1e-9):
     """Joint set (rad, mm) within the limits putting ``ball`` (tip frame) at ``target`` (base
     frame), from ``q0``; None if it did not converge to ``tol_mm`` within the limits.
 
-    scipy's least_squares (trf, bounded by the limits, loose tolerances) brings it close; a few
-    minimum-norm Gauss-Newton steps then polish it to machine precision (trf near the solution of
-    this underdetermined problem converges only linearly)."""
+    scipy's least_squares (dogbox, bounded by the limits, loose tolerances) brings it close; a few
+    minimum-norm Gauss-Newton steps then polish it to machine precision (least_squares near the
+    solution of this underdetermined problem converges only linearly)."""
     target = np.asarray(target, float)
     lo, hi = chain.limits[:, 0], chain.limits[:, 1]
     margin = 1e-6 * (hi - lo)
     q0 = np.clip(q0, lo + margin, hi - margin)
 
+    cache = {}
+
+    def evaluate(q):
+        key = q.tobytes()
+        if key not in cache:
+            cache.clear()
+            p, _T, J = chain.point_and_jacobian(q, ball)
+            cache[key] = (p - target, J)
+        return cache[key]
+
     def fun(q):
-        return chain.point_and_jacobian(q, ball)[0] - target
+        return evaluate(q)[0]
 
     def jac(q):
-        return chain.point_and_jacobian(q, ball)[2]
+        return evaluate(q)[1]
 
-    sol = least_squares(fun, q0, jac=jac, bounds=(lo, hi), method="trf", xtol=1e-2, ftol=1e-2,
+    sol = least_squares(fun, q0, jac=jac, bounds=(lo, hi), method="dogbox", xtol=1e-2, ftol=1e-2,
                         gtol=1e-2, max_nfev=100)
     q = sol.x
     for _ in range(8):
@@ -275,22 +285,28 @@ def solve_ik(chain: UrdfChain, target, ball, q0, tol_mm: float = 1e-9):
 
 
 def varied_solutions(chain: UrdfChain, target, ball, rng, count: int, *, min_joint_sep_deg=20.0,
-                     min_rotation_deg=10.0, max_tilt_deg=None, up=(0.0, 0.0, 1.0),
-                     max_attempts: int | None = None, keep=None):
-    """Up to ``count`` joint sets (rad, mm) putting ``ball`` at ``target``, from random starts.
+                     min_rotation_deg=10.0, max_tilt_deg=None, up=(0.0, 0.0, 1.0), others=(),
+                     max_attempts: int | None = None, give_up_after: int | None = None):
+    """Up to ``count`` joint sets (rad, mm) putting ``ball`` at ``target``, each from a random start.
 
-    Kept solutions are pairwise more than ``min_joint_sep_deg`` apart in joint space (Euclidean
-    norm of the difference, deg) and their tip links more than ``min_rotation_deg`` apart in
-    orientation; with ``max_tilt_deg`` the stem (ball centre -> tip-link origin) is within that
-    angle of ``up``. ``keep(q, T)`` may reject more. Returns a list (possibly shorter)."""
+    ``target`` is a point (base frame, mm) or a function returning one, called anew for each
+    attempt (a socket plus seating noise, say). Kept solutions are pairwise, and against the joint
+    sets ``others``, more than ``min_joint_sep_deg`` apart in joint space (Euclidean norm of the
+    difference, deg) and their tip links more than ``min_rotation_deg`` apart in orientation; with
+    ``max_tilt_deg`` the stem (ball centre -> tip-link origin) is within that angle of ``up``.
+    At most ``max_attempts`` IK solves (12 per wanted solution by default), and none more once
+    ``give_up_after`` solves found nothing. Returns (joint sets, their targets), maybe short."""
     up = np.asarray(up, float)
     up = up / np.linalg.norm(up)
-    max_attempts = max_attempts or 40 * count
-    sols, rots = [], []
-    for _ in range(max_attempts):
-        if len(sols) >= count:
+    max_attempts = max_attempts or 12 * count
+    give_up_after = give_up_after or max_attempts
+    kept = [(chain.to_readings(q), chain.fk(q)[:3, :3]) for q in others]
+    sols, targets = [], []
+    for attempt in range(max_attempts):
+        if len(sols) >= count or (not sols and attempt >= give_up_after):
             break
-        q = solve_ik(chain, target, ball, _sample_joints(chain, rng))
+        c = np.asarray(target() if callable(target) else target, dtype=float)
+        q = solve_ik(chain, c, ball, _sample_joints(chain, rng))
         if q is None:
             continue
         T = chain.fk(q)
@@ -298,16 +314,14 @@ def varied_solutions(chain: UrdfChain, target, ball, rng, count: int, *, min_joi
             tilt = _stem_tilt_deg(T, ball, up)
             if tilt is not None and tilt > max_tilt_deg:
                 continue
-        if keep is not None and not keep(q, T):
+        qd, R = chain.to_readings(q), T[:3, :3]
+        if any(np.linalg.norm(qd - qk) <= min_joint_sep_deg or _rotation_angle_deg(R, Rk) <= min_rotation_deg
+               for qk, Rk in kept):
             continue
-        qd = chain.to_readings(q)
-        if any(np.linalg.norm(qd - chain.to_readings(s)) <= min_joint_sep_deg for s in sols):
-            continue
-        if any(_rotation_angle_deg(T[:3, :3], R) <= min_rotation_deg for R in rots):
-            continue
+        kept.append((qd, R))
         sols.append(q)
-        rots.append(T[:3, :3])
-    return sols
+        targets.append(c)
+    return sols, targets
 
 
 # ----------------------------------------------------------------------------------------------
@@ -414,16 +428,9 @@ def two_socket_dataset(out_dir, urdf_path, chain: dict, rng, n_placements: int =
             plate = []
             for s in (s0, s1):
                 # the seatings: the ball centre at the socket plus seating noise, one IK per target
-                sols, seated = [], []
-                for _attempt in range(4 * configs_per_socket):
-                    if len(sols) == configs_per_socket:
-                        break
-                    c = s + rng.normal(0.0, contact_sigma_mm, 3)
-                    found = varied_solutions(true, c, ball, rng, 1, max_attempts=40, **opts,
-                                             keep=lambda q, T: _distinct(true, q, T, sols, opts))
-                    if found:
-                        sols.append(found[0])
-                        seated.append(c)
+                sols, seated = varied_solutions(
+                    true, lambda s=s: s + rng.normal(0.0, contact_sigma_mm, 3), ball, rng, configs_per_socket,
+                    max_attempts=12 * configs_per_socket, give_up_after=3 * configs_per_socket, **opts)
                 if len(sols) < configs_per_socket:
                     break
                 plate.append((s, sols, seated))
@@ -450,17 +457,6 @@ def two_socket_dataset(out_dir, urdf_path, chain: dict, rng, n_placements: int =
                    prov, poses, readings, fixture_of)
     return ContactTruth(truth_text, {"base": true.base, "tip": true.tip}, ball, poses, q_all, readings,
                         np.array(centres), fixture_of, sockets=sockets, seconds=time.perf_counter() - t0)
-
-
-def _distinct(chain, q, T, others, opts):
-    """Whether ``q`` is far enough from the joint sets ``others`` (see varied_solutions)."""
-    qd = chain.to_readings(q)
-    for s in others:
-        if np.linalg.norm(qd - chain.to_readings(s)) <= opts["min_joint_sep_deg"]:
-            return False
-        if _rotation_angle_deg(T[:3, :3], chain.fk(s)[:3, :3]) <= opts["min_rotation_deg"]:
-            return False
-    return True
 
 
 def _orthonormal(n):
@@ -519,8 +515,8 @@ def plane_dataset(out_dir, urdf_path, chain: dict, rng, n_contacts: int = 40,
         if np.hypot(x[0], x[1]) < min_radius_mm:
             continue
         c = x + (r + rng.normal(0.0, contact_sigma_mm)) * n
-        found = varied_solutions(true, c, ball, rng, 1, max_attempts=20, max_tilt_deg=max_tilt_deg, up=n,
-                                 keep=lambda q, T: _distinct(true, q, T, q_all, opts))
+        found, _ = varied_solutions(true, c, ball, rng, 1, max_attempts=10, max_tilt_deg=max_tilt_deg, up=n,
+                                    others=q_all, **opts)
         if found:
             q_all.append(found[0])
             centres.append(c)
