@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import shutil
+import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -402,7 +403,6 @@ def two_socket_dataset(out_dir, urdf_path, chain: dict, rng, n_placements: int =
     ``max_tries`` times). A seating puts the true ball centre at socket + N(0, contact_sigma_mm)
     per axis; ``joints.csv`` records the exact joint set plus N(0, joint_sigma_deg). Fixtures are
     ``p{k}/hole_0``, ``p{k}/hole_1``; each plate's sockets get one distance constraint."""
-    import time
     t0 = time.perf_counter()
     out_dir, urdf_path = Path(out_dir), Path(urdf_path)
     text = urdf_path.read_text()
@@ -484,7 +484,6 @@ def plane_dataset(out_dir, urdf_path, chain: dict, rng, n_contacts: int = 40,
     random start (unreachable points are drawn again). With ``max_tilt_deg`` the stem (ball centre
     -> tip-link origin) is within that angle of the normal, so the tool stands above the table.
     Successive joint sets are more than ``min_joint_sep_deg`` apart."""
-    import time
     t0 = time.perf_counter()
     out_dir, urdf_path = Path(out_dir), Path(urdf_path)
     text = urdf_path.read_text()
