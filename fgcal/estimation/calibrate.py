@@ -12,7 +12,7 @@ and outliers (:mod:`fgcal.estimation.noise`), held parameters (:mod:`fgcal.estim
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -215,13 +215,44 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     damping = 1e-4 if start is None else WARM_DAMPING
-    state, iterations, converged = _solve(graph, state, options, damping=damping)
-    declared = graph.sigmas
     if options.estimate_noise:
         noise_mode = NoiseMode.ESTIMATED
     if options.noise_scale:  # a fixed scale (a model comparison reuses the geometric fit's noise)
         noise_mode = NoiseMode.DECLARED
-    # Noise estimation and outlier exclusion, alternated with re-solves until neither changes.
+    state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
+                                                                   outlier_mode)
+    # Held at the start, identifiable at the solution: a direction that is degenerate only at the
+    # nominal geometry (a ball on the last joint's axis there, a little off it on the real robot)
+    # is released and the solve goes on from where it ended.
+    start_held = [h["name"] for h in held_info if h["reason"] != GAUGE_REASON]
+    if decide_held and start_held:
+        slots = graph.params.full(state.theta, graph.held)
+        graph2, state2, _ = build_graph(ds, model, names + start_held, replace(options, noise="declared"), start=slots)
+        still = held_parameters(graph2, state2, _unidentifiable)
+        released = [n for n in start_held if n not in still]
+        if released:
+            log.info("identifiable at the solution, released: %s", ", ".join(released))
+            held_info = [h for h in held_info if h["name"] not in released]
+            names = [n for n in names + start_held if n not in still]
+            nominal_start = graph.params.full(theta_start, graph.held)
+            setup_start = theta_start[len(theta_start) - graph.S:] if graph.S else None
+            graph, state, pose_ids = build_graph(ds, model, names, options, start=slots)
+            theta_start = graph.params.take(nominal_start)  # the same start, in the new parameters
+            if graph.S:
+                theta_start[len(theta_start) - graph.S:] = setup_start
+            state, it2, converged, rounds, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
+                                                                    outlier_mode)
+            iterations += it2
+    return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
+                    outlier_mode, held_info, theta_start)
+
+
+def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
+                  outlier_mode: OutlierMode):
+    """The solve, then noise estimation and outlier exclusion alternated with re-solves until neither
+    changes: ``(state, iterations, converged, rounds, declared sigmas)``."""
+    state, iterations, converged = _solve(graph, state, options, damping=damping)
+    declared = graph.sigmas
     rounds = 0
     for rounds in range(1, MAX_NOISE_ROUNDS + 1):
         lin = graph.linearise(state)
@@ -241,8 +272,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         iterations += it2
     else:
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
-    return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start)
+    return state, iterations, converged, rounds, declared
 
 
 GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "

@@ -55,12 +55,14 @@ class SetupMeasurement(KinematicMeasurement):
     noise_key = "contact_sigma"
     noun = "contact"
 
+    sigma_field = "contact"
+
     def declared_sigmas(self, noise) -> dict:
         value = dict(noise.extra).get(self.noise_key)
-        return {"contact": float(value if value is not None else noise.cmm_sigma)}
+        return {self.sigma_field: float(value if value is not None else noise.cmm_sigma)}
 
     def sigma(self, sigmas) -> np.ndarray:
-        return np.full(self.width, sigmas.contact)
+        return np.full(self.width, getattr(sigmas, self.sigma_field))
 
     def error(self, theta, q, data, index, held, chain):
         raise NotImplementedError(f"{self.title} depend on set-up unknowns: use setup_error")
@@ -124,7 +126,8 @@ class PlaneContact(SetupMeasurement):
     fixture_type = "plane"
     width = 1
     title = "contacts on planes"
-    noise_components = (NoiseComponent("plane_contacts", slice(0, 1), "contact"),)
+    sigma_field = "plane_contact"  # declared as contact_sigma, estimated apart from the points'
+    noise_components = (NoiseComponent("plane_contacts", slice(0, 1), "plane_contact"),)
 
     def terms(self, obs: ContactObservations, tooling, row_of_pose, layout=None) -> Terms:
         pose = np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int)
