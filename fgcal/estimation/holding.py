@@ -13,6 +13,8 @@ everywhere); a large value means the pose set, not the robot, is the limitation.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from fgcal.estimation.identifiability import analyse_information, identification_jacobian
@@ -20,6 +22,8 @@ from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.simulate import Deviations
 
 __all__ = ["held_parameters", "holding_cost"]
+
+log = logging.getLogger(__name__)
 
 
 def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
@@ -48,7 +52,10 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     slots : ndarray, shape (S,)
         The calibrated chain (internal units).
     free, held : sequence of str
-        Estimated and held parameter names.
+        Estimated and held parameter names. Only the geometric ones (slots of ``model``) enter: a
+        joint-error block (``j2.compliance``, :mod:`fgcal.estimation.joint_errors`) moves the joint
+        variables, not a slot, and is left out of the free set; a held name that is not a slot
+        gets ``nan``.
     q_calib : ndarray, shape (N, n_joints)
         Calibration poses (rad).
     measurement : "pose" or ndarray, shape (B, 3)
@@ -57,6 +64,14 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     """
     if not held:
         return {}
+    slots_of = set(model.slot_names)
+    free = [n for n in free if n in slots_of]
+    others = [n for n in held if n not in slots_of]
+    held = [n for n in held if n in slots_of]
+    if others:
+        log.info("no holding cost for %s (not geometric parameters)", ", ".join(others))
+    if not held:
+        return {**{n: float("nan") for n in others}, "all": float("nan")}
     names = list(free) + list(held)
     params = ParameterSet(model, tuple(names))
     J = identification_jacobian(params, q_calib, slots, measurement)
@@ -73,4 +88,5 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     n_points = J_new.shape[0] // 3
     out = {h: float(np.sqrt(np.sum(M[:, k] ** 2) / n_points)) for k, h in enumerate(held)}
     out["all"] = float(np.sqrt(np.sum(M**2) / n_points))
+    out.update({n: float("nan") for n in others})
     return out
