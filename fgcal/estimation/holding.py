@@ -17,11 +17,11 @@ import logging
 
 import numpy as np
 
-from fgcal.estimation.identifiability import analyse_information, identification_jacobian
+from fgcal.estimation.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.simulate import Deviations
 
-__all__ = ["held_parameters", "holding_cost"]
+__all__ = ["held_parameters", "holding_cost", "unseen_parameters"]
 
 log = logging.getLogger(__name__)
 
@@ -41,6 +41,42 @@ def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
         return analyse_information(graph.parameter_information(state), graph.params.names).redundant
     finally:
         graph.robust, graph.excluded = robust, excluded
+
+
+def unseen_parameters(model: RobotModel, names, measurement, n_configurations: int = 64,
+                      rtol: float = 1e-8) -> dict[str, list[str]]:
+    """The parameters of ``names`` that ``measurement`` can see at no pose, with their partners.
+
+    What a measurement type sees of the chain does not depend on the poses alone: a reflector at
+    one tool point sees nothing of the tool's orientation (its angles move the point as the tool
+    translation does, or not at all), whatever the poses. The identification Jacobian at
+    ``n_configurations`` joint sets spread over the limits (a fixed seed: the answer depends on
+    the model and the measurement only) names them, in the batch's blame order (the tool's
+    angles held first, :func:`fgcal.estimation.calibrate._hold_order`). What the poses of a
+    particular dataset cannot separate besides is for :func:`held_parameters` to decide.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Candidate slot names.
+    measurement : "pose", "position" or ndarray, shape (B, 3)
+        As :func:`~fgcal.estimation.identifiability.identification_jacobian`.
+    """
+    from fgcal.estimation.calibrate import _hold_order  # the batch's order (calibrate imports this module)
+
+    names = [n for n in names if n in set(model.slot_names)]
+    if not names:
+        return {}
+    names = [names[i] for i in _hold_order(names)]
+    rng = np.random.default_rng(20260101)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    span = np.where(model.joint_is_angle, np.minimum(hi - lo, 2 * np.pi), hi - lo)
+    q = lo + rng.uniform(0.0, 1.0, size=(n_configurations, model.n_joints)) * span
+    J = identification_jacobian(ParameterSet(model, tuple(names)), q, measurement=measurement)
+    norms = np.linalg.norm(J, axis=0)
+    live = norms > rtol * max(norms.max(initial=0.0), 1e-300)  # a column of rounding noise sees nothing
+    scale = np.where(live, 1.0 / np.where(live, norms, 1.0), 0.0)
+    return analyse(J, names, scale=scale, rtol=rtol).redundant
 
 
 def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_new: int = 200,
