@@ -60,6 +60,14 @@ class _Engine:
         self._final = None
         self._kinematics: dict = {}
 
+    def _use_names(self, names) -> None:
+        """Estimate ``names`` (a restored snapshot's); the others of the model's are held as unseen."""
+        self.params = ParameterSet(self.model, tuple(names))
+        self.index = self.params.index
+        self.prior_sigma = weak_prior(self.params)
+        self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names if n not in names}
+        self._kinematics = {}
+
     def estimate(self):
         """``(theta (P,), covariance (P, P))`` in internal units."""
         raise NotImplementedError
@@ -206,10 +214,12 @@ class _Engine:
         the poses came in nor on what the running estimate refused on the way (a pose refused
         against an early, poor estimate is judged again, as the batch judges it). The solve starts
         from the running estimate when the engine took at least :data:`WARM_START_SHARE` of the
-        poses (the same optimum as from the nominal start, in fewer steps) and
-        estimates the engine's parameters, none held (the weak prior determines what the data do
-        not). Returns ``(theta, covariance)`` in internal units, or None while the poses cannot
-        determine the parameters (the running estimate stands then)."""
+        poses (the same optimum as from the nominal start, in fewer steps). Of the engine's
+        parameters it holds what the batch would hold on these poses (:meth:`_batch_held`, kept
+        in :attr:`final_held`) and estimates the rest. Returns ``(theta, covariance)`` in
+        internal units over the engine's parameters (a held one at its value, with zero
+        variance), or None while the poses cannot determine the parameters (the running estimate
+        stands then)."""
         from dataclasses import replace
 
         from fgcal.estimation.calibrate import solution_covariance, solve_calibration

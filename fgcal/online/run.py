@@ -183,6 +183,7 @@ class OnlineRun:
             if report.accepted != e["accepted"]:
                 raise FgcalError(f"{self.checkpoint}: replaying pose {e['pose']} gave another outcome "
                                  f"({report.reason}); use --restart")
+        self._is_angle = self.engine.params.is_angle  # a snapshot may bring its own parameters
         self.processed = [{k: e[k] for k in ("pose", "accepted", "reason")} for e in entries]
         self._done = {e["pose"] for e in entries}
         self.history = [e["history"] for e in entries if e["accepted"]]
