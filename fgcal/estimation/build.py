@@ -25,10 +25,18 @@ __all__ = ["build_graph"]
 
 
 def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=None) -> Sigmas:
+    """The declared noise of ``ds``, times ``scale``'s factor per noise component.
+
+    ``scale`` is keyed by noise component (:func:`fgcal.estimation.noise.component_table`, as
+    ``calibrate`` writes ``options["noise_scale"]``): ``"poses"`` scales a pose's position,
+    ``"poses_rotation"`` its rotation, ``"joints"`` every joint reading's; a component not named
+    keeps its declared sigma.
+    """
     scale = scale or {}
     n = ds.noise
     # A joint reading's sigma is in its file unit (deg, or mm for a prismatic joint).
-    joint = model.joints_to_internal(np.full(model.n_joints, n.joint_sigma_deg)) if options.joint_noise else 0.0
+    joint = (model.joints_to_internal(np.full(model.n_joints, n.joint_sigma_deg)) * scale.get("joints", 1.0)
+             if options.joint_noise else 0.0)
     centre = n.centre_sigma if n.centre_sigma is not None else n.cmm_sigma
     pos = n.pose_position_sigma if n.pose_position_sigma is not None else n.cmm_sigma
     rot = np.radians(n.pose_orientation_sigma) if n.pose_orientation_sigma is not None else n.cmm_sigma / 100.0
@@ -37,7 +45,7 @@ def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=N
     return Sigmas(other=tuple(sorted(other.items())), probe=max(n.cmm_sigma, MIN_SIGMA) * scale.get("probes", 1.0),
                   centre=max(centre, MIN_SIGMA) * scale.get("centres", 1.0),
                   pose_position=max(pos, MIN_SIGMA) * scale.get("poses", 1.0),
-                  pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses", 1.0),
+                  pose_rotation=max(rot, MIN_SIGMA / 1000.0) * scale.get("poses_rotation", 1.0),
                   joint=joint, kinematic=options.kinematic_sigma,
                   distance=max(n.distance_sigma if n.distance_sigma is not None else n.cmm_sigma, MIN_SIGMA)
                   * scale.get("distances", 1.0))

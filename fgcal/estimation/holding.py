@@ -13,13 +13,17 @@ everywhere); a large value means the pose set, not the robot, is the limitation.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
-from fgcal.estimation.identifiability import analyse_information, identification_jacobian
+from fgcal.estimation.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.simulate import Deviations
 
-__all__ = ["held_parameters", "holding_cost"]
+__all__ = ["held_parameters", "holding_cost", "unseen_parameters"]
+
+log = logging.getLogger(__name__)
 
 
 def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
@@ -39,6 +43,42 @@ def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
         graph.robust, graph.excluded = robust, excluded
 
 
+def unseen_parameters(model: RobotModel, names, measurement, n_configurations: int = 64,
+                      rtol: float = 1e-8) -> dict[str, list[str]]:
+    """The parameters of ``names`` that ``measurement`` can see at no pose, with their partners.
+
+    What a measurement type sees of the chain does not depend on the poses alone: a reflector at
+    one tool point sees nothing of the tool's orientation (its angles move the point as the tool
+    translation does, or not at all), whatever the poses. The identification Jacobian at
+    ``n_configurations`` joint sets spread over the limits (a fixed seed: the answer depends on
+    the model and the measurement only) names them, in the batch's blame order (the tool's
+    angles held first, :func:`fgcal.estimation.calibrate._hold_order`). What the poses of a
+    particular dataset cannot separate besides is for :func:`held_parameters` to decide.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Candidate slot names.
+    measurement : "pose", "position" or ndarray, shape (B, 3)
+        As :func:`~fgcal.estimation.identifiability.identification_jacobian`.
+    """
+    from fgcal.estimation.calibrate import _hold_order  # the batch's order (calibrate imports this module)
+
+    names = [n for n in names if n in set(model.slot_names)]
+    if not names:
+        return {}
+    names = [names[i] for i in _hold_order(names)]
+    rng = np.random.default_rng(20260101)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    span = np.where(model.joint_is_angle, np.minimum(hi - lo, 2 * np.pi), hi - lo)
+    q = lo + rng.uniform(0.0, 1.0, size=(n_configurations, model.n_joints)) * span
+    J = identification_jacobian(ParameterSet(model, tuple(names)), q, measurement=measurement)
+    norms = np.linalg.norm(J, axis=0)
+    live = norms > rtol * max(norms.max(initial=0.0), 1e-300)  # a column of rounding noise sees nothing
+    scale = np.where(live, 1.0 / np.where(live, norms, 1.0), 0.0)
+    return analyse(J, names, scale=scale, rtol=rtol).redundant
+
+
 def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_new: int = 200,
                  deviations: Deviations = Deviations(), seed: int = 0) -> dict[str, float]:
     """RMS position error (mm) at new poses left by each held parameter, and by all of them (``"all"``).
@@ -48,7 +88,10 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     slots : ndarray, shape (S,)
         The calibrated chain (internal units).
     free, held : sequence of str
-        Estimated and held parameter names.
+        Estimated and held parameter names. Only the geometric ones (slots of ``model``) enter: a
+        joint-error block (``j2.compliance``, :mod:`fgcal.estimation.joint_errors`) moves the joint
+        variables, not a slot, and is left out of the free set; a held name that is not a slot
+        gets ``nan``.
     q_calib : ndarray, shape (N, n_joints)
         Calibration poses (rad).
     measurement : "pose" or ndarray, shape (B, 3)
@@ -57,6 +100,14 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     """
     if not held:
         return {}
+    slots_of = set(model.slot_names)
+    free = [n for n in free if n in slots_of]
+    others = [n for n in held if n not in slots_of]
+    held = [n for n in held if n in slots_of]
+    if others:
+        log.info("no holding cost for %s (not geometric parameters)", ", ".join(others))
+    if not held:
+        return {**{n: float("nan") for n in others}, "all": float("nan")}
     names = list(free) + list(held)
     params = ParameterSet(model, tuple(names))
     J = identification_jacobian(params, q_calib, slots, measurement)
@@ -73,4 +124,5 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     n_points = J_new.shape[0] // 3
     out = {h: float(np.sqrt(np.sum(M[:, k] ** 2) / n_points)) for k, h in enumerate(held)}
     out["all"] = float(np.sqrt(np.sum(M**2) / n_points))
+    out.update({n: float("nan") for n in others})
     return out

@@ -12,6 +12,7 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.graph import Sigmas
+from fgcal.estimation.holding import held_parameters, unseen_parameters
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
@@ -36,7 +37,18 @@ class _Engine:
         self.ds = ds
         self.model = model
         self.options = options
-        self.params = model.parameters() if names is None else ParameterSet(model, tuple(names))
+        # What the measurement type can never see (a reflector: the tool's orientation) is held from
+        # the start, as the batch holds it; what these poses cannot separate besides, the final
+        # smoothing decides by the batch's rule (:meth:`_smooth`). Given ``names`` are taken as they are.
+        self.unseen: dict[str, list[str]] = {}
+        if names is None:
+            names = model.parameters().names
+            self.unseen = unseen_parameters(model, names, _measured(ds))
+            names = [n for n in names if n not in self.unseen]
+            if self.unseen:
+                log.info("held from the start (never seen by these measurements): %s", ", ".join(self.unseen))
+        self.final_held: dict[str, list[str]] = {}  # held by the final smoothing besides
+        self.params = ParameterSet(model, tuple(names))
         self.index = self.params.index  # slot of each parameter (P,) (a property that builds it anew)
         self.held = model.nominal.copy()
         self.sigmas: Sigmas = _sigmas(ds, model, options)
@@ -47,6 +59,14 @@ class _Engine:
         self.seen: dict[int, PoseData] = {}  # every pose fed with measurements, for the final smoothing
         self._final = None
         self._kinematics: dict = {}
+
+    def _use_names(self, names) -> None:
+        """Estimate ``names`` (a restored snapshot's); the others of the model's are held as unseen."""
+        self.params = ParameterSet(self.model, tuple(names))
+        self.index = self.params.index
+        self.prior_sigma = weak_prior(self.params)
+        self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names if n not in names}
+        self._kinematics = {}
 
     def estimate(self):
         """``(theta (P,), covariance (P, P))`` in internal units."""
@@ -194,30 +214,83 @@ class _Engine:
         the poses came in nor on what the running estimate refused on the way (a pose refused
         against an early, poor estimate is judged again, as the batch judges it). The solve starts
         from the running estimate when the engine took at least :data:`WARM_START_SHARE` of the
-        poses (the same optimum as from the nominal start, in fewer steps) and
-        estimates the engine's parameters, none held (the weak prior determines what the data do
-        not). Returns ``(theta, covariance)`` in internal units, or None while the poses cannot
-        determine the parameters (the running estimate stands then)."""
+        poses (the same optimum as from the nominal start, in fewer steps). Of the engine's
+        parameters it holds what the batch would hold on these poses (:meth:`_batch_held`, kept
+        in :attr:`final_held`) and estimates the rest. Returns ``(theta, covariance)`` in
+        internal units over the engine's parameters (a held one at its value, with zero
+        variance), or None while the poses cannot determine the parameters (the running estimate
+        stands then)."""
         from dataclasses import replace
 
         from fgcal.estimation.calibrate import solution_covariance, solve_calibration
 
         ident = self.model.identifiable_names()
         names = list(self.params.names)
-        options = replace(self.options, prior="weak", extra=tuple(n for n in names if n not in ident),
-                          exclude=tuple(n for n in ident if n not in names))
+        seen = records_dataset(self.ds, list(self.seen.values()), self.model)
         # The running estimate is a start only when it fits what came: an engine that refused a
         # tenth of the poses (a ballbar's pivot unknown at first) may be far off, and a solve
         # started there can end in another minimum; the batch's own start is taken then.
         trusted = self.n_accepted >= WARM_START_SHARE * len(self.seen)
         start = self.params.full(self._current(), self.held) if trusted else None
         try:
-            sol = solve_calibration(records_dataset(self.ds, list(self.seen.values()), self.model), self.model,
-                                    options, start=start, decide_held=False)
+            held = self._batch_held(seen, names)
+            free = [n for n in names if n not in held]
+            if start is not None and held:  # held where the batch holds them: at their start values
+                idx = [self.model.slot(n) for n in held]
+                start[idx] = self.held[idx]
+            options = replace(self.options, prior="weak", extra=tuple(n for n in free if n not in ident),
+                              exclude=tuple(n for n in ident if n not in free))
+            sol = solve_calibration(seen, self.model, options, start=start, decide_held=False)
             cov = solution_covariance(sol)
         except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
             log.info("final smoothing skipped: %s", exc)
             return None
-        if list(sol.graph.params.names) != names:
+        if list(sol.graph.params.names) != free:
             raise FgcalError(f"final smoothing: the batch solve estimates {', '.join(sol.graph.params.names)}")
-        return sol.state.theta.copy(), cov
+        self.final_held = held
+        # In the engine's parameters: a held one at its value, with no variance.
+        self._final_slots = sol.graph.params.full(sol.state.theta, sol.graph.held)
+        theta = self.params.take(self._final_slots)
+        keep = [names.index(n) for n in free]
+        full_cov = np.zeros((len(names), len(names)))
+        full_cov[np.ix_(keep, keep)] = cov
+        return theta, full_cov
+
+    def _batch_held(self, seen: Dataset, names) -> dict[str, list[str]]:
+        """What the batch would hold among ``names`` on the poses ``seen``: the rule of
+        :func:`fgcal.estimation.calibrate.solve_calibration` (the graph at the declared noise, no
+        prior, linearised at the start); raises :class:`FgcalError` when the poses are too few."""
+        from dataclasses import replace
+
+        from fgcal.estimation.build import _levels, build_graph
+        from fgcal.estimation.calibrate import _check_equations, _unidentifiable
+
+        options = replace(self.options, prior="none", noise_scale=None)
+        _check_equations(seen, _levels(seen, options), len(names))
+        graph, state, _ = build_graph(seen, self.model, names, options)
+        held = held_parameters(graph, state, _unidentifiable)
+        for n, partners in held.items():
+            log.info("final smoothing: %s held (cannot be separated from %s)", n, ", ".join(partners) or "nothing")
+        return held
+
+    def held_info(self) -> list[dict]:
+        """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,
+        those never seen by the measurements first, then those the final smoothing held."""
+        slots = self.held if getattr(self, "_final_slots", None) is None else self._final_slots
+        values = self.model.slots_to_file_units(slots)
+        out = []
+        for n, partners in (*self.unseen.items(), *self.final_held.items()):
+            reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
+            out.append({"name": n, "value": float(values[self.model.slot(n)]), "reason": reason})
+        return out
+
+
+def _measured(ds: Dataset):
+    """What ``ds`` measures, as :func:`~fgcal.estimation.holding.unseen_parameters` takes it: a
+    pose, or the tool points of its balls; a full pose while nothing is known (a stream)."""
+    levels = ds.levels()
+    if not levels or "poses" in levels:
+        return "pose"
+    from fgcal.estimation.calibrate import _measured_points
+
+    return _measured_points(ds, levels)

@@ -37,9 +37,13 @@ class KalmanEngine(_Engine):
         if kind not in ("ekf", "ukf"):
             raise FgcalError(f"unknown filter {kind!r} (ekf, ukf)")
         self.kind = kind
-        P = len(self.params)
-        self.kf = FilterState(self.params.nominal().copy(), np.diag(self.prior_sigma**2),
-                              np.zeros((P, P)) if drift is None else np.diag(np.asarray(drift, dtype=float) ** 2))
+        # drift: (P,) per estimated parameter, or per parameter of model.parameters() (the held dropped)
+        drift = np.zeros(len(self.params)) if drift is None else np.asarray(drift, dtype=float)
+        every = model.parameters().names
+        if drift.shape == (len(every),) and len(every) != len(self.params):
+            drift = drift[[every.index(n) for n in self.params.names]]
+        self._drift = dict(zip(self.params.names, drift.tolist()))
+        self.kf = FilterState(self.params.nominal().copy(), np.diag(self.prior_sigma**2), np.diag(drift**2))
         self.max_iterations = max_iterations
         self._ukf = None
 
@@ -117,7 +121,7 @@ class KalmanEngine(_Engine):
 
     def state(self) -> dict:
         """The filter's state (a snapshot: its size does not grow with the poses)."""
-        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist()}
+        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist(), "names": list(self.params.names)}
 
     def restore(self, state: dict, journal) -> None:
         """The state of a snapshot taken after the journalled poses ``journal`` ((record, entry)
@@ -126,5 +130,9 @@ class KalmanEngine(_Engine):
             used, _ = self._replayed(rec, entry, measure=False)
             if used is not None:
                 self._report(used, None, None, entry["f"])
+        if state.get("names", list(self.params.names)) != list(self.params.names):
+            # held from the start on what the dataset measured then (a session begun on an empty dataset)
+            self._use_names(state["names"])
+            self.kf.Q = np.diag(np.array([self._drift.get(n, 0.0) for n in self.params.names]) ** 2)
         self.kf.x = np.array(state["x"], dtype=float)
         self.kf.P = np.array(state["P"], dtype=float)

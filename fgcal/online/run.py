@@ -24,7 +24,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
 from fgcal.online.engines import make_engine, pose_records, prefit
 from fgcal.online.records import record_from_json, record_to_json
-from fgcal.robots.model import SLOT_NAMES, RobotModel, slots_to_file_units
+from fgcal.robots.model import SLOT_NAMES, ParameterSet, RobotModel, slots_to_file_units
 from fgcal.robots.robot_file import model_to_dict
 
 __all__ = ["OnlineRun", "SNAPSHOT_EVERY"]
@@ -183,6 +183,7 @@ class OnlineRun:
             if report.accepted != e["accepted"]:
                 raise FgcalError(f"{self.checkpoint}: replaying pose {e['pose']} gave another outcome "
                                  f"({report.reason}); use --restart")
+        self._is_angle = self.engine.params.is_angle  # a snapshot may bring its own parameters
         self.processed = [{k: e[k] for k in ("pose", "accepted", "reason")} for e in entries]
         self._done = {e["pose"] for e in entries}
         self.history = [e["history"] for e in entries if e["accepted"]]
@@ -236,6 +237,11 @@ class OnlineRun:
         theta, cov = self.engine.estimate()
         params = self.engine.params
         slots = params.full(theta, self.engine.held)
+        held = self.engine.held_info()  # as the batch holds them (fgcal.online.base._Engine._smooth)
+        keep = [i for i, n in enumerate(params.names) if n not in self.engine.final_held]
+        if len(keep) < len(params):
+            params, theta, cov = ParameterSet(self.model, tuple(params.names[i] for i in keep)), theta[keep], \
+                cov[np.ix_(keep, keep)]
         cov_file = params.covariance_to_file_units(cov)
         sigma = np.sqrt(np.diag(cov_file))
         accepted = [p["pose"] for p in self.processed if p["accepted"]]
@@ -245,7 +251,7 @@ class OnlineRun:
                         zip(params.names, params.units, params.to_file_units(params.nominal()),
                             params.to_file_units(theta), sigma)],
             covariance=cov_file, slots={n: float(v) for n, v in zip(SLOT_NAMES, slots_to_file_units(slots))},
-            iterations=len(self.processed), converged=True, pose_ids=accepted,
+            held=held, iterations=len(self.processed), converged=True, pose_ids=accepted,
             options={"engine": self.engine_kind, "prior": "weak",
                      "rejected": [p for p in self.processed if not p["accepted"]]},
             dataset=str(self.ds.path) if self.ds.path else None, fgcal_version=__version__,

@@ -133,7 +133,7 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
             t = verification["truth"]["position_mm"]
             out.append(f"Against the simulated truth: {t['rms']:.3g} mm RMS, max {t['max']:.3g} mm.")
     if not out or (len(out) == 1 and verification is not None):
-        what = "the estimated noise" if result.noise_mode == "estimated" else "the assumed noise"
+        what = "the estimated noise" if result.noise_mode in ("estimated", "reused") else "the assumed noise"
         out.insert(0, f"All {len(result.parameters)} parameters are identified; the residuals match {what}.")
     out += readings_note(result)
     return out
@@ -147,7 +147,7 @@ def outlier_location(o) -> str:
 def noise_verdict(result: CalibrationResult) -> list[str]:
     """What the residuals say about the noise: the levels whose declared noise is off, and the outliers."""
     out = []
-    estimated = result.noise_mode == "estimated"
+    estimated = result.noise_mode in ("estimated", "reused")  # reused: the geometric fit's estimate
     off = []
     for name, n in result.noise.items():
         ratio = np.sqrt(n.variance_factor) if np.isfinite(n.variance_factor) else float("nan")

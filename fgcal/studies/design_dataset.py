@@ -20,7 +20,7 @@ No file I/O here (see :func:`save_plan`).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -34,7 +34,7 @@ from fgcal.estimation.noise import NoiseMode, component_table
 from fgcal.robots.model import RobotModel
 
 __all__ = ["DATASET_INDEX", "DatasetDesign", "DesignNoise", "dataset_noise", "dataset_layout", "design_from_dataset",
-           "save_plan", "load_plan"]
+           "save_plan", "load_plan", "with_dataset_tooling"]
 
 log = logging.getLogger(__name__)
 
@@ -138,6 +138,7 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
     nominal geometry. A dataset that cannot be calibrated falls back to ``declared`` (logged).
     """
     mode = NoiseMode(mode)
+    model = with_dataset_tooling(ds, model)
     if mode is NoiseMode.DECLARED:
         return DesignNoise(None, _linearisation_point(ds, model), {}, mode)
     from fgcal.estimation.calibrate import calibrate
@@ -175,10 +176,23 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
     return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error)
 
 
+def with_dataset_tooling(ds: Dataset, model: RobotModel) -> RobotModel:
+    """``model`` carrying the dataset's own tooling (its balls or reflector, as ``dataset.yaml``
+    declares them): what was measured, not the robot file's default tool (a URDF has none)."""
+    mine, theirs = ds.tooling, model.tooling
+    if mine is None or mine is theirs or (
+            theirs is not None and mine.radius == theirs.radius and list(mine.balls) == list(theirs.balls)
+            and all(np.array_equal(mine.balls[b], theirs.balls[b]) for b in mine.balls)):
+        return model
+    return replace(model, tooling=ds.tooling)
+
+
 def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
     """What is measured at each pose: the dataset's own measurements at its poses (``q`` None),
     or at joint sets ``q`` (N, joints) rad the balls the instrument reaches (as many as the
-    dataset usually measures per pose) at the dataset's levels."""
+    dataset usually measures per pose) at the dataset's levels. The balls are the dataset's
+    (:func:`with_dataset_tooling`)."""
+    model = with_dataset_tooling(ds, model)
     levels = tuple(ds.levels())  # every measurement type brings its own rows to the information
     if not levels:
         raise FgcalError(f"{ds.path or 'dataset'}: design needs measurements; this dataset has none")
@@ -242,6 +256,7 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     """
     if n_poses < 1:
         raise FgcalError("--poses must be at least 1")
+    model = with_dataset_tooling(ds, model)  # the candidates measure the dataset's balls
     rng = rng if rng is not None else np.random.default_rng(0)
     if candidates is None:
         ids, q_deg = ds.pose_ids, ds.joints_deg

@@ -79,8 +79,10 @@ def _cmd_online(args) -> int:
         from fgcal.io.yamlio import atomic_write_bytes
         import io
 
-        names = result.names
-        rel = result.sigma / run.engine.params.to_file_units(run.engine.prior_sigma)
+        params = run.engine.params  # the history's columns (a parameter the final smoothing held: sigma 0)
+        names = list(params.names)
+        rel = np.sqrt(np.diag(params.covariance_to_file_units(run.engine.estimate()[1]))) / \
+            params.to_file_units(run.engine.prior_sigma)
         show = list(np.argsort(-rel)[:6])
         n = [h["n"] for h in run.history]
         est = np.array([h["estimate"] for h in run.history])[:, show]
