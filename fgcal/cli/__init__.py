@@ -10,7 +10,7 @@ import logging
 import sys
 from pathlib import Path
 
-from fgcal import __version__
+from fgcal._version import __version__
 from fgcal.cli.checks import (finite_float, nonnegative_float, nonnegative_int, os_error_message, positive_float,
                          positive_int)
 from fgcal.cli.commands.calibrate import _cmd_calibrate

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from fgcal import __version__
+from fgcal._version import __version__
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError

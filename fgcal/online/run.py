@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal import __version__
+from fgcal._version import __version__
 from fgcal.errors import FgcalError
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
