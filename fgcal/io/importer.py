@@ -29,7 +29,7 @@ from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
 from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
 from fgcal.robots.transforms import matrix_to_quaternion
-from fgcal.io.yamlio import dump_yaml
+from fgcal.util.yamlio import dump_yaml
 
 __all__ = ["DEFAULT_POSITION_SIGMA", "DEFAULT_ORIENTATION_SIGMA", "ImportResult", "to_datasets", "import_table"]
 

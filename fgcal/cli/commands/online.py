@@ -76,7 +76,7 @@ def _cmd_online(args) -> int:
         print(f"wrote {args.out} ({result.n_poses} poses, engine {args.engine})")
     if args.plot and run.history:
         from fgcal.report.plots import plot_convergence
-        from fgcal.io.yamlio import atomic_write_bytes
+        from fgcal.util.yamlio import atomic_write_bytes
         import io
 
         names = result.names

@@ -16,7 +16,7 @@ def _cmd_report(args) -> int:
     from fgcal.report.document import write_report
     from fgcal.estimation.result import load_result
 
-    from fgcal.io.yamlio import read_text_file
+    from fgcal.util.yamlio import read_text_file
 
     check_output_dir(args.out, [args.result, args.verify])
     result = load_result(args.result)

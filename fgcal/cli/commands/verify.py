@@ -17,7 +17,7 @@ def _cmd_verify(args) -> int:
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import load_result
     from fgcal.report.verify import check_same_robot, verify
-    from fgcal.io.yamlio import atomic_write_text
+    from fgcal.util.yamlio import atomic_write_text
 
     if args.out:
         check_output_file(args.out, [args.result, *dataset_inputs(args.dataset)])
