@@ -6,7 +6,7 @@ import pytest
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.measurements.dataset import Dataset, Noise, PoseObservations
 from fgcal.errors import ModelError
-from fgcal.estimation.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
+from fgcal.robots.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
 from fgcal.estimation.joint_errors import (JointErrorBlock, JointErrorSpec, ModelKind, commands_for, corrected_joints,
                                 outside_region)
 from fgcal.robots.kinematics import forward

@@ -8,7 +8,7 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, Sigmas
-from fgcal.estimation.gravity import model_inertials
+from fgcal.robots.gravity import model_inertials
 from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
 from fgcal.measurements.dataset import Dataset

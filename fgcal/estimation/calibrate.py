@@ -25,7 +25,7 @@ from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost
-from fgcal.estimation.identifiability import analyse_information
+from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
                     scaled_inverse, update_sigmas)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.estimation.identifiability import analyse_information, identification_jacobian
+from fgcal.robots.identifiability import analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.simulate import Deviations
 

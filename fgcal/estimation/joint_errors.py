@@ -22,7 +22,7 @@ from enum import Enum
 
 import numpy as np
 
-from fgcal.estimation.gravity import Inertials, Payload, gravity_torques, model_inertials
+from fgcal.robots.gravity import Inertials, Payload, gravity_torques, model_inertials
 
 __all__ = ["ModelKind", "JointErrorSpec", "JointErrorBlock", "BlockParameters", "is_block_name",
            "compliance_joints", "corrected_joints", "commands_for", "outside_region"]

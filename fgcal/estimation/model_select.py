@@ -20,7 +20,7 @@ import numpy as np
 
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.measurements.dataset import Dataset
-from fgcal.estimation.gravity import Payload, gravity_torques, model_inertials
+from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
 from fgcal.robots.model import RobotModel
 

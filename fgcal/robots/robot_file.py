@@ -203,7 +203,7 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     if not np.allclose(mounting, np.eye(4), rtol=0.0, atol=1e-12):
         extra["mounting"] = euler_dict(mounting)
     if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.estimation.gravity)
-        from fgcal.estimation.gravity import inertials_from_dict, inertials_to_dict
+        from fgcal.robots.gravity import inertials_from_dict, inertials_to_dict
 
         extra["inertials"] = inertials_to_dict(inertials_from_dict(extra["inertials"], n, source, last_row))
     try:

@@ -131,7 +131,7 @@ def _cmd_calibrate(args) -> int:
 
 
 def _parse_payload(text):
-    from fgcal.estimation.gravity import Payload
+    from fgcal.robots.gravity import Payload
 
     if not text:
         return Payload()
