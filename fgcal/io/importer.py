@@ -24,7 +24,7 @@ import numpy as np
 
 from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.errors import DatasetError, FgcalError
-from fgcal.estimation.initial import fit_base_and_point, fit_base_and_tool
+from fgcal.measurements.handeye import fit_base_and_point, fit_base_and_tool
 from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
 from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
