@@ -13,7 +13,8 @@ from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.errors import DatasetError, FgcalError, ModelError
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.robots.robot_file import load_model, save_model
-from fgcal.studies.simulate import Deviations, SimulationSettings, simulate
+from fgcal.robots.deviations import Deviations
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 __all__ = ["Dataset", "Noise", "load_dataset", "save_dataset", "dataset_model", "FgcalError", "DatasetError",
            "ModelError", "ParameterSet", "RobotModel", "load_model", "save_model", "Deviations",

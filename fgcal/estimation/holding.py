@@ -17,7 +17,7 @@ import numpy as np
 
 from fgcal.robots.identifiability import analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
-from fgcal.studies.simulate import Deviations
+from fgcal.robots.deviations import Deviations
 
 __all__ = ["held_parameters", "holding_cost"]
 

@@ -5,7 +5,7 @@ from dataclasses import dataclass
 
 from fgcal.estimation.joint_errors import JointErrorSpec
 from fgcal.estimation.noise import NoiseMode, OutlierMode
-from fgcal.studies.simulate import Deviations
+from fgcal.robots.deviations import Deviations
 
 __all__ = ["CalibrationOptions", "WEAK_PRIOR", "MIN_SIGMA"]
 

@@ -186,7 +186,7 @@ def held_parameter_cost(result: CalibrationResult, joints) -> list[HeldCost]:
     (:class:`fgcal.studies.simulate.Deviations`). Its effect on the tool positions, minus the part a
     least-squares change of the identified parameters reproduces, is what calibration leaves.
     """
-    from fgcal.studies.simulate import Deviations
+    from fgcal.robots.deviations import Deviations
 
     if not result.held:
         return []

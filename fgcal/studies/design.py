@@ -31,7 +31,7 @@ from fgcal.studies.design_info import Layout, information, information_and_middl
 from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.plans import PLAN_MARGIN_DEG, PLAN_MARGIN_MM
-from fgcal.studies.simulate import Deviations
+from fgcal.robots.deviations import Deviations
 
 __all__ = ["INDICES", "pose_information", "indices", "predicted_rms", "Design", "design_plan", "candidate_pool",
            "verification_weight", "Candidates", "random_design_values"]
