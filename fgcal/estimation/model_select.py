@@ -291,7 +291,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         One per model; each result's ``joint_errors["selection"]`` holds the comparison.
     selection : ModelSelection
     """
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
 
     up_to = ModelKind(up_to)
     rng = np.random.default_rng(0) if rng is None else rng

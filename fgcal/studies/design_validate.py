@@ -19,7 +19,7 @@ from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoi
 from fgcal.errors import FgcalError
 from fgcal.estimation.noise import NoiseMode
 from fgcal.robots.model import RobotModel
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 
 __all__ = ["HeldOutComparison", "compare_on_held_out"]
 

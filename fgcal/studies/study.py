@@ -145,7 +145,7 @@ def _model(robot: str):
 def prepare_process(robots) -> None:
     """Import what a trial uses and read the ``robots``' models, so that forked workers inherit them."""
     import fgcal.estimation.calibrate  # noqa: F401
-    import fgcal.report.verify  # noqa: F401
+    import fgcal.estimation.verification  # noqa: F401
     import fgcal.studies.probing  # noqa: F401
 
     for robot in robots:
@@ -171,7 +171,7 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     """
     from fgcal.estimation.calibrate import calibrate
     from fgcal.measurements.dataset import Noise
-    from fgcal.report.verify import compare_poses
+    from fgcal.estimation.verification import compare_poses
     from fgcal.robots.kinematics import forward
     from fgcal.studies.probing import simulate_probes
     from fgcal.studies.plans import random_plan

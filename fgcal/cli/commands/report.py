@@ -28,7 +28,7 @@ def _cmd_report(args) -> int:
         except ValueError as exc:
             raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
                              f"line {getattr(exc, 'lineno', '?')})") from None
-        from fgcal.report.verify import check_verification
+        from fgcal.estimation.verification import check_verification
 
         check_verification(verification, args.verify)
         robot = verification.get("robot")

@@ -16,7 +16,7 @@ def _cmd_verify(args) -> int:
 
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import load_result
-    from fgcal.report.verify import check_same_robot, verify
+    from fgcal.estimation.verification import check_same_robot, verify
     from fgcal.util.yamlio import atomic_write_text
 
     if args.out:
