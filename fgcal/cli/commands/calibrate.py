@@ -5,7 +5,7 @@ import logging
 
 import numpy as np
 
-from fgcal.cli.checks import MAX_BATCH_ROWS, check_output_file, dataset_inputs, parameter_names
+from fgcal.cli.commands.checks import MAX_BATCH_ROWS, check_output_file, dataset_inputs, parameter_names
 from fgcal.errors import FgcalError
 from fgcal.cli.commands.check import _measurement_rows, _warn_units
 

@@ -5,7 +5,7 @@ import logging
 import sys
 
 
-from fgcal.cli.checks import MAX_BATCH_ROWS
+from fgcal.cli.commands.checks import MAX_BATCH_ROWS
 
 log = logging.getLogger("fgcal")
 

@@ -5,7 +5,7 @@ import argparse
 import logging
 
 
-from fgcal.cli.checks import check_output_dir
+from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
 from fgcal.cli.commands.report import _cmd_report

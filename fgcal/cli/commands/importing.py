@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.cli.checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
+from fgcal.cli.commands.checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
 from fgcal.errors import FgcalError
 
 __all__ = ["add_import_parser"]

@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from fgcal.cli.checks import check_output_file, dataset_inputs
+from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.cli.checks import MAX_POSES, check_output_dir
+from fgcal.cli.commands.checks import MAX_POSES, check_output_dir
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")

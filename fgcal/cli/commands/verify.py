@@ -4,7 +4,7 @@ from __future__ import annotations
 import logging
 
 
-from fgcal.cli.checks import check_output_file, dataset_inputs
+from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.cli.commands.calibrate import parse_pose_selection
 from fgcal.cli.commands.check import _warn_units
 
