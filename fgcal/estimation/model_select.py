@@ -18,7 +18,9 @@ from enum import Enum
 
 import numpy as np
 
-from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
+from fgcal.estimation.build import build_graph
+from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 from fgcal.errors import FgcalError

@@ -91,7 +91,8 @@ def _print_result(result) -> None:
 
 
 def _cmd_calibrate(args) -> int:
-    from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+    from fgcal.estimation.calibrate import calibrate
+    from fgcal.estimation.options import CalibrationOptions
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import save_result
 
