@@ -1,6 +1,6 @@
 """Honest by default (issue 14): chi-square of the true error, coverage and accuracy per scenario.
 
-For each row of :data:`fgcal.estimation.honesty.SCENARIOS`, ``--seeds`` seeded datasets (25 by default) are
+For each row of :data:`fgcal.studies.honesty.SCENARIOS`, ``--seeds`` seeded datasets (25 by default) are
 calibrated with default options. Columns: mean chi-square of the true error per parameter
 (honest: 0.7-1.5), share of 95% intervals covering the truth (90-99%), mean RMS ball-position
 error at 100 random joint sets for fgcal and for the two-stage method, excluded outliers per

@@ -70,7 +70,7 @@ def test_cli_study_and_figures(tmp_path):
 
 def _reference_trial(trial):
     """The trial as computed before the vectorised path: fgcal.studies.simulate.measure for every pose set and
-    fgcal.report.verify.measured_poses (per-ball sphere fits, per-pose rigid fits) for the verification."""
+    fgcal.estimation.verification.measured_poses (per-ball sphere fits, per-pose rigid fits) for the verification."""
     import zlib
     from dataclasses import asdict
 

@@ -6,7 +6,7 @@ robust weights and no outlier exclusion: the choice is a function of the poses, 
 the model only, the same for every option that changes only the noise or the solver.
 
 :func:`holding_cost` says what a held parameter costs: if it deviates by its typical amount
-(:class:`~fgcal.studies.simulate.Deviations`) and the free parameters absorb what they can at the
+(:class:`~fgcal.robots.deviations.Deviations`) and the free parameters absorb what they can at the
 calibration poses, the RMS position error that remains at new poses (random joint sets within
 the limits, seeded). Zero means the parameter is truly redundant (another one stands in for it
 everywhere); a large value means the pose set, not the robot, is the limitation. No I/O here.
@@ -26,7 +26,7 @@ def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
     """Unidentifiable parameters of ``graph`` at ``state``, with the parameters each is confused with.
 
     ``graph`` must carry the declared noise; robust weights and exclusions are switched off for the
-    decision. ``decide(graph, state)`` (default: :func:`~fgcal.estimation.identifiability.analyse_information`
+    decision. ``decide(graph, state)`` (default: :func:`~fgcal.robots.identifiability.analyse_information`
     of the parameters' information) names them.
     """
     robust, excluded = graph.robust, graph.excluded
@@ -52,7 +52,7 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     q_calib : ndarray, shape (N, n_joints)
         Calibration poses (rad).
     measurement : "pose" or ndarray, shape (B, 3)
-        What was measured (see :func:`~fgcal.estimation.identifiability.identification_jacobian`); the error at
+        What was measured (see :func:`~fgcal.robots.identifiability.identification_jacobian`); the error at
         new poses is taken at the same tool points (the tool origin for ``"pose"``).
     """
     if not held:

@@ -202,7 +202,7 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
     if not np.allclose(mounting, np.eye(4), rtol=0.0, atol=1e-12):
         extra["mounting"] = euler_dict(mounting)
-    if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.estimation.gravity)
+    if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.robots.gravity)
         from fgcal.robots.gravity import inertials_from_dict, inertials_to_dict
 
         extra["inertials"] = inertials_to_dict(inertials_from_dict(extra["inertials"], n, source, last_row))

@@ -3,7 +3,7 @@
 A plan of n of a dataset's poses (:func:`fgcal.studies.design_dataset.design_from_dataset`) and random
 plans of n poses from the same usable candidates are each calibrated on their own poses, and
 each calibration's position error is measured at the held-out dataset's poses
-(:func:`fgcal.report.verify.verify`). On real data this includes what no geometric model explains, so
+(:func:`fgcal.estimation.verification.verify`). On real data this includes what no geometric model explains, so
 it is the test a user cares about. No I/O here.
 """
 from __future__ import annotations

@@ -166,7 +166,7 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
 
     ``q_identify`` (N, 6) rad fixes the identification poses (a designed plan); the trial's own
     random draw is used otherwise. The simulation and the verification's sphere and pose fits are
-    the vectorised forms of :func:`fgcal.studies.simulate.measure` and :func:`fgcal.report.verify.measured_poses`
+    the vectorised forms of :func:`fgcal.studies.simulate.measure` and :func:`fgcal.estimation.verification.measured_poses`
     (same random stream, same estimators and checks: the same numbers, to rounding).
     """
     from fgcal.estimation.calibrate import calibrate
