@@ -47,7 +47,7 @@ def main():
     if not args.series.exists():
         raise SystemExit(f"the Landgraf series is not at {args.series}; pass --series")
     from fgcal.estimation.calibrate import calibrate
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
     from fgcal.studies.design_dataset import dataset_noise, design_from_dataset
     from fgcal.studies.design_validate import compare_on_held_out
     from fgcal.io.landgraf import read_series, series_to_datasets

@@ -1,6 +1,6 @@
 """Honest by default (issue 14): chi-square of the true error, coverage and accuracy per scenario.
 
-For each row of :data:`fgcal.estimation.honesty.SCENARIOS`, ``--seeds`` seeded datasets (25 by default) are
+For each row of :data:`fgcal.studies.honesty.SCENARIOS`, ``--seeds`` seeded datasets (25 by default) are
 calibrated with default options. Columns: mean chi-square of the true error per parameter
 (honest: 0.7-1.5), share of 95% intervals covering the truth (90-99%), mean RMS ball-position
 error at 100 random joint sets for fgcal and for the two-stage method, excluded outliers per
@@ -19,7 +19,7 @@ import numpy as np
 
 
 def batch_table(model, rows, seeds):
-    from fgcal.estimation.honesty import SCENARIOS, run_scenario, summarise
+    from fgcal.studies.honesty import SCENARIOS, run_scenario, summarise
 
     print(f"{'scenario':36s} {'n':>3s} {'chi2/dof':>9s} {'cover95':>8s} {'fgcal mm':>9s} {'2-stage':>9s} "
           f"{'outl.':>6s} {'planted':>8s} {'held':>5s} {'ok':>4s} {'s':>6s}")
@@ -40,7 +40,7 @@ ONLINE_SCENARIOS = ("paper noise, 3 mirrored sphere fits", "repeatability 0.01 d
 
 
 def online_table(model, seeds):
-    from fgcal.estimation.honesty import SCENARIOS, Scenario, online_agreement
+    from fgcal.studies.honesty import SCENARIOS, Scenario, online_agreement
 
     scenarios = {ONLINE_SCENARIOS[0]: Scenario(mirrored=3), ONLINE_SCENARIOS[1]: SCENARIOS[ONLINE_SCENARIOS[1]]}
     print(f"\n{'scenario':36s} {'engine':6s} {'order':8s} {'n':>3s} {'|online-batch|/sigma median':>28s} {'max':>6s} "
@@ -62,7 +62,7 @@ def online_table(model, seeds):
 
 
 if __name__ == "__main__":
-    from fgcal.estimation.honesty import SCENARIOS
+    from fgcal.studies.honesty import SCENARIOS
     from fgcal.robots.robot_file import load_model
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

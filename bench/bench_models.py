@@ -36,7 +36,7 @@ def run_split(calib, held, model_dict, label, fold_order="random"):
     from fgcal.estimation.calibrate import CalibrationOptions
     from fgcal.estimation.model_select import compare_models
     from fgcal.robots.robot_file import model_from_dict
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
 
     model = model_from_dict(model_dict)
     t0 = time.perf_counter()

@@ -69,7 +69,7 @@ class _SlowProbed:
         return self.ds
 
     def measured_poses(self, tooling, sigma):
-        from fgcal.report.verify import measured_poses
+        from fgcal.estimation.verification import measured_poses
 
         ids, T, _ = measured_poses(self.ds)
         return self.ds.row_of(ids), T

@@ -11,7 +11,7 @@ from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.studies.simulate import SimulationSettings, simulate
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 
 
 @pytest.fixture(scope="module")

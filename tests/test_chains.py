@@ -146,7 +146,7 @@ def test_verify_position_only_reports_point_errors():
 
     from fgcal.robots.model import Tooling
     from fgcal.robots.robot_file import load_model
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
 
     model = replace(load_model("ur10"), tooling=Tooling(0.0, {"R": np.array([10.0, 20.0, 80.0])}))
     settings = SimulationSettings(n_poses=40, n_balls=1, levels=("centres",), noise=Noise(0.01, 0.0))
@@ -190,7 +190,7 @@ def test_ballbar_only_dataset_calibrates_with_its_pivot(puma, tmp_path):
     the base's translation is the pivot (estimated); what distances cannot see (the base's rotation about
     the pivot, the tool's orientation) is held and named."""
     from fgcal.io.dataset_io import load_dataset, save_dataset
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
 
     settings = SimulationSettings(n_poses=60, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.0))
     train, _ = simulate(puma, np.random.default_rng(21), settings)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import plain_dh
-from fgcal.io.yamlio import read_yaml
-from fgcal.io.resources import builtin_robot_path
+from fgcal.util.yamlio import read_yaml
+from fgcal.util.resources import builtin_robot_path
 from fgcal.robots.compensate import Frame, base_transform, compensate_targets
 from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
 from fgcal.robots.transforms import euler_zyx_trans, to_euler_zyx_trans

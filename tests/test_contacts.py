@@ -13,7 +13,7 @@ from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec, plane_normal
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 from fgcal.robots.model import Tooling
 
 BALLS = {"B": np.array([10.0, -5.0, 60.0])}

@@ -4,8 +4,8 @@ table, and fgcal calibrates the nominal URDF from the files. The tool point at n
 aligning the free world frame) must be within 1.5 times the noise-limited accuracy, the
 prediction of the result's own covariance at those poses (less what the alignment absorbs). A
 single dataset's error is dominated by a few parameter directions (it scatters like a chi with few
-degrees of freedom: 0.3 to 2 times the prediction over seeds), so the test takes the RMS over
-three datasets of each robot."""
+degrees of freedom: 0.4 to 2.1 times the prediction over ten seeds of one Panda), so the test
+takes the RMS over eight datasets of each robot."""
 import shutil
 
 import numpy as np
@@ -41,12 +41,12 @@ def _merge(a: Dataset, b: Dataset) -> Dataset:
 
 
 # Seeds whose tables the generator reaches quickly (a table it cannot reach is redrawn for minutes).
-SEEDS = {"panda": (0, 3, 4), "kinova": (0, 1, 2)}
+SEEDS = {"panda": (0, 3, 4, 5, 6, 7, 8, 9), "kinova": (0, 1, 2, 3, 4, 5, 6, 7)}
 
 
 @pytest.fixture(scope="module", params=sorted(ROBOTS))
 def simulated(request, tmp_path_factory):
-    """Per seed: a two-socket dataset (3 plates x 2 sockets x 12) and the same plus 40 table contacts."""
+    """Per seed: a two-socket dataset (3 plates x 2 sockets x 12) and the same plus 30 table contacts."""
     robot = request.param
     name, chain = ROBOTS[robot]
     out = []
@@ -56,8 +56,9 @@ def simulated(request, tmp_path_factory):
         sockets = two_socket_dataset(tmp / "sockets", DATA / name, chain, rng, n_placements=3, configs_per_socket=12,
                                      ball_offset_mm=(0.0, 0.0, 30.0), contact_sigma_mm=SIGMA,
                                      distance_sigma_mm=DISTANCE_SIGMA)
-        plane = plane_dataset(tmp / "plane", DATA / name, chain, rng, n_contacts=40, ball_radius_mm=0.0,
-                              ball_offset_mm=(0.0, 0.0, 30.0), contact_sigma_mm=SIGMA, true_urdf=sockets.urdf)
+        plane = plane_dataset(tmp / "plane", DATA / name, chain, rng, n_contacts=30, ball_radius_mm=0.0,
+                              ball_offset_mm=(0.0, 0.0, 30.0), contact_sigma_mm=SIGMA, true_urdf=sockets.urdf,
+                              patch_radius_mm=200.0, max_tries=5)
         save_dataset(_merge(load_dataset(tmp / "sockets"), load_dataset(tmp / "plane")), tmp / "both")
         shutil.copy(tmp / "sockets" / "robot.urdf", tmp / "both" / "robot.urdf")
         check = new_poses(sockets.urdf, chain, (0.0, 0.0, 30.0), np.random.default_rng(100 + seed), 60)

@@ -15,7 +15,7 @@ from fgcal.studies.design_dataset import dataset_layout, design_from_dataset, lo
 from fgcal.studies.design_info import information
 from fgcal.studies.design_validate import compare_on_held_out
 from fgcal.errors import FgcalError
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 from fgcal.robots.model import slots_from_file_units
 from fgcal.robots.robot_file import model_from_dict, model_to_dict, save_model
 from fgcal.studies.simulate import SimulationSettings, simulate

@@ -4,7 +4,7 @@ import tracemalloc
 import numpy as np
 
 from fgcal.io.dataset_io import _point_table
-from fgcal.estimation.identifiability import analyse, compact_jacobian, identification_jacobian
+from fgcal.robots.identifiability import analyse, compact_jacobian, identification_jacobian
 
 from conftest import random_joints
 

@@ -6,9 +6,9 @@ import stat
 
 import pytest
 
-from fgcal.io import yamlio
+from fgcal.util import yamlio
 from fgcal.io.dataset_io import load_dataset, save_dataset
-from fgcal.io.yamlio import atomic_write_text
+from fgcal.util.yamlio import atomic_write_text
 
 from hostile_util import call, copy_dataset, one_line_error, run_cli, small_dataset
 

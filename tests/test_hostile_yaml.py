@@ -6,7 +6,7 @@ import pytest
 
 from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import FgcalError
-from fgcal.io.yamlio import read_yaml
+from fgcal.util.yamlio import read_yaml
 
 from hostile_util import call, copy_dataset, one_line_error, run_cli, small_dataset
 

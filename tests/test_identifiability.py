@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from fgcal.estimation.identifiability import analyse, identification_jacobian
+from fgcal.robots.identifiability import analyse, identification_jacobian
 
 from conftest import random_joints
 

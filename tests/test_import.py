@@ -251,7 +251,7 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path, capsys):
 @pytest.mark.parametrize("points", [False, True])
 def test_base_and_tool_fits_recover_exact_data(points):
     """Noise-free data of the nominal links: the fitted base and tool reproduce the simulated ones."""
-    from fgcal.estimation.initial import fit_base_and_point, fit_base_and_tool
+    from fgcal.measurements.handeye import fit_base_and_point, fit_base_and_tool
 
     model, truth, q, _ = simulated_ur10(np.random.default_rng(155), 30)
     nominal_links = model.nominal.copy()

@@ -6,7 +6,7 @@ import pytest
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.measurements.dataset import Dataset, Noise, PoseObservations
 from fgcal.errors import ModelError
-from fgcal.estimation.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
+from fgcal.robots.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
 from fgcal.estimation.joint_errors import (JointErrorBlock, JointErrorSpec, ModelKind, commands_for, corrected_joints,
                                 outside_region)
 from fgcal.robots.kinematics import forward
@@ -141,7 +141,7 @@ def test_save_load_keeps_the_block(tmp_path):
     q = UR10.joints_to_internal(ds.joints_deg[:5])
     np.testing.assert_allclose(corrected_joints(back, q), corrected_joints(r, q), atol=1e-15)
     from fgcal.report.document import write_report
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
 
     write_report(back, tmp_path / "report", verify(back, ds, UR10).to_dict())
     md = (tmp_path / "report" / "report.md").read_text()

@@ -4,7 +4,7 @@ import yaml
 
 from fgcal.robots.kinematics import forward, jacobians
 from fgcal.robots.model import SLOT_IS_ANGLE, SLOT_NAMES
-from fgcal.io.resources import builtin_robot_path
+from fgcal.util.resources import builtin_robot_path
 from fgcal.robots.transforms import so3_log
 
 from conftest import random_joints

@@ -14,7 +14,7 @@ from fgcal.measurements import types
 from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.measurements.dataset import Noise
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 from fgcal.robots.kinematics import tool_points
 from fgcal.studies.simulate import SimulationSettings, simulate
 

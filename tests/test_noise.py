@@ -11,7 +11,7 @@ import pytest
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.measurements.dataset import Noise
-from fgcal.estimation.honesty import SCENARIOS, add_gross_errors, run_scenario, summarise
+from fgcal.studies.honesty import SCENARIOS, add_gross_errors, run_scenario, summarise
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.estimation.result import load_result, save_result
 from fgcal.studies.simulate import SimulationSettings, simulate
@@ -101,7 +101,7 @@ def test_clean_data_lose_nothing(puma):
         assert "match the estimated noise" in verdict(r)[0]
     # measured centres: a centre's three coordinates share the pose's joint variables, so their
     # residuals are correlated; summed as if chi-square(3) they excluded this good centre
-    from fgcal.estimation.honesty import scenario_dataset
+    from fgcal.studies.honesty import scenario_dataset
 
     ds, _, _, _ = scenario_dataset(puma, SCENARIOS["centres only"], 2015)
     assert calibrate(ds, puma).outliers == []

@@ -179,7 +179,7 @@ def test_online_ends_at_the_batch_in_any_order_with_mirrored_fits(puma, engine):
     """Three balls re-probed on narrow caps whose plain sphere fit lands on the mirror image: the
     engines take the centre near the kinematic prediction, and forward or reversed they end at
     the batch solve of the same data (the final smoothing)."""
-    from fgcal.estimation.honesty import Scenario, online_agreement
+    from fgcal.studies.honesty import Scenario, online_agreement
 
     for seed, reverse in ((3001, False), (3002, True)):
         r = online_agreement(puma, engine, seed, reverse, Scenario(mirrored=3))
@@ -193,7 +193,7 @@ def test_narrow_caps_are_not_refused(puma, engine):
     6e5 at pose 12) or corrupted the early estimate so that 13 valid poses were refused (3020,
     reversed, EKF): with the cap's information taken at the prediction, every pose is taken and
     the end is at the batch."""
-    from fgcal.estimation.honesty import Scenario, online_agreement
+    from fgcal.studies.honesty import Scenario, online_agreement
 
     for seed, reverse in ((3018, False), (3020, True)):
         r = online_agreement(puma, engine, seed, reverse, Scenario(mirrored=3))
@@ -248,7 +248,7 @@ def test_narrow_cap_centre_covariance_matches_scatter():
 def test_gate_uses_the_estimated_noise(puma):
     """The arm lands 0.01 deg off its readings (not declared): the innovations grow, the estimated
     noise factor follows them and no valid pose is refused."""
-    from fgcal.estimation.honesty import SCENARIOS, scenario_dataset
+    from fgcal.studies.honesty import SCENARIOS, scenario_dataset
 
     ds, _, _, _ = scenario_dataset(puma, SCENARIOS["repeatability 0.01 deg undeclared"], 3003)
     e = make_engine("ekf", ds, puma)

@@ -11,7 +11,7 @@ from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import DatasetError
 from fgcal.io.landgraf import read_series, series_to_datasets
 from fgcal.robots.robot_file import model_from_dict
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 
 # shared/ sits beside the checkout (or beside the worktrees' directory)
 SERIES = next((p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"

@@ -33,7 +33,7 @@ def test_unknown_model_name():
     (("[-160, 160]", "[160, -160]"), r"joint_limits\[0\]: min must be below max"),
 ])
 def test_bad_model_file(tmp_path, edit, pattern):
-    from fgcal.io.resources import builtin_robot_path
+    from fgcal.util.resources import builtin_robot_path
     text = builtin_robot_path("puma560").read_text()
     assert edit[0] in text
     (tmp_path / "bad.yaml").write_text(text.replace(edit[0], edit[1], 1))

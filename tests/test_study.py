@@ -70,7 +70,7 @@ def test_cli_study_and_figures(tmp_path):
 
 def _reference_trial(trial):
     """The trial as computed before the vectorised path: fgcal.studies.simulate.measure for every pose set and
-    fgcal.report.verify.measured_poses (per-ball sphere fits, per-pose rigid fits) for the verification."""
+    fgcal.estimation.verification.measured_poses (per-ball sphere fits, per-pose rigid fits) for the verification."""
     import zlib
     from dataclasses import asdict
 
@@ -80,7 +80,7 @@ def _reference_trial(trial):
     from fgcal.robots.robot_file import load_model
     from fgcal.studies.plans import paper_plan, random_plan
     from fgcal.studies.simulate import draw_truth, measure
-    from fgcal.report.verify import compare_poses, measured_poses
+    from fgcal.estimation.verification import compare_poses, measured_poses
 
     model = load_model(trial.robot)
     rng = np.random.default_rng([trial.seed, trial.trial, zlib.crc32(trial.study.encode())])
@@ -175,7 +175,7 @@ def test_vectorised_verification_poses_match_measured_poses(puma):
     from fgcal.studies.plans import random_plan
     from fgcal.studies.simulate import draw_truth
     from fgcal.studies.probing import simulate_probes
-    from fgcal.report.verify import measured_poses
+    from fgcal.estimation.verification import measured_poses
 
     rng = np.random.default_rng(3)
     truth = draw_truth(puma, rng)

@@ -8,7 +8,7 @@ import pytest
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
-from fgcal.estimation.identifiability import identification_jacobian
+from fgcal.robots.identifiability import identification_jacobian
 from fgcal.robots.model import ParameterSet, Tooling
 from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
 from fgcal.robots.transforms import matrix_to_quaternion, rot

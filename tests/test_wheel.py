@@ -76,7 +76,7 @@ def test_wheel_carries_the_data_and_no_top_level_datasets(installed):
     shipped = {f"fgcal/_data/{p.relative_to(ROOT / 'datasets').as_posix()}" for p in (ROOT / "datasets").rglob("*")
                if p.is_file()}
     assert shipped <= names and "fgcal/_data/robots/ur10.yaml" in shipped
-    code = ("import fgcal, importlib.util, json; from fgcal.io.resources import builtin_robot_names, default_dataset_dir;"
+    code = ("import fgcal, importlib.util, json; from fgcal.util.resources import builtin_robot_names, default_dataset_dir;"
             "print(json.dumps([fgcal.__file__, builtin_robot_names(), str(default_dataset_dir()),"
             " importlib.util.find_spec('datasets') is not None and 'fgcal' in str(importlib.util.find_spec('datasets').origin)]))")
     fgcal_file, robots, demo_dir, datasets_from_fgcal = json.loads(_run([python, "-c", code], tmp, env).stdout)

@@ -1,4 +1,4 @@
-"""Estimation: the factor graph, the batch solve, noise and outlier handling, held parameters, parameter blocks (joint errors, gravity) and the result.
+"""Estimation: the factor graph, the batch solve, noise and outlier handling, held parameters, parameter blocks (joint errors), the result and its verification.
 
 Nothing is imported here: import the modules themselves (no side effects, no heavy imports).
 """

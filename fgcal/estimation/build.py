@@ -8,7 +8,7 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, Sigmas
-from fgcal.estimation.gravity import model_inertials
+from fgcal.robots.gravity import model_inertials
 from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.setup_params import SetupParameters, is_setup_name
@@ -134,12 +134,13 @@ def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> Setup
 
 
 def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None,
-                start=None):
+                start=None, priors=None):
     """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
 
     Only poses with at least one measurement at the chosen levels take part. The state starts at
     ``start`` (all slots (S,), internal units) when given, else at ``held`` (default the nominal
-    chain) with the base fitted to the measurements.
+    chain) with the base fitted to the measurements. ``priors`` ({name: sigma}, internal units):
+    priors about the nominal on those parameters (the tighter one where ``options.prior`` has one).
     """
     levels = _levels(ds, options)
     block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
@@ -196,6 +197,10 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw["prior"] = (params.take(model.nominal), WEAK_PRIOR.sigmas(names))
     elif options.prior != "none":
         raise FgcalError(f"unknown prior {options.prior!r} (none, weak)")
+    if priors:
+        mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
+        given = np.array([priors.get(n, np.inf) for n in names])
+        kw["prior"] = (mean, np.minimum(sd, given))
     warm = start is not None
     if warm:
         start = np.asarray(start, dtype=float)

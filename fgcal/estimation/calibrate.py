@@ -16,16 +16,16 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from fgcal import __version__
+from fgcal._version import __version__
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.graph import Graph, Sigmas, State
-from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
+from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
-from fgcal.estimation.holding import held_parameters, holding_cost
-from fgcal.estimation.identifiability import analyse_information
+from fgcal.estimation.holding import held_parameters, holding_cost, typical_geometry
+from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
                     scaled_inverse, update_sigmas)
@@ -104,7 +104,7 @@ def _hold_order(names) -> list[int]:
     return [i for i in range(len(names)) if i not in late] + late
 
 
-def _identifiability(graph: Graph, state: State, lin=None):
+def _identifiability(graph: Graph, state: State, lin=None, rtol: float = 1e-6):
     names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
     order = _hold_order(names)
     info = graph.parameter_information(state, lin)
@@ -112,7 +112,12 @@ def _identifiability(graph: Graph, state: State, lin=None):
         g, s = np.arange(graph.n_geo), np.arange(graph.n_geo + graph.K, graph.n_geo + graph.K + graph.S)
         info = info[np.ix_(g, g)] - info[np.ix_(g, s)] @ np.linalg.pinv(info[np.ix_(s, s)]) @ info[np.ix_(s, g)]
     S = info[np.ix_(order, order)]
-    return analyse_information(S, [names[i] for i in order])
+    return analyse_information(S, [names[i] for i in order], rtol=rtol)
+
+
+# At a typical geometry a direction redundant by structure stays at rounding level (1e-16 of the
+# largest eigenvalue); one a typical deviation opens (a ball 0.5 mm off the last axis) is ~1e-7.
+STRUCTURAL_RTOL = 1e-11
 
 
 def _unidentifiable(graph: Graph, state: State, lin=None) -> dict[str, list[str]]:
@@ -138,8 +143,14 @@ def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
     information ends in one line instead of a meaningless inverse."""
     S = graph.parameter_information(state, lin)
     d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    ev = np.linalg.eigvalsh(S / np.outer(d, d))
-    if ev[0] <= 1e-12 * ev[-1]:
+    ev, vec = np.linalg.eigh(S / np.outer(d, d))
+    weak = ev <= 1e-12 * ev[-1]
+    if weak.any() and graph.prior is not None:
+        # A direction that only a finite prior determines is not singular (exact data beside a
+        # prior of typical deviations): the prior's share of its information says so.
+        p = np.where(np.isfinite(graph.prior[1]), 1.0 / np.asarray(graph.prior[1]) ** 2, 0.0) / d**2
+        weak &= np.einsum("pk,p,pk->k", vec, p, vec) < 0.5 * ev
+    if weak.any():
         raise FgcalError(f"the {graph.n_poses} poses cannot determine the {len(state.theta)} parameters "
                          "(singular information): measure more poses")
     return graph.covariance(state, lin)
@@ -169,10 +180,33 @@ class Solution:
     outlier_mode: OutlierMode
     held: list = field(default_factory=list)  # {"name", "value" (file units), "reason"} per held parameter
     theta_start: np.ndarray | None = None  # the start (nominal chain, base fitted) in internal units
+    priors: dict = field(default_factory=dict)  # weakly identifiable parameters: their prior sigma (internal)
+
+
+def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None):
+    """``(held, priors)``: of the ``redundant`` parameters (at the nominal geometry) those the same
+    poses cannot separate at a geometry deviating from the nominal by typical amounts either
+    (:func:`~fgcal.estimation.holding.typical_geometry`) stay held: they are redundant wherever the
+    robot is (a tool angle for a single tool point, a ballbar's rotation about its pivot). The
+    others get a prior of their typical deviation (:data:`~fgcal.estimation.options.TYPICAL_DEVIATIONS`,
+    internal units) in ``priors`` (a copy of the given one)."""
+    priors = dict(priors or {})
+    candidates = [n for n in redundant if n in set(model.slot_names)]
+    if not candidates:
+        return redundant, priors
+    every = list(names) + [n for n in candidates if n not in names]
+    graph, state, _ = build_graph(ds, model, every, replace(options, prior="none"), start=typical_geometry(model))
+    still = held_parameters(graph, state, lambda g, st: _identifiability(g, st, rtol=STRUCTURAL_RTOL).redundant)
+    for n in candidates:
+        if n not in still:
+            priors[n] = float(TYPICAL_DEVIATIONS.sigmas([n])[0])
+            log.info("%s is weakly identifiable here (confounded with %s at the nominal geometry only): "
+                     "estimated with a prior of its typical deviation", n, ", ".join(redundant[n]) or "nothing")
+    return {n: p for n, p in redundant.items() if n in still or n not in set(model.slot_names)}, priors
 
 
 def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
-                      start=None, decide_held: bool = True) -> Solution:
+                      start=None, decide_held: bool = True, priors=None) -> Solution:
     """The solve of :func:`calibrate` without the result's summaries.
 
     Parameters
@@ -184,6 +218,9 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     decide_held : bool
         False: estimate every parameter of ``options`` (with ``prior="weak"`` the information is
         never singular) instead of holding those the data cannot identify.
+    priors : dict, optional
+        ``{name: sigma}`` (internal units): priors about the nominal on those parameters (the
+        online engines pass those of :func:`split_held`).
     """
     noise_mode = NoiseMode(options.noise)
     outlier_mode = OutlierMode(options.outliers)
@@ -202,16 +239,21 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
             log.info("the world frame: %s", GAUGE_REASON)
     _check_equations(ds, levels, len(names) + _setup_size(ds, levels))
 
-    graph, state, pose_ids = build_graph(ds, model, names, options, start=start)
+    priors = dict(priors or {})
+    graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
     redundant = held_parameters(graph, state, _unidentifiable) if decide_held else {}
     if redundant:
+        # What these poses cannot separate at the nominal geometry: held where it is redundant at any
+        # geometry, else estimated with a prior of its typical deviation (the data decide where
+        # they can; holding it at a guess would leave its deviation in every prediction).
+        redundant, priors = split_held(model, names, redundant, ds, options, priors)
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
             held_info.append({"name": n, "value": float(model.slots_to_file_units(graph.held)[model.slot(n)]),
                               "reason": reason})
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
-        graph, state, pose_ids = build_graph(ds, model, names, options, start=start)
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     damping = 1e-4 if start is None else WARM_DAMPING
@@ -221,30 +263,8 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         noise_mode = NoiseMode.DECLARED
     state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
                                                                    outlier_mode)
-    # Held at the start, identifiable at the solution: a direction that is degenerate only at the
-    # nominal geometry (a ball on the last joint's axis there, a little off it on the real robot)
-    # is released and the solve goes on from where it ended.
-    start_held = [h["name"] for h in held_info if h["reason"] != GAUGE_REASON]
-    if decide_held and start_held:
-        slots = graph.params.full(state.theta, graph.held)
-        graph2, state2, _ = build_graph(ds, model, names + start_held, replace(options, noise="declared"), start=slots)
-        still = held_parameters(graph2, state2, _unidentifiable)
-        released = [n for n in start_held if n not in still]
-        if released:
-            log.info("identifiable at the solution, released: %s", ", ".join(released))
-            held_info = [h for h in held_info if h["name"] not in released]
-            names = [n for n in names + start_held if n not in still]
-            nominal_start = graph.params.full(theta_start, graph.held)
-            setup_start = theta_start[len(theta_start) - graph.S:] if graph.S else None
-            graph, state, pose_ids = build_graph(ds, model, names, options, start=slots)
-            theta_start = graph.params.take(nominal_start)  # the same start, in the new parameters
-            if graph.S:
-                theta_start[len(theta_start) - graph.S:] = setup_start
-            state, it2, converged, rounds, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
-                                                                    outlier_mode)
-            iterations += it2
     return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start)
+                    outlier_mode, held_info, theta_start, priors)
 
 
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
@@ -381,6 +401,9 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     opts["noise_scale"] = {lv: n.used / n.declared for lv, n in noise_table.items()
                            if n.declared > 0 and abs(n.used / n.declared - 1) > 1e-12}
     opts["noise"], opts["outliers"] = noise_mode.value, sol.outlier_mode.value
+    if sol.priors:  # weakly identifiable: estimated with a prior of their typical deviation (file units)
+        opts["typical_deviation_priors"] = {n: float(np.degrees(s) if model.slot_is_angle[model.slot(n)] else s)
+                                       for n, s in sol.priors.items()}
     raw = lin.raw
     residuals = {}
     if "probes" in raw:

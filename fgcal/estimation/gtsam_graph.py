@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.estimation.calibrate import CalibrationOptions, _unidentifiable, build_graph
+from fgcal.estimation.build import build_graph
+from fgcal.estimation.calibrate import _unidentifiable
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError

@@ -6,7 +6,7 @@ robust weights and no outlier exclusion: the choice is a function of the poses, 
 the model only, the same for every option that changes only the noise or the solver.
 
 :func:`holding_cost` says what a held parameter costs: if it deviates by its typical amount
-(:class:`~fgcal.studies.simulate.Deviations`) and the free parameters absorb what they can at the
+(:class:`~fgcal.robots.deviations.Deviations`) and the free parameters absorb what they can at the
 calibration poses, the RMS position error that remains at new poses (random joint sets within
 the limits, seeded). Zero means the parameter is truly redundant (another one stands in for it
 everywhere); a large value means the pose set, not the robot, is the limitation. No I/O here.
@@ -17,11 +17,11 @@ import logging
 
 import numpy as np
 
-from fgcal.estimation.identifiability import analyse, analyse_information, identification_jacobian
+from fgcal.robots.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
-from fgcal.studies.simulate import Deviations
+from fgcal.robots.deviations import Deviations
 
-__all__ = ["held_parameters", "holding_cost", "unseen_parameters"]
+__all__ = ["held_parameters", "holding_cost", "unseen_parameters", "typical_geometry"]
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +30,7 @@ def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
     """Unidentifiable parameters of ``graph`` at ``state``, with the parameters each is confused with.
 
     ``graph`` must carry the declared noise; robust weights and exclusions are switched off for the
-    decision. ``decide(graph, state)`` (default: :func:`~fgcal.estimation.identifiability.analyse_information`
+    decision. ``decide(graph, state)`` (default: :func:`~fgcal.robots.identifiability.analyse_information`
     of the parameters' information) names them.
     """
     robust, excluded = graph.robust, graph.excluded
@@ -60,7 +60,7 @@ def unseen_parameters(model: RobotModel, names, measurement, n_configurations: i
     names : sequence of str
         Candidate slot names.
     measurement : "pose", "position" or ndarray, shape (B, 3)
-        As :func:`~fgcal.estimation.identifiability.identification_jacobian`.
+        As :func:`~fgcal.robots.identifiability.identification_jacobian`.
     """
     from fgcal.estimation.calibrate import _hold_order  # the batch's order (calibrate imports this module)
 
@@ -95,7 +95,7 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     q_calib : ndarray, shape (N, n_joints)
         Calibration poses (rad).
     measurement : "pose" or ndarray, shape (B, 3)
-        What was measured (see :func:`~fgcal.estimation.identifiability.identification_jacobian`); the error at
+        What was measured (see :func:`~fgcal.robots.identifiability.identification_jacobian`); the error at
         new poses is taken at the same tool points (the tool origin for ``"pose"``).
     """
     if not held:
@@ -126,3 +126,15 @@ def holding_cost(model: RobotModel, slots, free, held, q_calib, measurement, n_n
     out["all"] = float(np.sqrt(np.sum(M**2) / n_points))
     out.update({n: float("nan") for n in others})
     return out
+
+
+
+def typical_geometry(model: RobotModel, seed: int = 0) -> np.ndarray:
+    """Slots (S,) of an arm deviating from ``model``'s nominal by typical amounts
+    (:class:`~fgcal.robots.deviations.Deviations`, a fixed seed): where a parameter that the
+    nominal geometry cannot separate (a ball on the last joint's axis there) is tested again."""
+    ident = [n for n in model.identifiable_names() if n in set(model.slot_names)]
+    slots = model.nominal.copy()
+    slots[[model.slot(n) for n in ident]] += np.random.default_rng(seed).normal(size=len(ident)) * \
+        Deviations().sigmas(ident)
+    return slots

@@ -5,7 +5,7 @@ The joint variable is the reading plus a correction linear in the block's parame
     q = reading + G(reading) @ phi          G: (N, n_joints, K)
 
 - ``jJ.compliance`` (µrad/Nm): torsional compliance of joint J; its column of ``G`` is the
-  gravity torque of joint J (N m, :mod:`fgcal.estimation.gravity`) at each pose.
+  gravity torque of joint J (N m, :mod:`fgcal.robots.gravity`) at each pose.
 - ``map.jJ.sinH`` / ``map.jJ.cosH`` (µrad): harmonics ``sin(H q_J)``, ``cos(H q_J)`` of joint
   J's reading, with a zero-mean prior. A map describes the robot in the set-up and joint region it
   was fitted on: the ranges of the readings are kept with it, and using it outside them warns.
@@ -22,7 +22,7 @@ from enum import Enum
 
 import numpy as np
 
-from fgcal.estimation.gravity import Inertials, Payload, gravity_torques, model_inertials
+from fgcal.robots.gravity import Inertials, Payload, gravity_torques, model_inertials
 
 __all__ = ["ModelKind", "JointErrorSpec", "JointErrorBlock", "BlockParameters", "is_block_name",
            "compliance_joints", "corrected_joints", "commands_for", "outside_region"]

@@ -18,9 +18,11 @@ from enum import Enum
 
 import numpy as np
 
-from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
+from fgcal.estimation.build import build_graph
+from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
-from fgcal.estimation.gravity import Payload, gravity_torques, model_inertials
+from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
 from fgcal.estimation.noise import NoiseMode, fit_test
 from fgcal.robots.model import RobotModel
@@ -322,7 +324,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         One per model; each result's ``joint_errors["selection"]`` holds the comparison.
     selection : ModelSelection
     """
-    from fgcal.report.verify import verify
+    from fgcal.estimation.verification import verify
 
     up_to = ModelKind(up_to)
     rng = np.random.default_rng(0) if rng is None else rng

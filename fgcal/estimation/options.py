@@ -5,12 +5,15 @@ from dataclasses import dataclass
 
 from fgcal.estimation.joint_errors import JointErrorSpec
 from fgcal.estimation.noise import NoiseMode, OutlierMode
-from fgcal.studies.simulate import Deviations
+from fgcal.robots.deviations import Deviations
 
-__all__ = ["CalibrationOptions", "WEAK_PRIOR", "MIN_SIGMA"]
+__all__ = ["CalibrationOptions", "WEAK_PRIOR", "TYPICAL_DEVIATIONS", "MIN_SIGMA"]
 
 # Weak prior: ten times the typical deviations of DESIGN.md (mm, deg).
 WEAK_PRIOR = Deviations(length=5.0, angle=0.5, base_length=50.0, base_angle=5.0)
+# The typical deviations of a real arm from its nominal (DESIGN.md): the prior of a parameter that is
+# identifiable at the solution but was not at the nominal start.
+TYPICAL_DEVIATIONS = Deviations()
 MIN_SIGMA = 1e-6  # exact data (sigma 0) still has floating-point noise
 
 

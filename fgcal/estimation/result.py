@@ -11,7 +11,7 @@ import numpy as np
 from fgcal.errors import FgcalError
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.estimation.noise import LevelNoise, Outlier
-from fgcal.io.yamlio import atomic_write_text
+from fgcal.util.yamlio import atomic_write_text
 
 __all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "PoseResidual", "CalibrationResult",
            "save_result", "load_result"]
@@ -274,7 +274,7 @@ def save_result(result: CalibrationResult, path) -> None:
 
 def load_result(path) -> CalibrationResult:
     """Read and check a result file; a malformed one raises ``FgcalError`` naming the file."""
-    from fgcal.io.yamlio import read_text_file
+    from fgcal.util.yamlio import read_text_file
 
     path = Path(path)
     text = read_text_file(path, FgcalError, max_bytes=MAX_RESULT_BYTES)

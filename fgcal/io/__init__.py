@@ -1,4 +1,4 @@
-"""Input and output: dataset files, tables, importers of other tools' formats, YAML, bundled data.
+"""Input and output: dataset files, tables, importers of other tools' formats, targets.
 
 Nothing is imported here: import the modules themselves (no side effects, no heavy imports).
 """

@@ -28,7 +28,7 @@ from fgcal.measurements.types import kinematic_types, noise_keys
 from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
-from fgcal.io.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
+from fgcal.util.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
 __all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth"]
 

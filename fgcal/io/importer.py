@@ -2,7 +2,7 @@
 
 The instrument's frame and the tool are not known when data arrive from a tracker or a camera:
 the base (instrument to robot) and the tool (flange to the measured point or frame) are fitted to
-the data (:func:`fgcal.estimation.initial.fit_base_and_tool`, :func:`fgcal.estimation.initial.fit_base_and_point`) and
+the data (:func:`fgcal.measurements.handeye.fit_base_and_tool`, :func:`fgcal.measurements.handeye.fit_base_and_point`) and
 written, with the robot's nominal links, as the dataset's own model file ``robot.yaml``. The
 measured thing becomes a tool with one ball ``P`` of radius 0 at the tool frame's origin: full
 poses go to ``poses.csv``, points to ``centres.csv``. A held-out fraction (whole groups of repeated
@@ -24,12 +24,12 @@ import numpy as np
 
 from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.errors import DatasetError, FgcalError
-from fgcal.estimation.initial import fit_base_and_point, fit_base_and_tool
+from fgcal.measurements.handeye import fit_base_and_point, fit_base_and_tool
 from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
 from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
 from fgcal.robots.transforms import matrix_to_quaternion
-from fgcal.io.yamlio import dump_yaml
+from fgcal.util.yamlio import dump_yaml
 
 __all__ = ["DEFAULT_POSITION_SIGMA", "DEFAULT_ORIENTATION_SIGMA", "ImportResult", "to_datasets", "import_table"]
 

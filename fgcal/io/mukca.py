@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import DatasetError, FgcalError
-from fgcal.io.yamlio import check_regular_file, read_text_file
+from fgcal.util.yamlio import check_regular_file, read_text_file
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec

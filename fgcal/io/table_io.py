@@ -257,7 +257,7 @@ def rotation_from_columns(values, spec: ColumnSpec) -> np.ndarray:
 
 def read_lines(path: Path) -> list[str]:
     """The lines of a text file (UTF-8, byte-order mark ignored); :class:`DatasetError` when unreadable."""
-    from fgcal.io.yamlio import read_text_file
+    from fgcal.util.yamlio import read_text_file
 
     return read_text_file(path, DatasetError).removeprefix("\ufeff").splitlines()
 

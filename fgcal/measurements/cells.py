@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 from fgcal.errors import DatasetError
-from fgcal.io.yamlio import short_repr
+from fgcal.util.yamlio import short_repr
 
 __all__ = ["MAX_MM", "MAX_DEG", "number", "integer", "pose_id", "ball_name"]
 

@@ -10,7 +10,7 @@ import numpy as np
 import factors as fx
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
-from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.holding import held_parameters, unseen_parameters
 from fgcal.measurements.dataset import Dataset
@@ -41,9 +41,20 @@ class _Engine:
         # the start, as the batch holds it; what these poses cannot separate besides, the final
         # smoothing decides by the batch's rule (:meth:`_smooth`). Given ``names`` are taken as they are.
         self.unseen: dict[str, list[str]] = {}
+        # Unseen at the nominal geometry but not redundant at every geometry (a ball on the last
+        # joint's axis at nominal): estimated with a prior of its typical deviation, as the batch does.
+        self.typical_prior: dict[str, float] = {}
         if names is None:
             names = model.parameters().names
             self.unseen = unseen_parameters(model, names, _measured(ds))
+            if self.unseen and ds.n_poses and ds.levels():
+                from fgcal.estimation.calibrate import split_held
+
+                free = [n for n in names if n not in self.unseen]
+                try:
+                    self.unseen, self.typical_prior = split_held(model, free, self.unseen, ds, options)
+                except FgcalError as exc:  # too few poses to tell: hold them, the final smoothing decides
+                    log.info("weakly identifiable parameters not tested: %s", exc)
             names = [n for n in names if n not in self.unseen]
             if self.unseen:
                 log.info("held from the start (never seen by these measurements): %s", ", ".join(self.unseen))
@@ -52,7 +63,7 @@ class _Engine:
         self.index = self.params.index  # slot of each parameter (P,) (a property that builds it anew)
         self.held = model.nominal.copy()
         self.sigmas: Sigmas = _sigmas(ds, model, options)
-        self.prior_sigma = weak_prior(self.params)
+        self.prior_sigma = self._prior_sigma()
         self.n_accepted = 0
         self.noise = NoiseTracker()
         self.records: list[PoseData] = []  # the accepted poses (as taken: a bad probe point left out)
@@ -60,11 +71,19 @@ class _Engine:
         self._final = None
         self._kinematics: dict = {}
 
+    def _prior_sigma(self) -> np.ndarray:
+        """The weak prior, and the typical deviation where a parameter is weakly identifiable."""
+        sd = weak_prior(self.params)
+        for k, n in enumerate(self.params.names):
+            if n in self.typical_prior:
+                sd[k] = min(sd[k], self.typical_prior[n])
+        return sd
+
     def _use_names(self, names) -> None:
         """Estimate ``names`` (a restored snapshot's); the others of the model's are held as unseen."""
         self.params = ParameterSet(self.model, tuple(names))
         self.index = self.params.index
-        self.prior_sigma = weak_prior(self.params)
+        self.prior_sigma = self._prior_sigma()
         self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names if n not in names}
         self._kinematics = {}
 
@@ -233,14 +252,15 @@ class _Engine:
         trusted = self.n_accepted >= WARM_START_SHARE * len(self.seen)
         start = self.params.full(self._current(), self.held) if trusted else None
         try:
-            held = self._batch_held(seen, names)
+            held, priors = self._batch_held(seen, names)
             free = [n for n in names if n not in held]
             if start is not None and held:  # held where the batch holds them: at their start values
                 idx = [self.model.slot(n) for n in held]
                 start[idx] = self.held[idx]
             options = replace(self.options, prior="weak", extra=tuple(n for n in free if n not in ident),
                               exclude=tuple(n for n in ident if n not in free))
-            sol = solve_calibration(seen, self.model, options, start=start, decide_held=False)
+            sol = solve_calibration(seen, self.model, options, start=start, decide_held=False,
+                                    priors={**self.typical_prior, **priors})
             cov = solution_covariance(sol)
         except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
             log.info("final smoothing skipped: %s", exc)
@@ -256,22 +276,26 @@ class _Engine:
         full_cov[np.ix_(keep, keep)] = cov
         return theta, full_cov
 
-    def _batch_held(self, seen: Dataset, names) -> dict[str, list[str]]:
+    def _batch_held(self, seen: Dataset, names) -> tuple[dict, dict]:
         """What the batch would hold among ``names`` on the poses ``seen``: the rule of
         :func:`fgcal.estimation.calibrate.solve_calibration` (the graph at the declared noise, no
-        prior, linearised at the start); raises :class:`FgcalError` when the poses are too few."""
+        prior, linearised at the start) and the priors it gives the weakly identifiable ones
+        (:func:`fgcal.estimation.calibrate.split_held`): ``(held, priors)``; raises
+        :class:`FgcalError` when the poses are too few."""
         from dataclasses import replace
 
         from fgcal.estimation.build import _levels, build_graph
-        from fgcal.estimation.calibrate import _check_equations, _unidentifiable
+        from fgcal.estimation.calibrate import _check_equations, _unidentifiable, split_held
 
         options = replace(self.options, prior="none", noise_scale=None)
-        _check_equations(seen, _levels(seen, options), len(names))
-        graph, state, _ = build_graph(seen, self.model, names, options)
+        levels = _levels(seen, options)
+        _check_equations(seen, levels, len(names))
+        graph, state, _ = build_graph(seen, self.model, names, options, priors=self.typical_prior)
         held = held_parameters(graph, state, _unidentifiable)
+        held, priors = split_held(self.model, [n for n in names if n not in held], held, seen, options)
         for n, partners in held.items():
             log.info("final smoothing: %s held (cannot be separated from %s)", n, ", ".join(partners) or "nothing")
-        return held
+        return held, priors
 
     def held_info(self) -> list[dict]:
         """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,

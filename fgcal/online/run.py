@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal import __version__
+from fgcal._version import __version__
 from fgcal.errors import FgcalError
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
-from fgcal.io.yamlio import atomic_write_text
+from fgcal.util.yamlio import atomic_write_text
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
 from fgcal.online.engines import make_engine, pose_records, prefit

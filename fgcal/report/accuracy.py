@@ -183,10 +183,10 @@ def held_parameter_cost(result: CalibrationResult, joints) -> list[HeldCost]:
     """The error each held parameter leaves at ``joints`` (K, n; rad, mm) after the others are re-fitted.
 
     A held parameter's true value may differ from nominal by a typical manufacturing deviation
-    (:class:`fgcal.studies.simulate.Deviations`). Its effect on the tool positions, minus the part a
+    (:class:`fgcal.robots.deviations.Deviations`). Its effect on the tool positions, minus the part a
     least-squares change of the identified parameters reproduces, is what calibration leaves.
     """
-    from fgcal.studies.simulate import Deviations
+    from fgcal.robots.deviations import Deviations
 
     if not result.held:
         return []

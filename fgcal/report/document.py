@@ -14,7 +14,7 @@ from pathlib import Path
 from fgcal.report import plots
 from fgcal.report.report_sections import ReportContent, build_content
 from fgcal.estimation.result import CalibrationResult
-from fgcal.io.yamlio import atomic_write_bytes, atomic_write_text
+from fgcal.util.yamlio import atomic_write_bytes, atomic_write_text
 
 __all__ = ["write_report", "figures", "captions", "render_html", "render_markdown"]
 

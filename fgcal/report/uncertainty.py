@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.estimation.calibrate import WEAK_PRIOR
+from fgcal.estimation.options import WEAK_PRIOR
 from fgcal.estimation.result import CalibrationResult
 
 __all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations",

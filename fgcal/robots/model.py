@@ -273,7 +273,7 @@ class RobotModel:
 
     @cached_property
     def _identifiable(self) -> tuple[tuple[str, ...], dict]:
-        from fgcal.estimation.identifiability import minimal_parameters
+        from fgcal.robots.identifiability import minimal_parameters
 
         return minimal_parameters(self, self._rule_names())
 

@@ -31,9 +31,9 @@ import numpy as np
 
 from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
-from fgcal.io.resources import builtin_robot_names, builtin_robot_path
+from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
-from fgcal.io.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
+from fgcal.util.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
 __all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT", "euler_dict"]
 
@@ -202,8 +202,8 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
     if not np.allclose(mounting, np.eye(4), rtol=0.0, atol=1e-12):
         extra["mounting"] = euler_dict(mounting)
-    if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.estimation.gravity)
-        from fgcal.estimation.gravity import inertials_from_dict, inertials_to_dict
+    if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.robots.gravity)
+        from fgcal.robots.gravity import inertials_from_dict, inertials_to_dict
 
         extra["inertials"] = inertials_to_dict(inertials_from_dict(extra["inertials"], n, source, last_row))
     try:

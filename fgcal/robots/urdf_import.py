@@ -24,7 +24,7 @@ import numpy as np
 from fgcal.errors import ModelError
 from fgcal.robots.model import JointType, RobotModel
 from fgcal.robots.transforms import rot, to_euler_zyx_trans
-from fgcal.io.yamlio import read_text_file
+from fgcal.util.yamlio import read_text_file
 
 __all__ = ["UrdfJoint", "parse_urdf", "urdf_chain", "model_from_urdf", "load_urdf_model", "rpy_matrix"]
 

@@ -1,4 +1,4 @@
-"""Studies: simulation, experiment design and the paper's simulation studies.
+"""Studies: simulation, experiment design, the paper's simulation studies and the honesty scenarios.
 
 Nothing is imported here: import the modules themselves (no side effects, no heavy imports).
 """

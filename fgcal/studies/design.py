@@ -28,10 +28,10 @@ from fgcal.measurements.dataset import Noise
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.studies.design_info import Layout, information, information_and_middle, layout_from_access
-from fgcal.estimation.identifiability import analyse_information
+from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.plans import PLAN_MARGIN_DEG, PLAN_MARGIN_MM
-from fgcal.studies.simulate import Deviations
+from fgcal.robots.deviations import Deviations
 
 __all__ = ["INDICES", "pose_information", "indices", "predicted_rms", "Design", "design_plan", "candidate_pool",
            "verification_weight", "Candidates", "random_design_values"]

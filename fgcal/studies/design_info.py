@@ -31,7 +31,7 @@ import numpy as np
 from factors.errors import ball_centre_error, probe_error
 
 from fgcal.estimation.build import _sigmas
-from fgcal.estimation.calibrate import CalibrationOptions
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError

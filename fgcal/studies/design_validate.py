@@ -3,7 +3,7 @@
 A plan of n of a dataset's poses (:func:`fgcal.studies.design_dataset.design_from_dataset`) and random
 plans of n poses from the same usable candidates are each calibrated on their own poses, and
 each calibration's position error is measured at the held-out dataset's poses
-(:func:`fgcal.report.verify.verify`). On real data this includes what no geometric model explains, so
+(:func:`fgcal.estimation.verification.verify`). On real data this includes what no geometric model explains, so
 it is the test a user cares about. No I/O here.
 """
 from __future__ import annotations
@@ -13,13 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 from fgcal.errors import FgcalError
 from fgcal.estimation.noise import NoiseMode
 from fgcal.robots.model import RobotModel
-from fgcal.report.verify import verify
+from fgcal.estimation.verification import verify
 
 __all__ = ["HeldOutComparison", "compare_on_held_out"]
 

@@ -2,7 +2,7 @@
 
 :func:`simulate_probes` is :func:`fgcal.studies.simulate.measure` for probe points (the same random
 stream, the same points); :meth:`ProbedPoses.measured_poses` is what
-:func:`fgcal.report.verify.measured_poses` does with probe data (sphere fits of known radius, a
+:func:`fgcal.estimation.verification.measured_poses` does with probe data (sphere fits of known radius, a
 rigid fit per pose, the same checks), for all poses at once. A study trial spends its time in
 its calibration, not here. Units: mm, rad. No I/O here.
 """
@@ -52,7 +52,7 @@ class ProbedPoses:
                        joints_deg=self.joints_deg, probes=probes)
 
     def measured_poses(self, tooling, sigma: float):
-        """Tool poses measured as :func:`fgcal.report.verify.measured_poses` measures probe data.
+        """Tool poses measured as :func:`fgcal.estimation.verification.measured_poses` measures probe data.
 
         Sphere fits of known radius with the residual check (as
         :func:`fgcal.measurements.spherefit.fit_spheres_checked`), then a least-squares rigid fit of

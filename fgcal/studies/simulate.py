@@ -22,45 +22,13 @@ from fgcal.measurements.dataset import Dataset, Noise, PointObservations
 from fgcal.measurements.types import all_levels, kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.robots.kinematics import tool_points
+from fgcal.robots.deviations import Deviations
 from fgcal.robots.model import RobotModel, Tooling
 from fgcal.studies.plans import UP, ball_access, paper_plan, random_plan
 
-__all__ = ["Deviations", "draw_truth", "measure", "simulate", "SimulationSettings"]
+__all__ = ["draw_truth", "measure", "simulate", "SimulationSettings"]
 
 log = logging.getLogger(__name__)
-
-@dataclass(frozen=True)
-class Deviations:
-    """Standard deviations of the actual robot from nominal (DESIGN.md's typical values).
-
-    Attributes
-    ----------
-    length : float
-        Link and tool lengths (mm).
-    angle : float
-        Link and tool angles (deg).
-    base_length : float
-        Base placement (mm).
-    base_angle : float
-        Base orientation (deg).
-    """
-
-    length: float = 0.5
-    angle: float = 0.05
-    base_length: float = 5.0
-    base_angle: float = 0.5
-
-    def sigmas(self, names) -> np.ndarray:
-        """Per-parameter standard deviations (mm, rad) for the parameter ``names``."""
-        out = []
-        for name in names:
-            block, field = name.rsplit(".", 1)
-            is_angle = field in ("phi", "theta", "psi", "alpha", "beta")
-            if block == "base":
-                out.append(np.radians(self.base_angle) if is_angle else self.base_length)
-            else:
-                out.append(np.radians(self.angle) if is_angle else self.length)
-        return np.array(out)
 
 
 def draw_truth(model: RobotModel, rng: np.random.Generator, deviations: Deviations = Deviations(),

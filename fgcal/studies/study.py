@@ -145,7 +145,7 @@ def _model(robot: str):
 def prepare_process(robots) -> None:
     """Import what a trial uses and read the ``robots``' models, so that forked workers inherit them."""
     import fgcal.estimation.calibrate  # noqa: F401
-    import fgcal.report.verify  # noqa: F401
+    import fgcal.estimation.verification  # noqa: F401
     import fgcal.studies.probing  # noqa: F401
 
     for robot in robots:
@@ -166,12 +166,12 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
 
     ``q_identify`` (N, 6) rad fixes the identification poses (a designed plan); the trial's own
     random draw is used otherwise. The simulation and the verification's sphere and pose fits are
-    the vectorised forms of :func:`fgcal.studies.simulate.measure` and :func:`fgcal.report.verify.measured_poses`
+    the vectorised forms of :func:`fgcal.studies.simulate.measure` and :func:`fgcal.estimation.verification.measured_poses`
     (same random stream, same estimators and checks: the same numbers, to rounding).
     """
     from fgcal.estimation.calibrate import calibrate
     from fgcal.measurements.dataset import Noise
-    from fgcal.report.verify import compare_poses
+    from fgcal.estimation.verification import compare_poses
     from fgcal.robots.kinematics import forward
     from fgcal.studies.probing import simulate_probes
     from fgcal.studies.plans import random_plan

@@ -21,7 +21,7 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.studies.study import RESULT_COLUMNS, Trial, run_trial
-from fgcal.io.yamlio import atomic_write_bytes, atomic_write_text
+from fgcal.util.yamlio import atomic_write_bytes, atomic_write_text
 
 __all__ = ["read_rows", "run_study", "study_figures", "Progress"]
 
@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 
 def read_rows(path) -> list[dict]:
     """Rows of a ``trials.csv`` (numbers as floats); an empty list when it does not exist."""
-    from fgcal.io.yamlio import read_text_file
+    from fgcal.util.yamlio import read_text_file
 
     path = Path(path)
     if not os.path.lexists(path):

@@ -5,7 +5,7 @@ import logging
 
 import numpy as np
 
-from fgcal.cli.checks import MAX_BATCH_ROWS, check_output_file, dataset_inputs, parameter_names
+from fgcal.cli.commands.checks import MAX_BATCH_ROWS, check_output_file, dataset_inputs, parameter_names
 from fgcal.errors import FgcalError
 from fgcal.cli.commands.check import _measurement_rows, _warn_units
 
@@ -91,7 +91,8 @@ def _print_result(result) -> None:
 
 
 def _cmd_calibrate(args) -> int:
-    from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+    from fgcal.estimation.calibrate import calibrate
+    from fgcal.estimation.options import CalibrationOptions
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import save_result
 
@@ -131,7 +132,7 @@ def _cmd_calibrate(args) -> int:
 
 
 def _parse_payload(text):
-    from fgcal.estimation.gravity import Payload
+    from fgcal.robots.gravity import Payload
 
     if not text:
         return Payload()

@@ -5,7 +5,7 @@ import logging
 import sys
 
 
-from fgcal.cli.checks import MAX_BATCH_ROWS
+from fgcal.cli.commands.checks import MAX_BATCH_ROWS
 
 log = logging.getLogger("fgcal")
 
@@ -27,7 +27,7 @@ def _cmd_check(args) -> int:
         print("identifiability: no measurements")
         return 0
     if _measurement_rows(ds) > MAX_BATCH_ROWS and ds.tooling is not None and ds.tooling.balls:
-        from fgcal.estimation.identifiability import analyse, compact_jacobian
+        from fgcal.robots.identifiability import analyse, compact_jacobian
 
         params = model.parameters()
         J = compact_jacobian(params, model.joints_to_internal(ds.joints_deg), measurement=ds.tooling.offsets())

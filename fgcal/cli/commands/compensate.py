@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from fgcal.cli.checks import check_output_file
+from fgcal.cli.commands.checks import check_output_file
 from fgcal.errors import FgcalError
 
 PARTIAL = 3  # exit status of compensate when some targets were not reachable

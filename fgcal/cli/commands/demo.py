@@ -5,7 +5,7 @@ import argparse
 import logging
 
 
-from fgcal.cli.checks import check_output_dir
+from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
 from fgcal.cli.commands.report import _cmd_report
@@ -16,7 +16,7 @@ log = logging.getLogger("fgcal")
 
 def _cmd_demo(args) -> int:
     """The paper's experiment on the bundled dataset: identify on 24 poses, verify on the other 24."""
-    from fgcal.io.resources import default_dataset_dir
+    from fgcal.util.resources import default_dataset_dir
 
     ds_dir = default_dataset_dir()
     out = check_output_dir(args.out, [ds_dir])

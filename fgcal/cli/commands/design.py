@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.cli.checks import MAX_POSES, check_output_file, dataset_inputs
+from fgcal.cli.commands.checks import MAX_POSES, check_output_file, dataset_inputs
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")

@@ -5,7 +5,7 @@ import logging
 from pathlib import Path
 
 
-from fgcal.cli.checks import check_output_file
+from fgcal.cli.commands.checks import check_output_file
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")
@@ -15,7 +15,7 @@ def _cmd_export(args) -> int:
     from fgcal.estimation.result import load_result
     from fgcal.robots.robot_file import save_model
     from fgcal.robots.urdf import export_urdf
-    from fgcal.io.yamlio import atomic_write_text
+    from fgcal.util.yamlio import atomic_write_text
 
     if args.model is None and args.urdf is None and args.deltas is None:
         raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.cli.checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
+from fgcal.cli.commands.checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
 from fgcal.errors import FgcalError
 
 __all__ = ["add_import_parser"]
@@ -157,7 +157,7 @@ def _cmd_import_mukca(args) -> int:
     """``fgcal import mukca``: the two-socket tool's placements as contacts at unknown fixture points."""
     from fgcal.io.dataset_io import save_dataset
     from fgcal.io.mukca import read_mukca
-    from fgcal.io.yamlio import read_text_file
+    from fgcal.util.yamlio import read_text_file
     from fgcal.robots.robot_file import load_model
 
     chain = None

@@ -4,7 +4,7 @@ from __future__ import annotations
 import logging
 
 
-from fgcal.cli.checks import check_output_dir
+from fgcal.cli.commands.checks import check_output_dir
 from fgcal.errors import FgcalError
 from fgcal.cli.commands.check import _warn_units
 

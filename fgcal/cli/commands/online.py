@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from fgcal.cli.checks import check_output_file, dataset_inputs
+from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")
@@ -76,7 +76,7 @@ def _cmd_online(args) -> int:
         print(f"wrote {args.out} ({result.n_poses} poses, engine {args.engine})")
     if args.plot and run.history:
         from fgcal.report.plots import plot_convergence
-        from fgcal.io.yamlio import atomic_write_bytes
+        from fgcal.util.yamlio import atomic_write_bytes
         import io
 
         params = run.engine.params  # the history's columns (a parameter the final smoothing held: sigma 0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import logging
 
 
-from fgcal.cli.checks import check_output_dir
+from fgcal.cli.commands.checks import check_output_dir
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")
@@ -16,7 +16,7 @@ def _cmd_report(args) -> int:
     from fgcal.report.document import write_report
     from fgcal.estimation.result import load_result
 
-    from fgcal.io.yamlio import read_text_file
+    from fgcal.util.yamlio import read_text_file
 
     check_output_dir(args.out, [args.result, args.verify])
     result = load_result(args.result)
@@ -28,7 +28,7 @@ def _cmd_report(args) -> int:
         except ValueError as exc:
             raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
                              f"line {getattr(exc, 'lineno', '?')})") from None
-        from fgcal.report.verify import check_verification
+        from fgcal.estimation.verification import check_verification
 
         check_verification(verification, args.verify)
         robot = verification.get("robot")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.cli.checks import MAX_POSES, check_output_dir
+from fgcal.cli.commands.checks import MAX_POSES, check_output_dir
 from fgcal.errors import FgcalError
 
 log = logging.getLogger("fgcal")
@@ -18,7 +18,8 @@ def _cmd_simulate(args) -> int:
     from fgcal.measurements.dataset import Noise
     from fgcal.io.dataset_io import save_dataset
     from fgcal.robots.robot_file import load_model
-    from fgcal.studies.simulate import Deviations, SimulationSettings, simulate
+    from fgcal.robots.deviations import Deviations
+    from fgcal.studies.simulate import SimulationSettings, simulate
 
     if args.cmm_sigma < 0 or args.joint_resolution < 0 or args.repeatability < 0:
         raise FgcalError("--cmm-sigma, --joint-resolution and --repeatability must not be negative")

@@ -5,7 +5,7 @@ import logging
 from pathlib import Path
 
 
-from fgcal.cli.checks import check_output_dir
+from fgcal.cli.commands.checks import check_output_dir
 
 log = logging.getLogger("fgcal")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import logging
 
 
-from fgcal.cli.checks import check_output_file, dataset_inputs
+from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.cli.commands.calibrate import parse_pose_selection
 from fgcal.cli.commands.check import _warn_units
 
@@ -16,8 +16,8 @@ def _cmd_verify(args) -> int:
 
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import load_result
-    from fgcal.report.verify import check_same_robot, verify
-    from fgcal.io.yamlio import atomic_write_text
+    from fgcal.estimation.verification import check_same_robot, verify
+    from fgcal.util.yamlio import atomic_write_text
 
     if args.out:
         check_output_file(args.out, [args.result, *dataset_inputs(args.dataset)])

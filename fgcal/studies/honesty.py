@@ -17,7 +17,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from fgcal.estimation.baseline import two_stage
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Noise
 from fgcal.robots.kinematics import forward, jacobians, tool_points
 from fgcal.robots.model import SLOT_NAMES, ParameterSet, slots_from_file_units
