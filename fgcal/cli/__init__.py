@@ -101,7 +101,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.set_defaults(func=_cmd_measure)
 
     k = sub.add_parser("calibrate", help="batch factor-graph calibration (the paper's ID6); writes fgcal-result/1")
-    k.add_argument("dataset", type=Path)
+    k.add_argument("dataset", type=Path, nargs="+",
+                   help="dataset directory; several: one robot measured in several sessions or from several "
+                        "stations, each dataset a station named after its directory (the first is the world)")
     k.add_argument("--out", type=Path, required=True, help="result file (JSON)")
     k.add_argument("--poses", default=None, help="poses to use: odd, even, first:N, last:N or ranges like 1-21")
     k.add_argument("--levels", default=None, help="comma-separated levels to use (default: all present)")

@@ -102,35 +102,19 @@ def _initial_pivot(model: RobotModel, held, q, offsets, length):
 
 
 def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> SetupLayout:
-    """The set-up blocks the measurements use, each unknown one started from the robot's start:
-    a fixture point at the mean of its predicted ball centres, a plane fitted to them (its normal
-    towards the tool: the ball's centre lies on the side the normal points to)."""
-    used, centres, flange = {}, {}, {}
+    """The set-up blocks the measurements use, each unknown one started by its measurement type
+    from the robot's start (:meth:`fgcal.measurements.contact.SetupMeasurement.block_starts`: a
+    fixture point at the mean of its predicted ball centres, a plane fitted to them, a station by
+    a rigid fit of what it measured)."""
+    used, starts = {}, {}
     T = model.forward(start, q)
     for kind in kinds:
         obs = getattr(ds, kind.level)
         i = np.array([row[p] for p in obs.pose.tolist()], dtype=int)
-        pts = tool_points(T[i], ds.tooling.offsets(obs.ball)[:, None, :])[:, 0]
-        for f in np.unique(obs.fixture):
-            sel = obs.fixture == f
-            used[str(f)] = True
-            centres[str(f)] = pts[sel]
-            flange[str(f)] = T[i[sel], :3, 3]
-    spec = ds.setup.subset(used)
-    starts = {}
-    for name, f in spec.fixtures.items():
-        c = centres[name]
-        if f.type == "point":
-            starts[name] = c.mean(axis=0)
-            continue
-        if len(c) < 3 or np.linalg.matrix_rank(c - c.mean(0), tol=1e-6) < 2:
-            raise FgcalError(f"{ds.path or 'dataset'}: plane {name} needs contacts at three or more points "
-                             f"not on one line (it has {len(c)})")
-        n = np.linalg.svd(c - c.mean(0))[2][2]
-        if np.mean((flange[name] - c) @ n) < 0:
-            n = -n
-        starts[name] = (n, float(np.mean(c @ n)) - ds.tooling.radius)
-    return SetupLayout.build(spec, starts)
+        used.update(dict.fromkeys(kind.blocks_of(obs).tolist()))
+        unknown = {n for n in used if n in ds.setup.fixtures and ds.setup.fixtures[n].value is None}
+        starts.update(kind.block_starts(obs, T[i], ds.tooling, unknown, ds.path or "dataset"))
+    return SetupLayout.build(ds.setup.subset(used), starts)
 
 
 def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None,

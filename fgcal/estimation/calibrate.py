@@ -300,23 +300,30 @@ GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with 
 
 
 def world_is_fixed(ds: Dataset, levels) -> bool:
-    """Whether the data fix the world frame: an instrument level, or a fixture that is known or
-    has a prior (contacts with unknown fixtures alone leave the base free)."""
+    """Whether the data fix the world frame: an instrument level, or a set-up block that is known
+    or has a prior (contacts with unknown fixtures alone leave the base free)."""
     setup_levels = [lv for lv in levels if getattr(BY_LEVEL.get(lv), "uses_setup", False)]
     if len(setup_levels) < len(levels):
         return True
-    used = set().union(*(set(getattr(ds, lv).fixture.tolist()) for lv in setup_levels)) if setup_levels else set()
+    used = _used_blocks(ds, setup_levels)
     return any(ds.setup.fixtures[f].value is not None for f in used)
+
+
+def _used_blocks(ds: Dataset, levels) -> set:
+    used = set()
+    for lv in levels:
+        kind = BY_LEVEL.get(lv)
+        if getattr(kind, "uses_setup", False):
+            used |= set(kind.blocks_of(getattr(ds, lv)).tolist())
+    return used
 
 
 def _setup_size(ds: Dataset, levels) -> int:
     """Free set-up parameters the levels use, less the known distances between them."""
-    used = set()
-    for lv in levels:
-        if getattr(BY_LEVEL.get(lv), "uses_setup", False):
-            used |= set(getattr(ds, lv).fixture.tolist())
-    spec = ds.setup.subset(used)
-    return 3 * sum(not f.fixed for f in spec.fixtures.values()) - len(spec.distances)
+    from fgcal.measurements.setup import BLOCK_KINDS
+
+    spec = ds.setup.subset(_used_blocks(ds, levels))
+    return sum(BLOCK_KINDS[f.type].size for f in spec.fixtures.values() if not f.fixed) - len(spec.distances)
 
 
 def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:

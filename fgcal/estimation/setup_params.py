@@ -19,8 +19,12 @@ SETUP_KINDS = ("fixture", "plane", "station")
 
 
 def is_setup_name(name: str) -> bool:
-    """Whether ``name`` is a set-up unknown's parameter (``fixture.A.x``, ``plane.T.d``, ...)."""
-    return name.split(".", 1)[0] in SETUP_KINDS
+    """Whether ``name`` is a set-up unknown's parameter (``fixture.A.x``, ``plane.T.d``, ``station.B.phi``,
+    or a registered block kind's prefix)."""
+    from fgcal.measurements.setup import BLOCK_KINDS
+
+    first = name.split(".", 1)[0]
+    return first in SETUP_KINDS or any(k.prefix == first for k in BLOCK_KINDS.values())
 
 
 @dataclass(frozen=True)

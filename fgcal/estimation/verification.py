@@ -267,6 +267,8 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         if missing:
             raise FgcalError(f"{ds.path or 'dataset'}: truth.yaml has no value for {', '.join(missing[:5])}")
         truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
+    if ds.station_centres is not None:
+        ds = _stations_to_world(result, ds)
     if ds.levels() and set(ds.levels()) <= {"contacts", "plane_contacts"}:
         return _verify_contacts(result, ds, model, slots)
     if not ({"probes", "centres", "poses"} & set(ds.levels())):  # another type: verified by its own metric
@@ -308,6 +310,34 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
             out.truth_after = compare_points(T_cal, offs, true_pts)
             out.truth_before = compare_points(T_nom, offs, true_pts)
     return out
+
+
+def _stations_to_world(result: CalibrationResult, ds: Dataset) -> Dataset:
+    """A copy of ``ds`` whose centres measured from other stations are in the world frame, by the
+    stations the calibration found (``result.setup``)."""
+    from dataclasses import replace as _replace
+
+    from fgcal.measurements.point import PointObservations
+    from fgcal.robots.transforms import euler_zyx_trans
+
+    found = (result.setup or {}).get("estimated", {})
+    sc = ds.station_centres
+    xyz = sc.xyz.copy()
+    for name in dict.fromkeys(sc.station.tolist()):
+        pose = found.get(name, {}).get("pose") if found.get(name, {}).get("type") == "station" else None
+        if pose is None:
+            known = ", ".join(n for n, v in found.items() if v.get("type") == "station") or "none"
+            raise FgcalError(f"{ds.path or 'dataset'}: station {name} is not a station of the calibration "
+                             f"(its stations: {known}); verify from stations it found")
+        T = euler_zyx_trans(*np.radians(pose[:3]), *pose[3:])
+        sel = sc.station == name
+        xyz[sel] = xyz[sel] @ T[:3, :3].T + T[:3, 3]
+    parts = [o for o in (ds.centres,) if o is not None]
+    whole = PointObservations(np.concatenate([*(o.pose for o in parts), sc.pose]),
+                              np.concatenate([*(o.ball for o in parts), sc.ball]),
+                              np.vstack([*(o.xyz for o in parts), xyz]),
+                              np.concatenate([*(o.line for o in parts), sc.line]))
+    return _replace(ds, centres=whole, station_centres=None)
 
 
 def _verify_contacts(result: CalibrationResult, ds: Dataset, model: RobotModel, slots) -> Verification:

@@ -247,7 +247,8 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
         raise DatasetError(f"{path}: format {short_repr(data['format'])} is not known (expected {FORMAT!r})")
     if not isinstance(data["robot"], str) or not data["robot"]:
         raise DatasetError(f"{path}: robot must be a model name or a model file path")
-    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance", "fixtures", "constraints"}
+    unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance", "fixtures", "constraints",
+                           "stations"}
     if unknown:
         raise DatasetError(f"{path}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
     chain = data.get("chain")
@@ -287,7 +288,13 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     provenance = data["provenance"]
     if not isinstance(provenance, dict):
         provenance = {"text": str(provenance)}
-    return data["robot"], tooling, noise, provenance, chain, _fixtures(path, data, num)
+    setup = _fixtures(path, data, num)
+    world, stations = _stations(path, data, num)
+    clash = set(stations) & set(setup.fixtures)
+    if clash:
+        raise DatasetError(f"{path}: {', '.join(sorted(clash))[:80]}: a name of both a station and a fixture")
+    setup = SetupSpec({**setup.fixtures, **stations}, setup.distances)
+    return data["robot"], tooling, noise, provenance, chain, setup, world
 
 
 def load_truth(path) -> tuple[dict, list]:
@@ -319,27 +326,34 @@ def load_dataset_meta(directory) -> Dataset:
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance, chain, setup = _meta(directory / "dataset.yaml")
+    robot, tooling, noise, provenance, chain, setup, world = _meta(directory / "dataset.yaml")
     return Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=np.zeros(0, dtype=int),
-                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain, setup=setup)
+                   joints_deg=np.zeros((0, 6)), path=directory, chain=chain, setup=setup, world_station=world)
 
 
 def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
     """A ``joints.csv``-like file: ``(pose ids (N,), joint readings (N, n) deg or mm)``, columns
-    ``pose,q1..qn``.
+    ``pose,q1..qn`` (and an optional ``station``, see :func:`read_joints_and_stations`).
 
     Raises :class:`DatasetError` naming the file and line for a malformed row or repeated id.
     """
+    ids, q, _ = read_joints_and_stations(path)
+    return ids, q
+
+
+def read_joints_and_stations(path):
+    """:func:`read_joints` and the ``station`` column ``(N,)`` of str, or None without one."""
     joints_path = Path(path)
-    rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)])
+    rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)] + ["station"])
     if not rows:
         raise DatasetError(f"{joints_path}: no poses")
-    n_joints = sum(1 for c in rows[0][1] if c != "pose")
+    has_station = "station" in rows[0][1]
+    n_joints = sum(1 for c in rows[0][1] if c not in ("pose", "station"))
     columns = joint_columns(n_joints)
-    if set(rows[0][1]) != set(columns):
+    if set(rows[0][1]) - {"station"} != set(columns):
         raise DatasetError(f"{joints_path}: line 1: joint columns must be q1..qn without gaps, got "
-                           f"{','.join(c for c in rows[0][1] if c != 'pose')}")
-    ids, q, seen = [], [], {}
+                           f"{','.join(c for c in rows[0][1] if c not in ('pose', 'station'))}")
+    ids, q, stations, seen = [], [], [], {}
     for line, r in rows:
         where = f"{joints_path}: line {line}"
         pid = _integer(r["pose"], where, "pose")
@@ -348,7 +362,47 @@ def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
         seen[pid] = line
         ids.append(pid)
         q.append([_number(r[c], where, c, MAX_DEG) for c in columns[1:]])
-    return np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints)
+        if has_station:
+            if not r["station"]:
+                raise DatasetError(f"{where}: station is empty (name the station the pose was measured from)")
+            stations.append(r["station"])
+    return (np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints),
+            np.array(stations, dtype=str) if has_station else None)
+
+
+def _stations(path: Path, data: dict, num) -> tuple[str | None, dict]:
+    """``stations:`` of ``dataset.yaml``: the world's name and the other stations' blocks.
+
+    A list of names, or a mapping ``NAME: {pose: [phi, theta, psi, px, py, pz] (deg, mm),
+    sigma: MM, fixed: BOOL}`` (all optional); the first is the world frame."""
+    raw = data.get("stations")
+    if raw is None:
+        return None, {}
+    if isinstance(raw, list):
+        raw = {n: {} for n in raw}
+    if not isinstance(raw, dict) or len(raw) < 1:
+        raise DatasetError(f"{path}: stations must be a list of names or a mapping NAME: {{pose: [...]}}")
+    names = list(raw)
+    if len(set(map(str, names))) != len(names) or not all(isinstance(n, str) and n and "," not in n for n in names):
+        raise DatasetError(f"{path}: stations: names must be distinct, non-empty and without commas")
+    blocks = {}
+    for name in names[1:]:
+        spec = raw[name] or {}
+        where = f"{path}: stations.{short_repr(name)}"
+        if not isinstance(spec, dict) or set(spec) - {"pose", "sigma", "fixed"}:
+            raise DatasetError(f"{where}: a station takes pose: [phi, theta, psi, px, py, pz], sigma, fixed")
+        value = None
+        if "pose" in spec:
+            if not isinstance(spec["pose"], list) or len(spec["pose"]) != 6:
+                raise DatasetError(f"{where}: pose must be [phi, theta, psi, px, py, pz] (deg, mm)")
+            v = np.array([num(x, f"stations.{name}.pose") for x in spec["pose"]])
+            value = np.concatenate([np.radians(v[:3]), v[3:]])
+        sigma = None if spec.get("sigma") is None else num(spec["sigma"], f"stations.{name}.sigma", 0.0)
+        fixed = spec.get("fixed", False)
+        if not isinstance(fixed, bool) or ((fixed or sigma is not None) and value is None):
+            raise DatasetError(f"{where}: fixed (true/false) and sigma need the station's pose")
+        blocks[name] = FixtureSpec(name, "station", value, sigma, fixed)
+    return names[0], blocks
 
 
 def load_dataset(directory) -> Dataset:
@@ -362,17 +416,27 @@ def load_dataset(directory) -> Dataset:
     directory = Path(directory)
     if not directory.is_dir():
         raise DatasetError(f"{directory}: not a dataset directory")
-    robot, tooling, noise, provenance, chain, setup = _meta(directory / "dataset.yaml")
-    ids, q = read_joints(directory / "joints.csv")
+    robot, tooling, noise, provenance, chain, setup, world = _meta(directory / "dataset.yaml")
+    ids, q, stations = read_joints_and_stations(directory / "joints.csv")
+    if stations is not None:
+        if world is None:
+            raise DatasetError(f"{directory / 'joints.csv'}: has a station column but dataset.yaml has no stations:")
+        known_st = {world} | {n for n, f in setup.fixtures.items() if f.type == "station"}
+        bad = [s_ for s_ in dict.fromkeys(stations.tolist()) if s_ not in known_st]
+        if bad:
+            raise DatasetError(f"{directory / 'joints.csv'}: station {short_repr(bad[0])} is not in dataset.yaml's "
+                               f"stations: ({', '.join(sorted(known_st))[:80]})")
     known = set(ids.tolist())
     ds = Dataset(robot=robot, tooling=tooling, noise=noise, provenance=provenance, pose_ids=ids,
-                 joints_deg=q, path=directory, chain=chain, setup=setup)
+                 joints_deg=q, path=directory, chain=chain, setup=setup, stations=stations, world_station=world)
     if os.path.lexists(directory / "probes.csv"):
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls)
     shared = {}
     for kind in kinematic_types():
+        if getattr(kind, "derived", False):
+            continue  # split from another level's file below
         if kind.file == CONTACT_FILE:  # contacts at points and on planes share one file
             shared.setdefault(kind.file, []).append(kind)
         elif os.path.lexists(directory / kind.file):
@@ -381,6 +445,9 @@ def load_dataset(directory) -> Dataset:
         if os.path.lexists(directory / name):
             for kind, obs in _contact_tables(directory / name, kinds, known, tooling.balls, setup).items():
                 setattr(ds, kind.level, obs)
+    ds.split_station_centres()
+    if ds.stations is not None and (ds.probes is not None or ds.poses is not None or ds.distances is not None):
+        raise DatasetError(f"{directory}: several stations are supported for centres.csv (and contacts) only")
     if os.path.lexists(directory / "truth.yaml"):
         ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
@@ -425,6 +492,23 @@ def write_csv(path, header, rows) -> None:
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
+def _stations_dict(ds: Dataset) -> dict:
+    if ds.world_station is None:
+        return {}
+    out = {ds.world_station: {}}
+    for n, f in ds.setup.fixtures.items():
+        if f.type == "station":
+            spec = {}
+            if f.value is not None:
+                spec["pose"] = [float(v) for v in np.degrees(f.value[:3])] + [float(v) for v in f.value[3:]]
+            if f.sigma is not None:
+                spec["sigma"] = float(f.sigma)
+            if f.fixed:
+                spec["fixed"] = True
+            out[n] = spec
+    return {"stations": out}
+
+
 def _write_into(ds: Dataset, directory: Path) -> None:
     meta = {
         "format": FORMAT,
@@ -434,11 +518,17 @@ def _write_into(ds: Dataset, directory: Path) -> None:
                  "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
         "noise": ds.noise.items(),
         "provenance": ds.provenance,
-        **ds.setup.to_dict(),
+        **SetupSpec({n: f for n, f in ds.setup.fixtures.items() if f.type != "station"},
+                    ds.setup.distances).to_dict(),
+        **_stations_dict(ds),
     }
     atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
-    write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
-              ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
+    if ds.stations is None:
+        write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]),
+                  ([int(p), *map(float, q)] for p, q in zip(ds.pose_ids, ds.joints_deg)))
+    else:
+        write_csv(directory / "joints.csv", joint_columns(ds.joints_deg.shape[1]) + ["station"],
+                  ([int(p), *map(float, q), st] for p, q, st in zip(ds.pose_ids, ds.joints_deg, ds.stations)))
     if ds.probes is not None:
         write_csv(directory / "probes.csv", POINT_COLUMNS, POINT.rows(ds.probes))
     files: dict = {}

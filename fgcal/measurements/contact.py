@@ -16,8 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.setup import plane_normal
+from fgcal.robots.kinematics import tool_points
 
 __all__ = ["ContactObservations", "SetupMeasurement", "PointContact", "PlaneContact", "CONTACT", "PLANE_CONTACT",
            "CONTACT_COLUMNS", "CONTACT_FILE"]
@@ -84,6 +86,33 @@ class SetupMeasurement(KinematicMeasurement):
 
     def simulate(self, T, offsets, rng, noise) -> np.ndarray:
         raise NotImplementedError(f"fgcal's simulator does not simulate {self.title}")
+
+    def blocks_of(self, obs) -> np.ndarray:
+        """The set-up block of each observation (M,) (names in ``dataset.yaml``)."""
+        return obs.fixture
+
+    def block_starts(self, obs, T, tooling, unknown, where) -> dict:
+        """Start values of the blocks in ``unknown`` that ``obs`` uses, from the tool poses ``T`` (M, 4, 4)
+        at the start geometry: a fixture point at the mean of its predicted ball centres, a plane
+        fitted to them with its normal towards the tool."""
+        pts = tool_points(T, tooling.offsets(obs.ball)[:, None, :])[:, 0]
+        out = {}
+        for f in dict.fromkeys(obs.fixture.tolist()):
+            if f not in unknown:
+                continue
+            sel = obs.fixture == f
+            c = pts[sel]
+            if self.fixture_type == "point":
+                out[f] = c.mean(axis=0)
+                continue
+            if len(c) < 3 or np.linalg.matrix_rank(c - c.mean(0), tol=1e-6) < 2:
+                raise FgcalError(f"{where}: plane {f} needs contacts at three or more points not on one line "
+                                 f"(it has {len(c)})")
+            n = np.linalg.svd(c - c.mean(0))[2][2]
+            if np.mean((T[sel, :3, 3] - c) @ n) < 0:
+                n = -n
+            out[f] = (n, float(np.mean(c @ n)) - tooling.radius)
+        return out
 
     def _ball_points(self, theta, q, offset, index, held, chain):
         from factors.errors import ball_centre_error

@@ -17,6 +17,7 @@ from fgcal.measurements.distance import DistanceObservations
 from fgcal.measurements.point import PointObservations
 from fgcal.measurements.pose import PoseObservations
 from fgcal.measurements.setup import SetupSpec
+from fgcal.measurements.station import StationPointObservations
 from fgcal.measurements.types import LEVELS, all_levels
 
 __all__ = ["FORMAT", "LEVELS", "Noise", "PointObservations", "PoseObservations", "DistanceObservations", "Dataset"]
@@ -91,8 +92,15 @@ class Dataset:
         Ballbar lengths (distances.csv); the world origin is the pivot.
     contacts, plane_contacts : ContactObservations or None
         The tool ball at a fixture point, or on a plane (both in contacts.csv).
+    station_centres : StationPointObservations or None
+        Centres measured from a station other than the world's (DESIGN.md 8.3).
     setup : SetupSpec
-        The set-up's fixtures and known distances (``fixtures:``, ``constraints:``).
+        The set-up's fixtures, stations and known distances (``fixtures:``, ``stations:``,
+        ``constraints:``); a station's block has type ``station``.
+    stations : ndarray of str, shape (N,), or None
+        The station each pose was measured from (``joints.csv``'s ``station`` column).
+    world_station : str or None
+        The first of ``stations:``: the world frame.
     truth : dict of str to float or None
         True parameter values (mm, deg) of a simulated robot; all 37 slots.
     truth_outliers : list of (int, str, int)
@@ -115,7 +123,10 @@ class Dataset:
     distances: DistanceObservations | None = None
     contacts: ContactObservations | None = None
     plane_contacts: ContactObservations | None = None
+    station_centres: StationPointObservations | None = None
     setup: SetupSpec = field(default_factory=SetupSpec)
+    stations: np.ndarray | None = None
+    world_station: str | None = None
     truth: dict[str, float] | None = None
     truth_outliers: list = field(default_factory=list)
     path: Path | None = None
@@ -127,6 +138,10 @@ class Dataset:
         self.joints_deg = q if q.ndim == 2 else q.reshape(-1, 6)
         if len(self.pose_ids) != len(self.joints_deg):
             raise ValueError("pose_ids and joints_deg must have the same length")
+        if self.stations is not None:
+            self.stations = np.asarray(self.stations, dtype=str).reshape(-1)
+            if len(self.stations) != len(self.pose_ids):
+                raise ValueError("stations must have one name per pose")
 
     @property
     def n_poses(self) -> int:
@@ -153,12 +168,26 @@ class Dataset:
         out = Dataset(robot=self.robot, tooling=self.tooling, noise=self.noise, provenance=dict(self.provenance),
                       pose_ids=self.pose_ids[keep], joints_deg=self.joints_deg[keep], truth=self.truth,
                       truth_outliers=[o for o in self.truth_outliers if o[0] in set(self.pose_ids[keep].tolist())],
-                      path=self.path, chain=self.chain, setup=self.setup)
+                      path=self.path, chain=self.chain, setup=self.setup,
+                      stations=None if self.stations is None else self.stations[keep], world_station=self.world_station)
         for level in all_levels():
             obs = getattr(self, level, None)
             if obs is not None:
                 setattr(out, level, obs.subset(np.isin(obs.pose, self.pose_ids[keep])))
         return out
+
+    def split_station_centres(self) -> None:
+        """Move the centres measured from a station other than the world's into ``station_centres``."""
+        if self.stations is None or self.centres is None:
+            return
+        station_of = dict(zip(self.pose_ids.tolist(), self.stations.tolist()))
+        st = np.array([station_of[p] for p in self.centres.pose.tolist()], dtype=str)
+        other = st != self.world_station
+        if other.any():
+            c = self.centres
+            self.station_centres = StationPointObservations(c.pose[other], c.ball[other], c.xyz[other], st[other],
+                                                            c.line[other])
+            self.centres = c.subset(~other) if (~other).any() else None
 
     def levels(self) -> list[str]:
         """The measurement levels present: a subset of :data:`LEVELS`."""

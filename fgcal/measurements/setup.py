@@ -1,8 +1,10 @@
 """Set-up unknowns: the parts of a measuring set-up that nobody knows exactly (DESIGN.md 8.1).
 
 A *set-up block* is a small group of parameters estimated with the robot: a fixture point (a
-socket, a datum cone: ``fixture.NAME.x|y|z``, mm) or a plane (a table: ``plane.NAME.tilt_u|tilt_v``
-(deg) and ``plane.NAME.d`` (mm)). Each has a start, an optional prior (a value and a sigma given
+socket, a datum cone: ``fixture.NAME.x|y|z``, mm), a plane (a table: ``plane.NAME.tilt_u|tilt_v``
+(deg) and ``plane.NAME.d`` (mm)) or an instrument station (``station.NAME.phi|theta|psi|px|py|pz``,
+deg and mm: the station's frame in the world, ``T = Rz(phi) Ry(theta) Rx(psi) Trans(px, py, pz)``
+as the base's, DESIGN.md 8.3). Each kind is a :class:`BlockKind` in :data:`BLOCK_KINDS`. Each has a start, an optional prior (a value and a sigma given
 in ``dataset.yaml``) or is fixed (``fixed: true``: known). Distances between fixture points
 (``constraints.distances``) are factors on the blocks alone.
 
@@ -18,9 +20,83 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FixtureSpec", "DistanceConstraint", "SetupSpec", "SetupLayout", "plane_basis", "plane_normal"]
+__all__ = ["FixtureSpec", "DistanceConstraint", "SetupSpec", "SetupLayout", "plane_basis", "plane_normal",
+           "BlockKind", "BLOCK_KINDS", "register_block_kind", "station_transform"]
 
+
+@dataclass(frozen=True)
+class BlockKind:
+    """What a kind of set-up block is: its name prefix, components, which are angles, and how a
+    given value (a point, a plane's normal and offset, a station's pose) becomes its entries.
+
+    Attributes
+    ----------
+    type : str
+        Its ``type:`` in ``dataset.yaml`` (``point``, ``plane``, ``station``).
+    prefix : str
+        Its parameters' first name part (``fixture``, ``plane``, ``station``).
+    components : tuple of str
+    angles : tuple of bool
+        Which components are angles (rad inside, deg in files).
+    """
+
+    type: str
+    prefix: str
+    components: tuple
+    angles: tuple
+
+    @property
+    def size(self) -> int:
+        return len(self.components)
+
+    def entries(self, value) -> tuple[np.ndarray, np.ndarray | None]:
+        """The block's start entries (size,) for a value, and what it keeps beside (a plane's reference normal)."""
+        value = np.asarray(value, dtype=float)
+        if self.type == "plane":
+            n0 = value[:3] / np.linalg.norm(value[:3])
+            return np.array([0.0, 0.0, float(value[3])]), n0
+        return value.copy(), None
+
+    def prior_sigma(self, sigma: float) -> np.ndarray:
+        """Sigmas (size,) of a block given with ``sigma`` (mm): angles by sigma over a 1 m lever."""
+        return np.where(self.angles, sigma / 1000.0, sigma)
+
+
+BLOCK_KINDS: dict = {
+    "point": BlockKind("point", "fixture", ("x", "y", "z"), (False, False, False)),
+    "plane": BlockKind("plane", "plane", ("tilt_u", "tilt_v", "d"), (True, True, False)),
+    "station": BlockKind("station", "station", ("phi", "theta", "psi", "px", "py", "pz"),
+                         (True, True, True, False, False, False)),
+}
 FIXTURE_TYPES = ("point", "plane")
+
+
+def register_block_kind(kind: BlockKind) -> None:
+    """Add a kind of set-up block (a test's per-group offset, say); its ``type`` must be new."""
+    if kind.type in BLOCK_KINDS:
+        raise ValueError(f"a set-up block kind {kind.type!r} is registered already")
+    BLOCK_KINDS[kind.type] = kind
+
+
+def station_transform(entries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A station's ``R`` (3, 3), ``p`` (3,) with ``T x = R (x + p)``, and ``dR`` (3, 3, 3) by phi, theta, psi."""
+    from fgcal.robots.transforms import rot
+
+    phi, theta, psi = entries[:3]
+    Rz, Ry, Rx = rot(2, phi), rot(1, theta), rot(0, psi)
+    dR = np.stack([_drot(2, phi) @ Ry @ Rx, Rz @ _drot(1, theta) @ Rx, Rz @ Ry @ _drot(0, psi)])
+    return Rz @ Ry @ Rx, np.asarray(entries[3:6], dtype=float), dR
+
+
+def _drot(axis: int, angle: float) -> np.ndarray:
+    """d/dangle of :func:`fgcal.robots.transforms.rot`."""
+    c, s = np.cos(angle), np.sin(angle)
+    D = np.zeros((3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    D[i, i] = D[j, j] = -s
+    D[i, j] = -c
+    D[j, i] = c
+    return D
 
 
 @dataclass(frozen=True)
@@ -49,9 +125,13 @@ class FixtureSpec:
         if self.value is not None:
             if self.type == "point":
                 out["position"] = [float(v) for v in self.value]
-            else:
+            elif self.type == "plane":
                 out["normal"] = [float(v) for v in self.value[:3]]
                 out["offset"] = float(self.value[3])
+            elif self.type == "station":  # as stations: writes it (deg, mm)
+                out["pose"] = [float(v) for v in np.degrees(self.value[:3])] + [float(v) for v in self.value[3:]]
+            else:  # another kind: its entries (internal units)
+                out["value"] = [float(v) for v in self.value]
         if self.sigma is not None:
             out["sigma"] = float(self.sigma)
         if self.fixed:
@@ -145,19 +225,23 @@ class SetupLayout:
 
     @classmethod
     def build(cls, spec: SetupSpec, starts: dict) -> "SetupLayout":
-        """``starts``: fixture name -> a start point (3,) or plane (normal (3,), d) for unknown fixtures."""
+        """``starts``: block name -> its start value (a point (3,), a plane (normal (3,), d), a
+        station's entries (6,)) for blocks whose value is unknown."""
         offset, reference, start, free = {}, {}, [], []
         for name, f in spec.fixtures.items():
+            kind = BLOCK_KINDS[f.type]
             offset[name] = len(start)
-            if f.type == "point":
-                value = f.value if f.value is not None else starts[name]
-                start += [float(v) for v in value]
+            if f.value is not None:
+                value = f.value
+            elif f.type == "plane":
+                value = np.concatenate([starts[name][0], [starts[name][1]]])
             else:
-                value = f.value if f.value is not None else np.concatenate([starts[name][0], [starts[name][1]]])
-                n0 = np.asarray(value[:3], dtype=float)
-                reference[name] = n0 / np.linalg.norm(n0)
-                start += [0.0, 0.0, float(value[3])]
-            free += [not f.fixed] * 3
+                value = starts[name]
+            entries, aux = kind.entries(value)
+            if aux is not None:
+                reference[name] = aux
+            start += [float(v) for v in entries]
+            free += [not f.fixed] * kind.size
         return cls(spec, offset, reference, np.array(start, dtype=float), np.array(free, dtype=bool))
 
     @property
@@ -168,33 +252,30 @@ class SetupLayout:
     def n_free(self) -> int:
         return int(self.free.sum())
 
-    def names(self) -> list[str]:
-        """Names of the free entries, ``KIND.NAME.COMPONENT``."""
+    def _per_block(self, values):
         out = []
         for name, f in self.spec.fixtures.items():
-            comps = [f"fixture.{name}.{c}" for c in "xyz"] if f.type == "point" else \
-                [f"plane.{name}.tilt_u", f"plane.{name}.tilt_v", f"plane.{name}.d"]
-            out += [c for c, k in zip(comps, self.free[self.offset[name]:self.offset[name] + 3]) if k]
+            kind = BLOCK_KINDS[f.type]
+            k = self.offset[name]
+            out += [v for v, free in zip(values(name, kind), self.free[k:k + kind.size]) if free]
         return out
 
+    def names(self) -> list[str]:
+        """Names of the free entries, ``KIND.NAME.COMPONENT``."""
+        return self._per_block(lambda name, kind: [f"{kind.prefix}.{name}.{c}" for c in kind.components])
+
     def is_angle(self) -> np.ndarray:
-        """(S_free,) whether each free entry is an angle (a plane's tilts)."""
-        flags = []
-        for name, f in self.spec.fixtures.items():
-            comps = [False, False, False] if f.type == "point" else [True, True, False]
-            flags += [a for a, k in zip(comps, self.free[self.offset[name]:self.offset[name] + 3]) if k]
-        return np.array(flags, dtype=bool)
+        """(S_free,) whether each free entry is an angle (a plane's tilts, a station's angles)."""
+        return np.array(self._per_block(lambda name, kind: list(kind.angles)), dtype=bool)
 
     def prior(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean and sigma ``(S_free,)`` of the free entries' priors (sigma inf: none)."""
         sig = np.full(self.size, np.inf)
         for name, f in self.spec.fixtures.items():
             if f.value is not None and f.sigma is not None and not f.fixed:
+                kind = BLOCK_KINDS[f.type]
                 k = self.offset[name]
-                if f.type == "point":
-                    sig[k:k + 3] = f.sigma
-                else:  # a given plane: its offset by sigma, its tilts by sigma over a 1 m lever
-                    sig[k:k + 3] = [f.sigma / 1000.0, f.sigma / 1000.0, f.sigma]
+                sig[k:k + kind.size] = kind.prior_sigma(f.sigma)
         return self.start[self.free], sig[self.free]
 
     def full(self, s_free) -> np.ndarray:
@@ -213,6 +294,11 @@ class SetupLayout:
         k = self.offset[name]
         return s[k:k + 3]
 
+    def block(self, s, name) -> np.ndarray:
+        """The entries of block ``name`` in ``s``."""
+        k = self.offset[name]
+        return s[k:k + BLOCK_KINDS[self.spec.fixtures[name].type].size]
+
     def plane(self, s, name) -> tuple[np.ndarray, float]:
         """Unit normal (3,) and offset d (mm) of plane ``name`` in ``s``."""
         k = self.offset[name]
@@ -220,11 +306,18 @@ class SetupLayout:
         return n, float(s[k + 2])
 
     def describe(self, s) -> dict:
-        """The fixtures' values in ``s`` as a plain dict (points mm; planes unit normal and offset mm)."""
+        """The blocks' values in ``s`` as a plain dict (points mm; planes unit normal and offset mm;
+        stations ``pose``: phi, theta, psi (deg), px, py, pz (mm); other kinds their entries)."""
         out = {}
         for name, f in self.spec.fixtures.items():
+            k = self.offset[name]
             if f.type == "point":
                 out[name] = {"type": "point", "position": [float(v) for v in self.point(s, name)]}
+            elif f.type == "station":
+                e = s[k:k + 6]
+                out[name] = {"type": "station", "pose": [float(v) for v in np.degrees(e[:3])] + [float(v) for v in e[3:]]}
+            elif f.type != "plane":
+                out[name] = {"type": f.type, "entries": [float(v) for v in s[k:k + BLOCK_KINDS[f.type].size]]}
             else:
                 n, d = self.plane(s, name)
                 out[name] = {"type": "plane", "normal": [float(v) for v in n], "offset": d,

@@ -153,10 +153,13 @@ def predicted_position_sigma(result: CalibrationResult, joints) -> np.ndarray:
     position's Jacobian with respect to the identified parameters in file units.
     """
     J, names = _position_jacobian(result, joints)
-    cols = [names.index(n) for n in result.names]
-    scale = np.array([np.pi / 180 if p.unit == "deg" else 1.0 for p in result.parameters])
+    # The robot's own parameters: set-up unknowns (fixtures, stations) do not move the tool, and a
+    # joint-error block's share is left out (its terms act on the joints, not on a slot).
+    mine = [i for i, n in enumerate(result.names) if n in names]
+    cols = [names.index(result.names[i]) for i in mine]
+    scale = np.array([np.pi / 180 if result.parameters[i].unit == "deg" else 1.0 for i in mine])
     Jp = J[:, :, cols] * scale  # mm per file unit
-    C = np.asarray(result.covariance, dtype=float)
+    C = np.asarray(result.covariance, dtype=float)[np.ix_(mine, mine)]
     return np.sqrt(np.maximum(np.einsum("krp,pq,krq->k", Jp, C, Jp), 0.0))
 
 
@@ -192,10 +195,12 @@ def held_parameter_cost(result: CalibrationResult, joints) -> list[HeldCost]:
         return []
     J, names = _position_jacobian(result, joints)
     k = J.shape[0]
-    Ji = J[:, :, [names.index(n) for n in result.names]].reshape(3 * k, -1)
+    Ji = J[:, :, [names.index(n) for n in result.names if n in names]].reshape(3 * k, -1)
     out = []
     for h in result.held:
         n = h["name"]
+        if n not in names or h.get("reason", "").startswith("the world frame"):
+            continue  # the gauge (the world frame is the base's) costs nothing
         typical = float(Deviations().sigmas([n])[0])
         jh = J[:, :, names.index(n)].reshape(3 * k)
         if Ji.shape[1]:

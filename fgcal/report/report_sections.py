@@ -130,7 +130,8 @@ def _parameter_rows(result: CalibrationResult):
             dev, _ = round_to_sigma(r.deviation, r.sigma)
             lo, _ = round_to_sigma(r.interval95[0], r.sigma)
             hi, _ = round_to_sigma(r.interval95[1], r.sigma)
-            cells = [r.name, r.unit, f"{r.nominal:.8g}", est, sig, dev, f"[{lo}, {hi}]", f"{r.z:.1f}"]
+            cells = [r.name, r.unit, f"{r.nominal:.8g}", est, sig, dev, f"[{lo}, {hi}]",
+                     "-" if r.z is None else f"{r.z:.1f}"]
         rows.append(cells + ["; ".join(r.flags)])
         flagged.append(bool(r.flags))
     return header, rows, flagged

@@ -42,14 +42,21 @@ class ParameterRow:
     flags: list[str] = field(default_factory=list)
 
 
+def _is_setup(name: str) -> bool:
+    from fgcal.estimation.setup_params import is_setup_name
+
+    return is_setup_name(name)
+
+
 def strong_correlations(result: CalibrationResult, limit: float = CORRELATION_LIMIT) -> list[tuple[str, str, float]]:
     """Pairs of parameters whose correlation exceeds ``limit`` in magnitude, strongest first."""
     if not len(result.parameters):
         return []
     rho = result.correlation()
     names = result.names
+    robot = [not _is_setup(n) for n in names]  # set-up unknowns are correlated with the robot by nature
     pairs = [(names[i], names[j], float(rho[i, j])) for i in range(len(names)) for j in range(i + 1, len(names))
-             if abs(rho[i, j]) > limit]
+             if robot[i] and robot[j] and abs(rho[i, j]) > limit]
     return sorted(pairs, key=lambda p: -abs(p[2]))
 
 
@@ -61,7 +68,13 @@ def parameter_table(result: CalibrationResult, correlation_limit: float = CORREL
     for i, p in enumerate(result.parameters):
         dev = p.estimate - p.nominal
         flags = []
-        others = [(names[j], rho[i, j]) for j in range(len(names)) if j != i and abs(rho[i, j]) > correlation_limit]
+        if _is_setup(p.name):  # a set-up unknown: its "nominal" is the start the data gave
+            rows.append(ParameterRow(p.name, p.unit, p.nominal, p.estimate, dev, p.sigma,
+                                     (p.estimate - Z95 * p.sigma, p.estimate + Z95 * p.sigma), None,
+                                     ["set-up unknown (started from the data)"]))
+            continue
+        others = [(names[j], rho[i, j]) for j in range(len(names))
+                  if j != i and not _is_setup(names[j]) and abs(rho[i, j]) > correlation_limit]
         for other, r in sorted(others, key=lambda o: -abs(o[1])):
             flags.append(f"strongly correlated with {other} ({r:+.3f})")
         limit = PLAUSIBLE["base" if p.name.startswith("base.") else "other"].get(p.unit)  # None: joint-error block
@@ -104,8 +117,12 @@ def verdict(result: CalibrationResult, verification: dict | None = None) -> list
     if not result.converged:
         out.append("The solve did not converge: the estimates below are not to be used.")
     if result.held:
+        by_reason: dict = {}
+        for h in result.held:  # one reason once (the gauge holds six base parameters for one reason)
+            by_reason.setdefault(h["reason"], []).append(h["name"])
         out.append("The data could not identify " + ", ".join(h["name"] for h in result.held)
-                   + ": they are held at nominal (" + "; ".join(f"{h['name']} {h['reason']}" for h in result.held) + ").")
+                   + ": they are held at nominal (" + "; ".join(f"{', '.join(n)}: {r}" for r, n in by_reason.items())
+                   + ").")
         costs = [(h["name"], h["cost_mm"]) for h in result.held if "cost_mm" in h]
         if costs:
             out.append("Holding them costs, if each deviates by a typical manufacturing error, "

@@ -96,9 +96,14 @@ def _cmd_calibrate(args) -> int:
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import save_result
 
-    check_output_file(args.out, dataset_inputs(args.dataset))
-    ds = load_dataset(args.dataset)
-    check_output_file(args.out, dataset_inputs(args.dataset, ds.robot))
+    paths = args.dataset if isinstance(args.dataset, list) else [args.dataset]
+    for path in paths:
+        check_output_file(args.out, dataset_inputs(path))
+    loaded = [load_dataset(path) for path in paths]
+    for path, one in zip(paths, loaded):
+        check_output_file(args.out, dataset_inputs(path, one.robot))
+    ds = loaded[0] if len(loaded) == 1 else _merged(paths, loaded)
+    args.dataset = paths[0] if len(paths) == 1 else ", ".join(map(str, paths))
     model = dataset_model(ds)
     _warn_units(ds, model)
     ids = parse_pose_selection(args.poses, ds.pose_ids)
@@ -129,6 +134,22 @@ def _cmd_calibrate(args) -> int:
     _print_selection(result)
     print(f"wrote {args.out}")
     return 0
+
+
+def _merged(paths, datasets):
+    """Several datasets of one robot as one, each a station (:func:`fgcal.measurements.merge.merge_datasets`)."""
+    from fgcal.io.dataset_io import dataset_model
+    from fgcal.measurements.merge import merge_datasets
+    from fgcal.robots.robot_file import model_to_dict
+
+    names = [p.resolve().name or str(p) for p in paths]
+    if len(set(names)) < len(names):
+        raise FgcalError("calibrate: the datasets' directory names (their station names) must differ")
+    first = model_to_dict(dataset_model(datasets[0]))
+    for path, ds in zip(paths[1:], datasets[1:]):
+        if model_to_dict(dataset_model(ds)) != first:
+            raise FgcalError(f"{path}: its robot model differs from {paths[0]}'s: calibrate one robot at a time")
+    return merge_datasets(datasets, names)
 
 
 def _parse_payload(text):
