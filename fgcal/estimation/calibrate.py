@@ -399,10 +399,11 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())
     red_total = sum(n.redundancy for n in noise_table.values())
     outliers = name_outliers(graph, lin, h, ds, pose_ids)
-    if held_info:
-        cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in held_info], graph.readings,
+    costly = [h_ for h_ in held_info if h_["reason"] != GAUGE_REASON]  # the gauge is a choice of frame: no cost
+    if costly:
+        cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in costly], graph.readings,
                             _measured_points(ds, levels))
-        for h_ in held_info:
+        for h_ in costly:
             h_["cost_mm"] = cost[h_["name"]]
     opts = asdict(options)
     opts["noise_scale"] = {lv: n.used / n.declared for lv, n in noise_table.items()
