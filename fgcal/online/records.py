@@ -105,15 +105,15 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
                                  np.array([x for _, _, x in rows]).reshape(-1, 3)) if rows else None
 
     out = Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
-                   pose_ids=[r.pose for r in records],
-                   joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
-                   probes=points(probes), centres=points(centres),
-                   poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
-                                          matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
-                   if poses else None,
-                   distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
-                                                  [v for _, _, v in distances]) if distances else None,
-                   path=meta.path, chain=meta.chain, setup=meta.setup)
+                  pose_ids=[r.pose for r in records],
+                  joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
+                  probes=points(probes), centres=points(centres),
+                  poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
+                                         matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
+                  if poses else None,
+                  distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
+                                                 [v for _, _, v in distances]) if distances else None,
+                  path=meta.path, chain=meta.chain, setup=meta.setup)
     for level, obs in setup_levels.items():
         setattr(out, level, obs)
     return out
