@@ -11,12 +11,14 @@ import factors as fx
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
 from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.setup_params import is_setup_name
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.holding import held_parameters, unseen_parameters
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData, _variant, records_dataset
+from fgcal.online.setup_blocks import OnlineSetup
 from fgcal.robots.model import ParameterSet, RobotModel
 
 __all__ = ["weak_prior"]
@@ -44,8 +46,14 @@ class _Engine:
         # Unseen at the nominal geometry but not redundant at every geometry (a ball on the last
         # joint's axis at nominal): estimated with a prior of its typical deviation, as the batch does.
         self.typical_prior: dict[str, float] = {}
+        # The gauge: with contacts to unknown fixtures only, nothing fixes the world frame and the
+        # base is held at nominal, as the batch holds it (a stream, whose measurements are not
+        # known yet, leaves it to the final smoothing).
+        self.gauge: list[str] = []
         if names is None:
             names = model.parameters().names
+            self.gauge = _gauge_names(ds, names)
+            names = [n for n in names if n not in self.gauge]
             self.unseen = unseen_parameters(model, names, _measured(ds))
             if self.unseen and ds.n_poses and ds.levels():
                 from fgcal.estimation.calibrate import split_held
@@ -69,7 +77,9 @@ class _Engine:
         self.records: list[PoseData] = []  # the accepted poses (as taken: a bad probe point left out)
         self.seen: dict[int, PoseData] = {}  # every pose fed with measurements, for the final smoothing
         self._final = None
+        self._final_setup = None  # (x, covariance, layout) of the final smoothing with set-up blocks
         self._kinematics: dict = {}
+        self.setup = OnlineSetup(ds.setup)  # the set-up blocks in the state (fgcal.online.setup_blocks)
 
     def _prior_sigma(self) -> np.ndarray:
         """The weak prior, and the typical deviation where a parameter is weakly identifiable."""
@@ -84,11 +94,17 @@ class _Engine:
         self.params = ParameterSet(self.model, tuple(names))
         self.index = self.params.index
         self.prior_sigma = self._prior_sigma()
-        self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names if n not in names}
+        self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names
+                       if n not in names and n not in self.gauge}
         self._kinematics = {}
 
     def estimate(self):
-        """``(theta (P,), covariance (P, P))`` in internal units."""
+        """``(theta (P,), covariance (P, P))`` in internal units (the robot's parameters)."""
+        raise NotImplementedError
+
+    def estimate_all(self):
+        """``(x, covariance, layout)``: the robot's parameters then the set-up blocks' free entries
+        of ``layout`` (None without set-up blocks), internal units."""
         raise NotImplementedError
 
     def _current(self) -> np.ndarray:
@@ -116,9 +132,10 @@ class _Engine:
         balls = [b for b, _ in rec.probes]
         if not balls:
             return {}, {}
-        h, jt, _ = self._ball_kinematics(theta, rec.q, np.array([self.ds.tooling.balls[b] for b in balls]))
+        n_p = len(self.params)
+        h, jt, _ = self._ball_kinematics(theta[:n_p], rec.q, np.array([self.ds.tooling.balls[b] for b in balls]))
         rows = jt.reshape(-1, jt.shape[-1])
-        var = np.sum((rows @ self._covariance()) * rows, axis=1).reshape(len(balls), -1).sum(axis=1)
+        var = np.sum((rows @ self._covariance()[:n_p, :n_p]) * rows, axis=1).reshape(len(balls), -1).sum(axis=1)
         return dict(zip(balls, h)), dict(zip(balls, np.sqrt(np.maximum(var, 0.0))))
 
     def _measurement(self, rec: PoseData, flip=(), search: bool = False):
@@ -133,10 +150,11 @@ class _Engine:
                 return None, reason
             parts += [(self.ds.tooling.balls[b], c, cov) for b, c, cov in good]
         parts += [(self.ds.tooling.balls[b], xyz, np.eye(3) * sig.centre**2) for b, xyz in rec.centres]
-        if not parts and rec.T is None and not rec.distances:
+        if not parts and rec.T is None and not rec.distances and not rec.contacts:
             return None, "no measurements"
         taken = {k: v for k, v in (("flip", list(flip)), ("search", search)) if v}
-        return PoseMeasurement(self, rec, parts, ambiguous, taken), None
+        setup = self.setup.propose(self, rec, self._current()[:len(self.params)])
+        return PoseMeasurement(self, rec, parts, ambiguous, taken, setup), None
 
     def _screen(self, rec: PoseData, theta, cov):
         """The pose's measurement if it passes the checks and the innovation gate at the current
@@ -152,10 +170,14 @@ class _Engine:
             m, why = self._measurement(r, flip, search)
             if m is None:
                 return None, why, None
-            e, H, R = m(theta)
-            return m, None, (-e, H @ cov @ H.T, R)
+            x, C = m.augment(theta, cov)  # with the set-up blocks the pose starts
+            e, H, R = m(x)
+            return m, None, (-e, H @ C @ H.T, R)
 
         m, reason, vAR = statistic(rec)
+        if m is not None and not m.n_rows:  # only contacts to a plane not started yet: kept pending
+            self.noise.last = None
+            return m, rec, self.noise.factor(), None
         f = self.noise.observe(*vAR) if vAR is not None else self.noise.factor()
         if m is not None:
             reason = NoiseTracker.implausible(vAR[0], vAR[1] + f * vAR[2])
@@ -248,11 +270,15 @@ class _Engine:
         seen = records_dataset(self.ds, list(self.seen.values()), self.model)
         # The running estimate is a start only when it fits what came: an engine that refused a
         # tenth of the poses (a ballbar's pivot unknown at first) may be far off, and a solve
-        # started there can end in another minimum; the batch's own start is taken then.
-        trusted = self.n_accepted >= WARM_START_SHARE * len(self.seen)
-        start = self.params.full(self._current(), self.held) if trusted else None
+        # started there can end in another minimum; the batch's own start is taken then. A plane's
+        # tilts are about the normal fitted at the start: the batch's own start gives the batch's.
+        trusted = self.n_accepted >= WARM_START_SHARE * len(self.seen) and not self.setup.has_references
+        n_p = len(self.params)
+        start = self.params.full(self._current()[:n_p], self.held) if trusted else None
+        gauge = _gauge_names(seen, names)  # a stream learns only now what fixes the world frame
         try:
-            held, priors = self._batch_held(seen, names)
+            held, priors = self._batch_held(seen, [n for n in names if n not in gauge])
+            held = {**{n: [] for n in gauge}, **held}
             free = [n for n in names if n not in held]
             if start is not None and held:  # held where the batch holds them: at their start values
                 idx = [self.model.slot(n) for n in held]
@@ -265,15 +291,26 @@ class _Engine:
         except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
             log.info("final smoothing skipped: %s", exc)
             return None
-        if list(sol.graph.params.names) != free:
+        robot = [n for n in sol.graph.params.names if not is_setup_name(n)]
+        if robot != free:
             raise FgcalError(f"final smoothing: the batch solve estimates {', '.join(sol.graph.params.names)}")
         self.final_held = held
+        self._final_gauge = gauge
         # In the engine's parameters: a held one at its value, with no variance.
         self._final_slots = sol.graph.params.full(sol.state.theta, sol.graph.held)
         theta = self.params.take(self._final_slots)
         keep = [names.index(n) for n in free]
         full_cov = np.zeros((len(names), len(names)))
-        full_cov[np.ix_(keep, keep)] = cov
+        full_cov[np.ix_(keep, keep)] = cov[:len(free), :len(free)]
+        self._final_setup = None
+        layout = sol.graph.setup
+        if layout is not None:  # the set-up blocks as the batch has them (its order, its references)
+            n_s = layout.n_free
+            x = np.concatenate([theta, sol.state.theta[len(sol.state.theta) - n_s:]])
+            at = keep + list(range(n_p, n_p + n_s))
+            cov_all = np.zeros((n_p + n_s, n_p + n_s))
+            cov_all[np.ix_(at, at)] = cov
+            self._final_setup = (x, cov_all, layout)
         return theta, full_cov
 
     def _batch_held(self, seen: Dataset, names) -> tuple[dict, dict]:
@@ -285,11 +322,11 @@ class _Engine:
         from dataclasses import replace
 
         from fgcal.estimation.build import _levels, build_graph
-        from fgcal.estimation.calibrate import _check_equations, _unidentifiable, split_held
+        from fgcal.estimation.calibrate import _check_equations, _setup_size, _unidentifiable, split_held
 
         options = replace(self.options, prior="none", noise_scale=None)
         levels = _levels(seen, options)
-        _check_equations(seen, levels, len(names))
+        _check_equations(seen, levels, len(names) + _setup_size(seen, levels))
         graph, state, _ = build_graph(seen, self.model, names, options, priors=self.typical_prior)
         held = held_parameters(graph, state, _unidentifiable)
         held, priors = split_held(self.model, [n for n in names if n not in held], held, seen, options)
@@ -301,12 +338,41 @@ class _Engine:
         """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,
         those never seen by the measurements first, then those the final smoothing held."""
         slots = self.held if getattr(self, "_final_slots", None) is None else self._final_slots
+        from fgcal.estimation.calibrate import GAUGE_REASON
+
         values = self.model.slots_to_file_units(slots)
-        out = []
+        gauge = [*self.gauge, *getattr(self, "_final_gauge", [])]
+        out = [{"name": n, "value": float(values[self.model.slot(n)]), "reason": GAUGE_REASON} for n in gauge]
         for n, partners in (*self.unseen.items(), *self.final_held.items()):
+            if n in gauge:
+                continue
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
             out.append({"name": n, "value": float(values[self.model.slot(n)]), "reason": reason})
         return out
+
+    def setup_info(self) -> dict:
+        """The result's ``setup`` section, as the batch writes it (``{}`` without set-up blocks)."""
+        from fgcal.estimation.calibrate import GAUGE_REASON
+
+        x, _, layout = self.estimate_all()
+        if layout is None:
+            return {}
+        out = {**layout.spec.to_dict(), "estimated": layout.describe(layout.full(x[len(self.params):]))}
+        if any(h["reason"] == GAUGE_REASON for h in self.held_info()):
+            out["gauge"] = GAUGE_REASON
+        return out
+
+
+def _gauge_names(ds: Dataset, names) -> list[str]:
+    """The base's parameters among ``names`` when nothing in ``ds`` fixes the world frame (contacts
+    with unknown fixtures only: :func:`fgcal.estimation.calibrate.world_is_fixed`); none for a
+    dataset with no measurements yet."""
+    from fgcal.estimation.calibrate import world_is_fixed
+
+    levels = ds.levels()
+    if not levels or world_is_fixed(ds, levels):
+        return []
+    return [n for n in names if n.startswith("base.")]
 
 
 def _measured(ds: Dataset):

@@ -10,7 +10,8 @@ __all__ = ["CHECKPOINT_FORMAT", "SNAPSHOT_EVERY", "INPUT_NAMES", "default_checkp
 
 CHECKPOINT_FORMAT = "fgcal-online-checkpoint/3"
 SNAPSHOT_EVERY = 100  # poses between snapshots of a filter's state (the journal has every pose)
-INPUT_NAMES = ("dataset.yaml", "truth.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "distances.csv")
+INPUT_NAMES = ("dataset.yaml", "truth.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "distances.csv",
+               "contacts.csv")
 
 
 def default_checkpoint(dataset, engine: str, out=None) -> Path:

@@ -10,6 +10,7 @@ from fgcal.measurements.pose import POSE
 from fgcal.online.base import _Engine
 from fgcal.online.measurement import UpdateReport
 from fgcal.online.records import PoseData
+from fgcal.online.setup_factors import contact_factor, distance_constraint_factor, joint_gaussian_factor
 
 __all__ = ["ISAM2Engine"]
 
@@ -48,19 +49,24 @@ class ISAM2Engine(_Engine):
         # they move by 0.05 mm / 1e-4 rad (measured: within 0.003 sigma of the batch solve; at
         # 0.5 mm / 1e-3 rad the systematic second-order error reached 0.14 sigma).
         thresholds.insert(("q", np.full(model.n_joints, Q_RELINEARISE)))
+        # A set-up block (a point's x, y, z or a plane's two tilts and offset): the angles' threshold
+        # on the first two entries (a point's x and y are relinearised more often: they are cheap).
+        thresholds.insert(("s", np.array([theta_threshold[1], theta_threshold[1], theta_threshold[0]])))
         p.setRelinearizeThreshold(thresholds)
         p.relinearizeSkip = 1
         self._isam_params = p
         self.t_key = fx.theta_key()
+        self._s_keys: dict[str, int] = {}  # free set-up block -> its variable (Vector 3), in the order started
         self._tree(None)
         self._started = False
 
-    def _tree(self, prior) -> None:
-        """A new, empty tree; ``prior``: the factor its first update adds on the parameters."""
+    def _tree(self, marginal) -> None:
+        """A new, empty tree; ``marginal``: ``(x, covariance)`` of the state variables (the
+        parameters, the set-up blocks) that its first update adds as a Gaussian, None: the prior."""
         import gtsam
 
         self.isam = gtsam.ISAM2(self._isam_params)
-        self._prior = prior
+        self._marginal = marginal
         self._in_tree = 0  # poses in this tree
         self._linpoint = None
         self._keep = []  # the factors' closures reference their arguments: keep them alive
@@ -78,24 +84,42 @@ class ISAM2Engine(_Engine):
         m, used, f, reason = self._screen(rec, theta, cov)
         if m is None:
             return self._report(rec, reason)
-        self._add(used, m.parts, f)
+        self._add(used, m, f)
         return self._report(used, None, m, f)
 
-    def _add(self, rec: PoseData, parts, f: float) -> None:
-        """Add an accepted pose's factors, its noise scaled by the factor ``f``."""
+    def _state_keys(self):
+        """The state's variables in its order: the parameters, then each free set-up block."""
+        return [self.t_key, *self._s_keys.values()], [len(self.params), *[3] * len(self._s_keys)]
+
+    def _add(self, rec: PoseData, m, f: float) -> None:
+        """Add an accepted pose's factors (``m``: its measurement), its noise scaled by the factor ``f``."""
         import gtsam
 
         sig = self.sigmas
         i = rec.pose
+        parts = m.parts
+        if not m.n_rows:  # only contacts to a plane not started yet: kept pending
+            self.setup.commit(m.setup)
+            return
+        now = self._running()  # the state before the pose: where new blocks' rows are linearised
         if self._in_tree >= self.window:  # the tree is full: its marginal starts the next one
-            theta, cov = self._running()
-            self._tree(gtsam.PriorFactorVector(self.t_key, theta, gtsam.noiseModel.Gaussian.Covariance(cov)))
+            self._tree(now)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         if self._in_tree == 0:
-            start = self.params.nominal() if self._prior is None else self._prior.prior()
-            graph.add(self._prior or fx.parameter_prior(self.t_key, start, self.prior_sigma))
-            values.insert(self.t_key, start)
+            if self._marginal is None:
+                start = self.params.nominal()
+                graph.add(fx.parameter_prior(self.t_key, start, self.prior_sigma))
+                values.insert(self.t_key, start)
+            else:
+                x, cov = self._marginal
+                keys, sizes = self._state_keys()
+                if len(keys) == 1:
+                    graph.add(gtsam.PriorFactorVector(self.t_key, x, gtsam.noiseModel.Gaussian.Covariance(cov)))
+                else:
+                    graph.add(joint_gaussian_factor(keys, sizes, x, cov))
+                for key, a, b in zip(keys, np.cumsum([0, *sizes[:-1]]), np.cumsum(sizes)):
+                    values.insert(key, x[a:b])
         joint_vars = bool(np.all(np.asarray(sig.joint) > 0))
         qargs = ({"q_key": fx.joint_key(i)} if joint_vars else {"q_fixed": rec.q}) | {"chain": self.model.chain}
         if joint_vars:
@@ -117,12 +141,57 @@ class ISAM2Engine(_Engine):
         for ball, length in rec.distances:
             graph.add(DISTANCE.factor((self.ds.tooling.balls[ball], length), self.params.index, self.held,
                                       DISTANCE.sigma(sig) * np.sqrt(f), t_key=self.t_key, **qargs))
+        if m.setup is not None:
+            self._add_setup(m, f, graph, values, qargs, now)
         self._keep.append(graph)
         self.isam.update(graph, values)
         self._linpoint = self.isam.getLinearizationPoint()  # keep a reference (DESIGN.md section 5)
         self._in_tree += 1
         self._est = None
         self._started = True
+        self.setup.commit(m.setup)
+
+    def _add_setup(self, m, f: float, graph, values, qargs, now) -> None:
+        """The factors of a pose's set-up blocks: the blocks it starts (a variable each, with its
+        prior), its contacts, the pending contacts it brings in (their joints constant, their noise
+        folded in at the current estimate) and the known distances that enter."""
+        import gtsam
+
+        prop = m.setup
+        layout = prop.layout
+        k = 0
+        for name in prop.started:
+            if layout.spec.fixtures[name].fixed:
+                continue
+            key = gtsam.symbol("s", len(self._s_keys))
+            self._s_keys[name] = key
+            values.insert(key, prop.mean[k:k + 3])
+            graph.add(gtsam.PriorFactorVector(key, prop.mean[k:k + 3],
+                                              gtsam.noiseModel.Diagonal.Sigmas(prop.sigma[k:k + 3])))
+            k += 3
+        x = prop.augment(*now)[0]
+        chain = self.model.chain
+        for e, J, Jq, group in prop.rows(self, x):
+            if group is None:
+                continue
+            width = group.kind.width
+            sigma = group.kind.sigma(self.sigmas)
+            for r in range(group.n):
+                row = tuple(np.asarray(d)[r:r + 1] for d in group.data)
+                name = group.fixtures[r]
+                s_key = self._s_keys.get(name)
+                if group.current:
+                    noise = fx.noise_model(sigma * np.sqrt(f))
+                    q = {k_: v for k_, v in qargs.items() if k_ in ("q_key", "q_fixed")}
+                else:  # a pending contact of another pose: its joints constant, their noise folded in
+                    jq = Jq[r * width:(r + 1) * width]
+                    Rj = np.diag(np.broadcast_to(np.asarray(self.sigmas.joint, dtype=float) ** 2, (len(group.q),)))
+                    noise = gtsam.noiseModel.Gaussian.Covariance(f * (np.diag(sigma**2) + jq @ Rj @ jq.T))
+                    q = {"q_fixed": group.q}
+                graph.add(contact_factor(group.kind, row, layout, name, noise, self.params.index, self.held, chain,
+                                         t_key=self.t_key, s_key=s_key, **q))
+        for c in prop.constraints:
+            graph.add(distance_constraint_factor(c, layout, self._s_keys))
 
     def restore(self, state, journal) -> None:
         """Rebuild the tree from the journalled poses ``journal`` ((record, entry) pairs, in order):
@@ -130,7 +199,7 @@ class ISAM2Engine(_Engine):
         for rec, entry in journal:
             used, m = self._replayed(rec, entry)
             if m is not None:
-                self._add(used, m.parts, entry["f"])
+                self._add(used, m, entry["f"])
                 self._report(used, None, m, entry["f"])
 
     def finish(self) -> None:
@@ -139,15 +208,30 @@ class ISAM2Engine(_Engine):
             self._final = self._smooth()
 
     def _running(self):
-        """The tree's ``(theta, covariance)`` (kept until the next pose is added)."""
+        """The tree's ``(x, covariance)`` over the state (the parameters, then the free set-up
+        blocks; kept until the next pose is added)."""
         if not self._started:
             return self.params.nominal(), np.diag(self.prior_sigma**2)
         if self._est is None:
-            self._est = (self.isam.calculateEstimateVector(self.t_key), self.isam.marginalCovariance(self.t_key))
+            keys, _ = self._state_keys()
+            if len(keys) == 1:
+                self._est = (self.isam.calculateEstimateVector(self.t_key), self.isam.marginalCovariance(self.t_key))
+            else:
+                est = self.isam.calculateEstimate()
+                self._est = (np.concatenate([est.atVector(k) for k in keys]),
+                             self.isam.jointMarginalCovariance(keys).fullMatrix())
         return self._est
 
     def estimate(self):
         if self._final is not None:
             return self._final
         theta, cov = self._running()
-        return theta.copy(), cov.copy()
+        n = len(self.params)
+        return theta[:n].copy(), cov[:n, :n].copy()
+
+    def estimate_all(self):
+        if self._final is not None and self._final_setup is not None:
+            x, cov, layout = self._final_setup
+            return x.copy(), cov.copy(), layout
+        x, cov = self._running()
+        return x.copy(), cov.copy(), self.setup.layout

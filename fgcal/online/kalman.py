@@ -59,13 +59,26 @@ class KalmanEngine(_Engine):
         m, used, f, reason = self._screen(rec, x0, P0)  # f: the measurement noise estimated so far
         if m is None:
             return self._report(rec, reason)
-        if self.kind == "ekf":
+        x0, P0 = m.augment(x0, P0)  # the set-up blocks the pose starts, at their starts and priors
+        if not m.n_rows:
+            pass  # contacts kept pending (a plane not started yet): nothing to update
+        elif self.kind == "ekf":
             reason = self._iterated_update(m, x0, P0, f)
             if reason:
                 return self._report(rec, reason)
         else:
             self._unscented_update(m, x0, P0, f)
+        self._commit(m)
         return self._report(used, None, m, f)
+
+    def _commit(self, m: PoseMeasurement) -> None:
+        """Take the set-up blocks of an accepted pose: the state grows by those it starts (no drift)."""
+        self.setup.commit(m.setup)
+        n, k = len(self.kf.Q), len(self.kf.x)
+        if k > n:
+            Q = np.zeros((k, k))
+            Q[:n, :n] = self.kf.Q
+            self.kf.Q = Q
 
     def _iterated_update(self, m: PoseMeasurement, x0, P0, f: float) -> str | None:
         """The iterated EKF's update of ``(x0, P0)`` by ``m`` at noise factor ``f``; a reason when
@@ -98,7 +111,7 @@ class KalmanEngine(_Engine):
 
         e0, _, R = m(x0)
         n = len(x0)
-        if self._ukf is None:  # one filter, reused: each pose brings its own hx, R and size
+        if self._ukf is None or self._ukf._dim_x != n:  # one filter, reused: each pose brings its own hx, R and size
             points = MerweScaledSigmaPoints(n, alpha=0.1, beta=2.0, kappa=3.0 - n)
             self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=len(e0), dt=1.0, fx=lambda s, dt: s,
                                               hx=None, points=points)
@@ -113,15 +126,24 @@ class KalmanEngine(_Engine):
         filter's state becomes the smoothed one, whatever the order the poses came in."""
         if self.seen and self._final is None and not np.any(self.kf.Q):
             self._final = self._smooth()
-            if self._final is not None:
+            if self._final is not None and self._final_setup is not None:  # the batch's blocks replace ours
+                x, P, layout = self._final_setup
+                self.kf.x, self.kf.P, self.kf.Q = x.copy(), P.copy(), np.zeros_like(P)
+                self.setup.adopt(layout)
+            elif self._final is not None:
                 self.kf.x, self.kf.P = self._final[0].copy(), self._final[1].copy()
 
     def estimate(self):
-        return self.kf.x.copy(), self.kf.P.copy()
+        n = len(self.params)
+        return self.kf.x[:n].copy(), self.kf.P[:n, :n].copy()
+
+    def estimate_all(self):
+        return self.kf.x.copy(), self.kf.P.copy(), self.setup.layout
 
     def state(self) -> dict:
-        """The filter's state (a snapshot: its size does not grow with the poses)."""
-        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist(), "names": list(self.params.names)}
+        """The filter's state (a snapshot: its size does not grow with the poses, only with the set-up blocks)."""
+        return {"x": self.kf.x.tolist(), "P": self.kf.P.tolist(), "names": list(self.params.names),
+                "setup": self.setup.to_json()}
 
     def restore(self, state: dict, journal) -> None:
         """The state of a snapshot taken after the journalled poses ``journal`` ((record, entry)
@@ -136,3 +158,9 @@ class KalmanEngine(_Engine):
             self.kf.Q = np.diag(np.array([self._drift.get(n, 0.0) for n in self.params.names]) ** 2)
         self.kf.x = np.array(state["x"], dtype=float)
         self.kf.P = np.array(state["P"], dtype=float)
+        self.setup.restore(state.get("setup", {}))
+        n, k = len(self.kf.Q), len(self.kf.x)
+        if k > n:  # the set-up blocks have no drift
+            Q = np.zeros((k, k))
+            Q[:n, :n] = self.kf.Q
+            self.kf.Q = Q

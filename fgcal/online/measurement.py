@@ -118,9 +118,10 @@ class PoseMeasurement:
         point index]), ``search`` (the mirror search ran for every ball); what a replay needs.
     """
 
-    def __init__(self, engine, rec: PoseData, parts, ambiguous=(), taken=None):
+    def __init__(self, engine, rec: PoseData, parts, ambiguous=(), taken=None, setup=None):
         sig = engine.sigmas
         self.engine, self.rec, self.parts, self.ambiguous = engine, rec, parts, list(ambiguous)
+        self.setup = setup  # a SetupProposal (fgcal.online.setup_blocks): contacts to set-up blocks
         self.taken = taken or {}
         balls = engine.ds.tooling.balls
         self.offsets = np.array([p[0] for p in parts]).reshape(-1, 3)
@@ -132,7 +133,10 @@ class PoseMeasurement:
             blocks.append(np.diag(POSE.sigma(sig) ** 2))
         if len(self.d_lengths):
             blocks.append(np.diag(np.tile(DISTANCE.sigma(sig) ** 2, len(self.d_lengths))))
+        if setup is not None and setup.n_rows:
+            blocks.append(np.diag(setup.sigmas(engine) ** 2))
         m = sum(len(b) for b in blocks)
+        self.n_rows = m
         self.R0 = np.zeros((m, m))
         k = 0
         for block in blocks:
@@ -148,7 +152,16 @@ class PoseMeasurement:
         self._last = (key, self._evaluate(theta))
         return self._last[1]
 
-    def _evaluate(self, theta):
+    def augment(self, x, P):
+        """The state ``(x, P)`` with the set-up blocks this pose starts appended (see
+        :meth:`fgcal.online.setup_blocks.SetupProposal.augment`)."""
+        return (x, P) if self.setup is None else self.setup.augment(x, P)
+
+    def _evaluate(self, x):
+        """At the state ``x``: the robot's parameters (P,), then the set-up blocks' free entries."""
+        x = np.asarray(x, dtype=float)
+        n_p = len(self.engine.params)
+        theta = x[:n_p]
         rows = []
         if len(self.offsets):
             rows.append(_centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs))
@@ -156,8 +169,34 @@ class PoseMeasurement:
             rows.append(_pose_rows(self.engine, theta, self.rec.q, self.rec.T))
         if len(self.d_lengths):
             rows.append(_distance_rows(self.engine, theta, self.rec.q, self.d_offsets, self.d_lengths))
-        e, Jt, Jq = (np.concatenate(x) for x in zip(*rows))
-        return e, Jt, self.R0 + Jq @ self.Rj @ Jq.T  # joint noise folded in
+        if len(x) > n_p:  # set-up entries in the state: the robot's rows do not depend on them
+            rows = [(e, np.hstack([Jt, np.zeros((len(Jt), len(x) - n_p))]), Jq) for e, Jt, Jq in rows]
+        others = []  # rows of other poses (pending plane contacts) or of none (known distances)
+        if self.setup is not None:
+            for e, J, Jq, group in self.setup.rows(self.engine, x):
+                if group is not None and group.current:
+                    rows.append((e, J, Jq))
+                else:
+                    others.append((e, J, Jq))
+        if not rows and not others:
+            return np.zeros(0), np.zeros((0, len(x))), np.zeros((0, 0))
+        n_joints = len(self.rec.q)
+        own = (np.concatenate(c) for c in zip(*rows)) if rows else \
+            (np.zeros(0), np.zeros((0, len(x))), np.zeros((0, n_joints)))
+        e, Jt, Jq = own
+        m0 = len(e)
+        Jq_all = np.zeros((m0 + sum(len(o[0]) for o in others), n_joints * (1 + len(others))))
+        Jq_all[:m0, :n_joints] = Jq
+        k = m0
+        for j, (e_o, _, Jq_o) in enumerate(others, start=1):  # each pose's joints apart
+            if Jq_o is not None:
+                Jq_all[k:k + len(e_o), j * n_joints:(j + 1) * n_joints] = Jq_o
+            k += len(e_o)
+        if others:
+            e = np.concatenate([e] + [o[0] for o in others])
+            Jt = np.vstack([Jt] + [o[1] for o in others])
+        Rj = np.kron(np.eye(1 + len(others)), self.Rj)
+        return e, Jt, self.R0 + Jq_all @ Rj @ Jq_all.T  # joint noise folded in
 
 
 def _centre_rows(engine, theta, q, offsets, centres):

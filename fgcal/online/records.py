@@ -6,9 +6,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
+from fgcal.measurements.types import kinematic_types
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json"]
+__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json", "setup_types"]
+
+
+def setup_types() -> list:
+    """The registered measurement types that depend on set-up blocks (``uses_setup``)."""
+    return [k for k in kinematic_types() if getattr(k, "uses_setup", False)]
 
 
 @dataclass
@@ -21,11 +27,13 @@ class PoseData:
     centres: list[tuple[str, np.ndarray]] = field(default_factory=list)  # (ball, xyz (3,))
     T: np.ndarray | None = None
     distances: list[tuple[str, float]] = field(default_factory=list)  # (ball, ballbar length mm)
+    # (level, ball, fixture): the ball at a set-up block (a measurement type with ``uses_setup``)
+    contacts: list[tuple[str, str, str]] = field(default_factory=list)
     # probe index -> (its points, plain SphereFit, its mirror image (3,), narrow cap), from :func:`prefit`
     fits: dict | None = field(default=None, repr=False, compare=False)
 
     def measured(self) -> bool:
-        return bool(self.probes or self.centres or self.T is not None or self.distances)
+        return bool(self.probes or self.centres or self.T is not None or self.distances or self.contacts)
 
 
 def _rows_by_pose(obs, pose_ids):
@@ -54,6 +62,7 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     centres = _rows_by_pose(ds.centres, ids) if "centres" in levels else {}
     pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
     distance_rows = _rows_by_pose(ds.distances, ids) if "distances" in levels else {}
+    setup_rows = {k.level: _rows_by_pose(getattr(ds, k.level), ids) for k in setup_types() if k.level in levels}
     out = []
     for pid, q in zip(ids.tolist(), joints):
         rec = PoseData(pid, q)
@@ -69,6 +78,9 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
             rec.T = pose_matrices(ds.poses.xyz[i], ds.poses.quat[i])
         if distance_rows:
             rec.distances += [(str(ds.distances.ball[i]), float(ds.distances.length[i])) for i in distance_rows[pid]]
+        for level, rows in setup_rows.items():
+            obs = getattr(ds, level)
+            rec.contacts += [(level, str(obs.ball[i]), str(obs.fixture[i])) for i in rows[pid]]
         out.append(rec)
     return out
 
@@ -80,21 +92,31 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
     poses = [(r.pose, r.T) for r in records if r.T is not None]
     distances = [(r.pose, b, v) for r in records for b, v in r.distances]
     q = np.array([r.q for r in records]).reshape(len(records), -1)
+    setup_levels = {}
+    for kind in setup_types():
+        rows = [(r.pose, b, f) for r in records for lv, b, f in r.contacts if lv == kind.level]
+        if rows:
+            setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in rows], dtype=int),
+                                                         np.array([b for _, b, _ in rows]),
+                                                         np.array([f for _, _, f in rows]))
 
     def points(rows):
         return PointObservations([p for p, _, _ in rows], [b for _, b, _ in rows],
                                  np.array([x for _, _, x in rows]).reshape(-1, 3)) if rows else None
 
-    return Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
-                   pose_ids=[r.pose for r in records],
-                   joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
-                   probes=points(probes), centres=points(centres),
-                   poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
-                                          matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
-                   if poses else None,
-                   distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
-                                                  [v for _, _, v in distances]) if distances else None,
-                   path=meta.path, chain=meta.chain)
+    out = Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
+                  pose_ids=[r.pose for r in records],
+                  joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
+                  probes=points(probes), centres=points(centres),
+                  poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
+                                         matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
+                  if poses else None,
+                  distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
+                                                 [v for _, _, v in distances]) if distances else None,
+                  path=meta.path, chain=meta.chain, setup=meta.setup)
+    for level, obs in setup_levels.items():
+        setattr(out, level, obs)
+    return out
 
 
 def _variant(rec: PoseData, taken: dict) -> PoseData:
@@ -103,7 +125,7 @@ def _variant(rec: PoseData, taken: dict) -> PoseData:
         return rec
     j, k = taken["drop"]
     out = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances),
-                   None if rec.fits is None else dict(rec.fits))
+                   list(rec.contacts), None if rec.fits is None else dict(rec.fits))
     ball, pts = rec.probes[j]
     out.probes[j] = (ball, np.delete(pts, k, axis=0))
     return out
@@ -112,7 +134,8 @@ def _variant(rec: PoseData, taken: dict) -> PoseData:
 def record_to_json(rec: PoseData) -> dict:
     return {"pose": rec.pose, "q": rec.q.tolist(), "probes": [[b, p.tolist()] for b, p in rec.probes],
             "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist(),
-            "distances": [[b, float(v)] for b, v in rec.distances]}
+            "distances": [[b, float(v)] for b, v in rec.distances],
+            "contacts": [[lv, b, f] for lv, b, f in rec.contacts]}
 
 
 def record_from_json(d: dict) -> PoseData:
@@ -120,4 +143,5 @@ def record_from_json(d: dict) -> PoseData:
                     [(b, np.array(p, dtype=float)) for b, p in d["probes"]],
                     [(b, np.array(c, dtype=float)) for b, c in d["centres"]],
                     None if d["T"] is None else np.array(d["T"], dtype=float),
-                    [(b, float(v)) for b, v in d.get("distances", [])])
+                    [(b, float(v)) for b, v in d.get("distances", [])],
+                    [(str(lv), str(b), str(f)) for lv, b, f in d.get("contacts", [])])

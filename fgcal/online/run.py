@@ -19,6 +19,7 @@ from fgcal._version import __version__
 from fgcal.errors import FgcalError
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
+from fgcal.estimation.setup_params import SetupParameters
 from fgcal.util.yamlio import atomic_write_text
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
@@ -238,10 +239,15 @@ class OnlineRun:
         params = self.engine.params
         slots = params.full(theta, self.engine.held)
         held = self.engine.held_info()  # as the batch holds them (fgcal.online.base._Engine._smooth)
-        keep = [i for i, n in enumerate(params.names) if n not in self.engine.final_held]
-        if len(keep) < len(params):
-            params, theta, cov = ParameterSet(self.model, tuple(params.names[i] for i in keep)), theta[keep], \
-                cov[np.ix_(keep, keep)]
+        gone = {h["name"] for h in held}
+        keep = [i for i, n in enumerate(params.names) if n not in gone]
+        x, cov_all, layout = self.engine.estimate_all()
+        kept = ParameterSet(self.model, tuple(params.names[i] for i in keep))
+        if layout is not None:  # the set-up blocks' free entries follow, as the batch names them
+            keep += list(range(len(params), len(x)))
+            kept = SetupParameters(kept, layout)
+        theta, cov = x[keep], cov_all[np.ix_(keep, keep)]
+        params = kept
         cov_file = params.covariance_to_file_units(cov)
         sigma = np.sqrt(np.diag(cov_file))
         accepted = [p["pose"] for p in self.processed if p["accepted"]]
@@ -255,4 +261,4 @@ class OnlineRun:
             options={"engine": self.engine_kind, "prior": "weak",
                      "rejected": [p for p in self.processed if not p["accepted"]]},
             dataset=str(self.ds.path) if self.ds.path else None, fgcal_version=__version__,
-            robot_model=model_to_dict(self.model))
+            robot_model=model_to_dict(self.model), setup=self.engine.setup_info())

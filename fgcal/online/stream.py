@@ -5,7 +5,7 @@ import sys
 
 import numpy as np
 
-from fgcal.online.records import PoseData
+from fgcal.online.records import PoseData, setup_types
 
 __all__ = ["STREAM_FORMAT", "read_stream"]
 
@@ -16,22 +16,27 @@ One record a line, comma-separated (lines starting with # and blank lines are ig
   centre,POSE,BALL,x,y,z             a ball centre (mm, world)
   pose,POSE,x,y,z,qw,qx,qy,qz        a measured tool pose (mm, unit quaternion)
   distance,POSE,BALL,length          a ballbar length from the pivot (world origin) to BALL (mm)
+  contact,POSE,BALL,FIXTURE          BALL seated at fixture point FIXTURE, or touching plane FIXTURE
+                                     (a fixture of dataset.yaml's fixtures:)
   end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
 
 
-def read_stream(lines, balls, warn=None, model=None):
+def read_stream(lines, balls, warn=None, model=None, setup=None):
     """Pose records from a stream of lines (:data:`STREAM_FORMAT`), each as soon as it is complete.
 
     A malformed line is reported through ``warn(message)`` with its line number and skipped; the
     stream goes on (an operator's typo should not end a measuring session). ``model`` gives the
-    number of joints and their units (six revolute joints without it).
+    number of joints and their units (six revolute joints without it). ``setup`` (the dataset's
+    :class:`~fgcal.measurements.setup.SetupSpec`) names the fixtures a contact may touch; the
+    contact's level is that of the measurement type of the fixture's kind.
     """
     from fgcal.robots.transforms import pose_matrices
 
     warn = warn or (lambda m: print(m, file=sys.stderr))
     current: PoseData | None = None
     n_joints = 6 if model is None else model.n_joints
-    widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "end": 2}
+    widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "contact": 4, "end": 2}
+    by_kind = {getattr(k, "fixture_type", None): k.level for k in setup_types()}
     for n, raw in enumerate(lines, start=1):
         if isinstance(raw, bytes):
             try:
@@ -46,14 +51,21 @@ def read_stream(lines, balls, warn=None, model=None):
         tag = f[0]
         try:
             if tag not in widths:
-                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, end)")
+                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, contact, end)")
             if len(f) != widths[tag]:
                 raise ValueError(f"{tag} takes {widths[tag] - 1} fields, got {len(f) - 1}")
             pose = int(f[1])
             if tag != "joints" and (current is None or current.pose != pose):
                 raise ValueError(f"{tag} for pose {pose} before its joints line")
-            if tag in ("probe", "centre", "distance") and f[2] not in balls:
+            if tag in ("probe", "centre", "distance", "contact") and f[2] not in balls:
                 raise ValueError(f"unknown ball {f[2]!r} (dataset.yaml has {', '.join(balls)})")
+            if tag == "contact":
+                kind = None if setup is None else setup.kind_of(f[3])
+                if kind not in by_kind:
+                    names = ", ".join(list(getattr(setup, "fixtures", {}))[:6]) or "none"
+                    raise ValueError(f"unknown fixture {f[3]!r} (dataset.yaml's fixtures: {names})")
+                current.contacts.append((by_kind[kind], f[2], f[3]))
+                continue
             values = [float(v) for v in f[3 if tag in ("probe", "centre", "distance") else 2:]]
             if not all(np.isfinite(values)):
                 raise ValueError("a number is not finite")

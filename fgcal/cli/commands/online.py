@@ -52,7 +52,7 @@ def _cmd_online(args) -> int:
         if args.stdin:
             from fgcal.online.stream import read_stream
 
-            for rec in read_stream(sys.stdin.buffer, ds.tooling.balls, model=model):
+            for rec in read_stream(sys.stdin.buffer, ds.tooling.balls, model=model, setup=ds.setup):
                 display.show(run.feed(rec, streamed=True))
         elif args.follow:
             print(f"following {args.dataset} (Ctrl-C to stop); checkpoint {checkpoint}")
