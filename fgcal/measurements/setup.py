@@ -91,6 +91,22 @@ class SetupSpec:
             out["constraints"] = {"distances": [[c.a, c.b, float(c.distance), float(c.sigma)] for c in self.distances]}
         return out
 
+    def placements(self) -> dict:
+        """Fixture name -> its placement: fixtures linked by known distances (one plate's
+        sockets) share one, numbered from 0 in the fixtures' order; any other fixture is its own."""
+        parent = {n: n for n in self.fixtures}
+
+        def root(n):
+            while parent[n] != n:
+                n = parent[n]
+            return n
+
+        for c in self.distances:
+            if c.a in parent and c.b in parent:
+                parent[root(c.b)] = root(c.a)
+        order = {r: k for k, r in enumerate(dict.fromkeys(root(n) for n in self.fixtures))}
+        return {n: order[root(n)] for n in self.fixtures}
+
     def subset(self, used) -> "SetupSpec":
         """The fixtures named in ``used`` and the constraints between them."""
         used = set(used)
