@@ -10,6 +10,9 @@ predicted measurements of the model, never from a second copy of the measurement
 * ``centres``: a measured ball centre or tracker reflector (position only),
   :func:`factors.errors.ball_centre_error`;
 * ``poses``: a measured tool pose, :func:`factors.errors.pose_error`;
+* contacts and other types with set-up blocks (``uses_setup``): the ball at its fixture point or
+  on its plane, the type's ``setup_error`` at its ``design_data``, in the parameters and the
+  free set-up entries, which close the information (a plan marginalises them);
 * the joint readings as priors on the pose's joint variables (when they carry noise).
 
 Each pose's local variables (its joints, its ball centres) are eliminated as the estimator
