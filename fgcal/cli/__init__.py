@@ -222,6 +222,9 @@ def build_parser() -> argparse.ArgumentParser:
     de.add_argument("--level", choices=("probes", "centres", "poses"), default="probes",
                     help="without --dataset: what is measured at a pose (default probes on 3 balls)")
     de.add_argument("--poses", type=positive_int, default=12)
+    de.add_argument("--per-placement", action="store_true",
+                    help="with --dataset of contacts: --poses at each placement (fixtures linked by known "
+                         "distances) instead of in all")
     de.add_argument("--candidates", default=None,
                     help="with --dataset: a joints.csv-like file of candidate poses (pose,q1..q6 deg); "
                          "without: the number of random reachable candidates (default 2000)")

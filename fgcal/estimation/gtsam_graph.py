@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.estimation.build import build_graph
-from fgcal.estimation.calibrate import _unidentifiable
+from fgcal.estimation.build import _levels, build_graph
+from fgcal.estimation.calibrate import _unidentifiable, world_is_fixed
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
@@ -16,7 +16,7 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, State
 from fgcal.robots.model import RobotModel
 
-__all__ = ["nonlinear_graph", "to_gtsam", "gtsam_levenberg_marquardt", "gtsam_covariance"]
+__all__ = ["nonlinear_graph", "to_gtsam", "gtsam_levenberg_marquardt", "gtsam_covariance", "distance_constraint_factor"]
 
 
 def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
@@ -55,11 +55,15 @@ def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = Calib
     graph : gtsam.NonlinearFactorGraph
     values : gtsam.Values
     names : list of str
-        The parameters of ``theta_key()``; parameters the data cannot identify are left out (held).
+        The parameters of ``theta_key()``; parameters the data cannot identify are left out (held),
+        and so is the base when nothing fixes the world frame (contacts at unknown fixtures). The
+        free set-up entries (``fixture.NAME.x``, ``plane.NAME.tilt_u``, ...) close the vector.
     pose_ids : ndarray of int
         The dataset pose id of each joint key index.
     """
     names = model.parameters(extra=options.extra, exclude=options.exclude).names
+    if not world_is_fixed(ds, _levels(ds, options)):  # the gauge, as calibrate holds it
+        names = tuple(n for n in names if not n.startswith("base."))
     graph, state, pose_ids = build_graph(ds, model, names, options)
     redundant = _unidentifiable(graph, state)
     if redundant:
@@ -136,30 +140,70 @@ def nonlinear_graph(graph: Graph, state: State):
     robust = graph.robust
     k = graph.robust_k
 
+    def kept(level, n):  # the factors the outlier handling has not excluded (the batch weighs those 0)
+        return ~graph.excluded.get(level, np.zeros(n, dtype=bool))
+
     def qargs(i):
         return ({"q_key": fx.joint_key(i)} if graph.joint_vars else {"q_fixed": graph.readings[i]}) | {"chain": graph.chain}
 
     if graph.joint_vars:
-        for i in range(graph.n_poses):
+        for i, keep in enumerate(kept("joints", graph.n_poses)):
             values.insert(fx.joint_key(i), np.asarray(state.q[i], dtype=float))
-            g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
-    for j in range(len(graph.ball_pose)):
+            if keep:
+                g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
+    for j, keep in enumerate(kept("kinematic", len(graph.ball_pose))):
         values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
-        g.add(fx.ball_centre_factor(graph.index, graph.held, graph.ball_offset[j], sig.kinematic, t_key=t_key,
-                                    c_key=fx.centre_key(j), **qargs(graph.ball_pose[j])))
+        if keep:
+            g.add(fx.ball_centre_factor(graph.index, graph.held, graph.ball_offset[j], sig.kinematic, t_key=t_key,
+                                        c_key=fx.centre_key(j), **qargs(graph.ball_pose[j])))
     if graph.probes is not None:
-        for j, xyz in zip(graph.probes[1], graph.probes[2]):
+        for j, xyz, keep in zip(graph.probes[1], graph.probes[2], kept("probes", len(graph.probes[1]))):
+            if not keep:
+                continue
             f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, robust)
             if robust:
                 f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, None)
                 f = f.cloneWithNewNoiseModel(fx.noise_model([sig.probe], robust, k))
             g.add(f)
+    # The set-up blocks (fixtures, planes) are the last entries of theta, as in the batch graph: a
+    # contact's factor is on (theta, q_i) like any kinematic measurement's, so eliminating the
+    # poses stays one small block each and theta's marginal is the batch covariance directly.
+    setup = {} if graph.setup is None else {"setup": graph.setup, "setup_column": graph.n_geo + graph.K}
     for level, terms in graph.measurements.items():
         kind = BY_LEVEL[level]
         sigma = kind.sigma(sig)
-        for i, *row in zip(terms.pose.tolist(), *terms.data):
-            f = kind.factor(row, graph.index, graph.held, sigma, t_key=t_key, **qargs(i))
+        extra = setup if getattr(kind, "uses_setup", False) else {}
+        for i, keep, *row in zip(terms.pose.tolist(), kept(level, len(terms)), *terms.data):
+            if not keep:
+                continue
+            f = kind.factor(row, graph.index, graph.held, sigma, t_key=t_key, **qargs(i), **extra)
             g.add(f.cloneWithNewNoiseModel(fx.noise_model(sigma, robust, k)) if robust else f)
     if graph.prior is not None:
         g.add(fx.parameter_prior(t_key, graph.prior[0], graph.prior[1]))
+    if graph.setup is not None:
+        for i in range(len(graph.setup.spec.distances)):
+            g.add(distance_constraint_factor(graph.setup, i, graph.n_geo + graph.K, t_key))
     return g, values
+
+
+def distance_constraint_factor(setup, i: int, setup_column: int, t_key: int):
+    """The ``i``-th known distance between two fixture points of the layout ``setup`` as a factor
+    on the parameter vector ``t_key`` (whose free set-up entries start at ``setup_column``):
+    error ``|p_a - p_b| - distance`` (mm), sigma the constraint's."""
+    import gtsam
+
+    import factors as fx
+
+    free = np.nonzero(setup.free)[0]
+    sigma = setup.spec.distances[i].sigma
+
+    def error(this, values, H):
+        theta = values.atVector(t_key)
+        e, J, _ = setup.distance_errors(setup.full(theta[setup_column:]))
+        if H is not None:
+            row = np.zeros((1, len(theta)))
+            row[0, setup_column:setup_column + len(free)] = J[i, free]
+            H[0] = row
+        return e[i:i + 1]
+
+    return gtsam.CustomFactor(fx.noise_model([sigma]), [t_key], error)

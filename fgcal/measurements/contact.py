@@ -67,7 +67,11 @@ class SetupMeasurement(KinematicMeasurement):
         return np.full(self.width, getattr(sigmas, self.sigma_field))
 
     def error(self, theta, q, data, index, held, chain):
-        raise NotImplementedError(f"{self.title} depend on set-up unknowns: use setup_error")
+        """The error at given set-up values: ``data`` is the graph's payload followed by the set-up
+        vector ``s`` (S,) (as :meth:`design_data` gives it); the Jacobians in theta and the joints
+        of :meth:`setup_error` (the one in ``s`` is left out)."""
+        *payload, s = data
+        return self.setup_error(theta, q, tuple(payload), np.asarray(s, dtype=float), index, held, chain)[:3]
 
     def setup_error(self, theta, q, data, s, index, held, chain):
         raise NotImplementedError
@@ -81,8 +85,51 @@ class SetupMeasurement(KinematicMeasurement):
     def parse(self, where, record, balls):
         raise NotImplementedError("contacts.csv is read with the dataset's fixtures (fgcal.io.dataset_io)")
 
-    def design_data(self, forward, offsets) -> tuple:
-        raise NotImplementedError(f"design for {self.title} is not available yet")
+    def design_data(self, forward, offsets, fixture=None, setup=None, radius: float = 0.0) -> tuple:
+        """The graph's payload of M contacts followed by the set-up vector: ``(*payload, s)``.
+
+        A contact's Jacobians depend on its fixture's block, so the fixture names ``fixture`` (M,)
+        and the set-up layout ``setup`` (:class:`~fgcal.measurements.setup.SetupLayout`) are
+        needed; ``s`` is the layout's start, which the caller builds at the geometry designed for
+        (fixture points at the mean of the predicted ball centres, planes fitted to them: at the
+        true geometry the measurement is noiseless). ``forward`` is not needed (the error is
+        evaluated from the joints); ``radius`` (mm) is the tool's.
+        """
+        if fixture is None or setup is None:
+            raise ValueError(f"the design payload of {self.title} needs each contact's fixture and the set-up layout")
+        fixture = np.asarray(fixture, dtype=str).reshape(-1)
+        return (*self._payload(np.asarray(offsets, dtype=float).reshape(-1, 3), fixture, setup, radius), setup.start)
+
+    def factor(self, data_row, index, held, sigma, *, t_key, q_key=None, q_fixed=None, chain=None, setup=None,
+               setup_column=None):
+        """The GTSAM factor of one contact on the parameter vector ``t_key`` (and ``q_key``).
+
+        The set-up blocks are entries of the parameter vector (they close ``theta``, as in the
+        batch graph): ``setup`` is the layout and ``setup_column`` the column of its first free
+        entry in ``theta`` (geometry, then a joint-error block, then the set-up entries). The
+        Jacobian is :meth:`setup_error`'s: the geometric columns, then ``J_s`` scattered at the
+        free entries of the contact's block (the geometry is ``theta[:len(index)]``).
+        """
+        import factors as fx
+
+        if setup is None or setup_column is None:
+            raise ValueError(f"the GTSAM factor of {self.title} needs the set-up layout and its column in theta")
+        data = tuple(np.asarray(d)[None] for d in data_row)
+        column = setup.column()
+        n_geo = len(index)
+
+        def error_fn(theta, q, i, h, c):
+            s = setup.full(theta[setup_column:])
+            e, J_t, J_q, J_s, cols = self.setup_error(theta[:n_geo], q, data, s, i, h, c)
+            J = np.zeros(J_t.shape[:2] + (len(theta),))
+            J[:, :, :n_geo] = J_t
+            where = column[cols[0]]
+            free = where >= 0
+            J[0][:, setup_column + where[free]] += J_s[0][:, free]
+            return e, J, J_q
+
+        return fx.kinematic_factor(error_fn, fx.noise_model(sigma), index, held, t_key=t_key, q_key=q_key,
+                                   q_fixed=q_fixed, chain=chain)
 
     def simulate(self, T, offsets, rng, noise) -> np.ndarray:
         raise NotImplementedError(f"fgcal's simulator does not simulate {self.title}")
@@ -131,8 +178,12 @@ class PointContact(SetupMeasurement):
 
     def terms(self, obs: ContactObservations, tooling, row_of_pose, layout=None) -> Terms:
         pose = np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int)
-        start = np.array([layout.offset[f] for f in obs.fixture.tolist()], dtype=int)
-        return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), start))
+        return Terms(pose, self._payload(tooling.offsets(obs.ball).reshape(-1, 3), obs.fixture, layout,
+                                         tooling.radius))
+
+    def _payload(self, offsets, fixture, layout, radius) -> tuple:
+        """Ball offsets (M, 3) and each fixture's first entry in ``s`` (M,)."""
+        return offsets, np.array([layout.offset[f] for f in fixture.tolist()], dtype=int)
 
     def setup_error(self, theta, q, data, s, index, held, chain):
         offset, start = data
@@ -160,10 +211,15 @@ class PlaneContact(SetupMeasurement):
 
     def terms(self, obs: ContactObservations, tooling, row_of_pose, layout=None) -> Terms:
         pose = np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int)
-        start = np.array([layout.offset[f] for f in obs.fixture.tolist()], dtype=int)
-        n0 = np.array([layout.reference[f] for f in obs.fixture.tolist()]).reshape(-1, 3)
-        return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), start, n0,
-                            np.full(len(pose), float(tooling.radius))))
+        return Terms(pose, self._payload(tooling.offsets(obs.ball).reshape(-1, 3), obs.fixture, layout,
+                                         tooling.radius))
+
+    def _payload(self, offsets, fixture, layout, radius) -> tuple:
+        """Ball offsets (M, 3), each plane's first entry in ``s`` (M,), its reference normal (M, 3)
+        and the tool's radius (M,)."""
+        start = np.array([layout.offset[f] for f in fixture.tolist()], dtype=int)
+        n0 = np.array([layout.reference[f] for f in fixture.tolist()]).reshape(-1, 3)
+        return offsets, start, n0, np.full(len(start), float(radius))
 
     def setup_error(self, theta, q, data, s, index, held, chain):
         offset, start, n0, radius = data

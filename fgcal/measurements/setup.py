@@ -171,6 +171,22 @@ class SetupSpec:
             out["constraints"] = {"distances": [[c.a, c.b, float(c.distance), float(c.sigma)] for c in self.distances]}
         return out
 
+    def placements(self) -> dict:
+        """Fixture name -> its placement: fixtures linked by known distances (one plate's
+        sockets) share one, numbered from 0 in the fixtures' order; any other fixture is its own."""
+        parent = {n: n for n in self.fixtures}
+
+        def root(n):
+            while parent[n] != n:
+                n = parent[n]
+            return n
+
+        for c in self.distances:
+            if c.a in parent and c.b in parent:
+                parent[root(c.b)] = root(c.a)
+        order = {r: k for k, r in enumerate(dict.fromkeys(root(n) for n in self.fixtures))}
+        return {n: order[root(n)] for n in self.fixtures}
+
     def subset(self, used) -> "SetupSpec":
         """The fixtures named in ``used`` and the constraints between them."""
         used = set(used)
@@ -289,6 +305,32 @@ class SetupLayout:
         col = np.full(self.size, -1, dtype=int)
         col[self.free] = np.arange(self.n_free)
         return col
+
+    def distance_errors(self, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The known distances between fixture points at ``s``: errors ``|p_a - p_b| - distance``
+        (k,) mm, their Jacobian (k, S) in the whole vector ``s`` and their sigmas (k,) mm."""
+        cons = self.spec.distances
+        e, J = np.zeros(len(cons)), np.zeros((len(cons), self.size))
+        for i, c in enumerate(cons):
+            ka, kb = self.offset[c.a], self.offset[c.b]
+            diff = s[ka:ka + 3] - s[kb:kb + 3]
+            dist = np.linalg.norm(diff)
+            e[i] = dist - c.distance
+            u = diff / max(dist, 1e-300)
+            J[i, ka:ka + 3] += u
+            J[i, kb:kb + 3] -= u
+        return e, J, np.array([c.sigma for c in cons], dtype=float)
+
+    def prior_information(self, s) -> np.ndarray:
+        """(S_free, S_free) information about the free entries from their priors and, linearised
+        at ``s``, the known distances (the rows of the graph that touch the set-up blocks alone)."""
+        _, sig = self.prior()
+        info = np.diag(np.where(np.isfinite(sig), 1.0 / sig**2, 0.0))
+        if self.spec.distances:
+            _, J, sd = self.distance_errors(s)
+            J = J[:, self.free] / sd[:, None]
+            info = info + J.T @ J
+        return info
 
     def point(self, s, name) -> np.ndarray:
         k = self.offset[name]

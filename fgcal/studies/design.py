@@ -26,6 +26,7 @@ import numpy as np
 
 from fgcal.measurements.dataset import Noise
 from fgcal.errors import FgcalError
+from fgcal.estimation.calibrate import _hold_order
 from fgcal.estimation.graph import Sigmas
 from fgcal.studies.design_info import Layout, information, information_and_middle, layout_from_access
 from fgcal.robots.identifiability import analyse_information
@@ -33,7 +34,7 @@ from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.plans import PLAN_MARGIN_DEG, PLAN_MARGIN_MM
 from fgcal.robots.deviations import Deviations
 
-__all__ = ["INDICES", "pose_information", "indices", "predicted_rms", "Design", "design_plan", "candidate_pool",
+__all__ = ["INDICES", "pose_information", "indices", "marginal", "predicted_rms", "Design", "design_plan", "candidate_pool",
            "verification_weight", "Candidates", "random_design_values"]
 
 log = logging.getLogger(__name__)
@@ -70,6 +71,16 @@ def predicted_rms(info, W, middle=None) -> float:
         return float(np.sqrt(max(np.trace(W @ cov), 0.0)))
     except np.linalg.LinAlgError:
         return float("inf")
+
+
+def marginal(info, n_setup: int):
+    """The information (..., P, P) about the parameters of information (..., P + S, P + S) whose
+    last ``n_setup`` entries (set-up blocks estimated with them) are marginalised: the Schur
+    complement ``A - B C^+ B^T``."""
+    if not n_setup:
+        return info
+    A, B, C = info[..., :-n_setup, :-n_setup], info[..., :-n_setup, -n_setup:], info[..., -n_setup:, -n_setup:]
+    return A - B @ np.linalg.pinv(C, hermitian=True) @ np.swapaxes(B, -1, -2)
 
 
 def indices(info, m: int, scale, W=None, middle=None) -> dict[str, float]:
@@ -183,6 +194,13 @@ class Candidates:
     identify; ``dropped`` names the others (with the parameters each is confused with).
     ``middle`` (N, P, P), when the data's error is not the estimator's weights, the candidates'
     sandwich middles (:func:`fgcal.studies.design_info.information_and_middle`).
+
+    With set-up blocks (contacts: ``layout.setup``), ``info`` and ``middle`` are over the
+    parameters and the ``n_setup`` free set-up entries after them, ``prior`` (P + S, P + S) the
+    information every plan has about the blocks (their priors, the known distances), ``W`` is
+    zero over the set-up entries and ``scale`` one: ``pred`` is the accuracy with the blocks
+    marginalised (the Schur complement over their columns), the indices O1-O5 are of that
+    marginal information.
     """
 
     q: np.ndarray
@@ -193,6 +211,8 @@ class Candidates:
     names: tuple = ()
     dropped: dict = field(default_factory=dict)
     middle: np.ndarray | None = None
+    n_setup: int = 0
+    prior: np.ndarray | None = None
 
     @classmethod
     def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
@@ -218,91 +238,140 @@ class Candidates:
             info = information(model, q, layout, noise, params, slots, sigmas)
         W = verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
         scale = deviations.sigmas(params.names)
-        dropped = analyse_information(info[usable].sum(axis=0), params.names).redundant
+        S, P = layout.n_setup, len(params.names)
+        prior = np.zeros((P + S, P + S))
+        if S:
+            prior[P:, P:] = layout.setup.prior_information(layout.setup.start)
+        # Of parameters the pool confounds, the estimator holds the tool's angles first: so does the design.
+        order = _hold_order(params.names)
+        whole = marginal(info[usable].sum(axis=0) + prior, S)
+        dropped = analyse_information(whole[np.ix_(order, order)], [params.names[i] for i in order]).redundant
         keep = np.array([n not in dropped for n in params.names])
         if dropped:
             log.warning("not identifiable from any of these %d candidates, so not designed for: %s", usable.sum(),
                         ", ".join(dropped))
-            info, W, scale = info[:, keep][:, :, keep], W[keep][:, keep], scale[keep]
+        W, scale = W[keep][:, keep], scale[keep]
+        if S or dropped:
+            keep = np.concatenate([keep, np.ones(S, dtype=bool)])
+            info, prior = info[:, keep][:, :, keep], prior[keep][:, keep]
             middle = None if middle is None else middle[:, keep][:, :, keep]
-        return cls(q, info, usable, W, scale, tuple(np.array(params.names)[keep]), dropped, middle)
+            W = np.pad(W, (0, S))
+            scale = np.concatenate([scale, np.ones(S)])
+        return cls(q, info, usable, W, scale, tuple(np.array(params.names)[keep[:P]]), dropped, middle, S,
+                   prior if S else None)
+
+    def total(self, sel) -> tuple:
+        """The information of the plan of candidates ``sel`` (with the set-up blocks' prior) and
+        its sandwich middle (None without one)."""
+        prior = 0.0 if self.prior is None else self.prior
+        return (prior + self.info[sel].sum(axis=0),
+                None if self.middle is None else prior + self.middle[sel].sum(axis=0))
 
     def values(self, sel) -> dict[str, float]:
-        """O1-O5 and ``pred`` of the plan made of candidates ``sel``."""
-        return indices(self.info[sel].sum(axis=0), len(sel), self.scale, self.W,
-                       None if self.middle is None else self.middle[sel].sum(axis=0))
+        """O1-O5 (of the information with the set-up blocks marginalised) and ``pred`` of the plan
+        made of candidates ``sel``."""
+        total, middle = self.total(sel)
+        if not self.n_setup:
+            return indices(total, len(sel), self.scale, self.W, middle)
+        # A fixture the plan does not visit is undetermined, and irrelevant: the marginal (by a
+        # pseudo-inverse over the blocks) leaves it out, as the pseudo-inverse of the sandwich does.
+        P = len(self.names)
+        out = indices(marginal(total, self.n_setup), len(sel), self.scale[:P], self.W[:P, :P])
+        if middle is not None and np.isfinite(out["pred"]):
+            inv = np.linalg.pinv(total, hermitian=True)
+            out["pred"] = float(np.sqrt(max(np.trace(self.W @ inv @ middle @ inv), 0.0)))
+        return out
 
 
 def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index: str = "pred",
                 q_verify=None, deviations: Deviations = Deviations(), max_iterations: int = 200,
-                ridge: float = 1e-9, prepared: Candidates | None = None, progress=None) -> Design:
+                ridge: float = 1e-9, prepared: Candidates | None = None, progress=None, groups=None) -> Design:
     """Choose ``n_poses`` of ``candidates`` (K, joints) rad maximising ``index`` (greedy, then DETMAX).
 
     ``q_verify`` (default: the candidates) are the poses whose accuracy ``pred`` predicts;
     ``prepared`` reuses a :class:`Candidates` built once for several designs. At most
-    ``max_iterations`` exchanges; ``progress(text)`` hears of each step. Raises
-    :class:`FgcalError` (one line) when there are fewer usable candidates than poses, or when no
-    plan of ``n_poses`` of them can identify the parameters.
+    ``max_iterations`` exchanges; ``progress(text)`` hears of each step. ``groups`` (K,) int:
+    each candidate's placement (a fixture plate; -1: none); with it the plan takes ``n_poses``
+    at each placement (the exchanges swap within one). Raises :class:`FgcalError` (one line)
+    when there are fewer usable candidates than poses, or when no plan of ``n_poses`` of them can
+    identify the parameters.
     """
     if index not in INDICES:
         raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
     prep = prepared or Candidates.build(model, candidates, noise, q_verify, deviations)
-    scale, W = prep.scale, prep.W
+    scale, W, S = prep.scale, prep.W, prep.n_setup
     pool = np.nonzero(prep.usable)[0]
-    if len(pool) < n_poses:
-        raise FgcalError(f"only {len(pool)} usable candidate poses for a plan of {n_poses}: give more candidates "
-                         "or ask for fewer poses")
+    label = np.zeros(len(pool), dtype=int) if groups is None else np.asarray(groups, dtype=int)[pool]
+    quota = {int(g): n_poses for g in np.unique(label) if g >= 0} if groups is not None else {0: n_poses}
+    for g, n in quota.items():
+        if np.sum(label == g) < n:
+            where = f" at placement {g}" if groups is not None else ""
+            raise FgcalError(f"only {np.sum(label == g)} usable candidate poses{where} for a plan of {n}: give "
+                             "more candidates or ask for fewer poses")
+    n_total = sum(quota.values())
     info = prep.info[pool]
-    n_par = len(scale)
+    prior = np.zeros_like(info[0]) if prep.prior is None else prep.prior
+    n_par = len(scale) - (np.linalg.matrix_rank(prior) if S else 0)
     sv = np.linalg.svd(info * np.outer(scale, scale)[None], compute_uv=False)
     ranks = (sv > 1e-9 * np.maximum(sv[:, :1], 1e-300)).sum(axis=1)
-    if np.sort(ranks)[::-1][:n_poses].sum() < n_par:
+    if np.sort(ranks)[::-1][:n_total].sum() < n_par:
         need = int(np.ceil(n_par / max(ranks.max(initial=0), 1)))
-        raise FgcalError(f"{n_poses} poses of these candidates cannot identify the {n_par} parameters (each pose "
+        raise FgcalError(f"{n_total} poses of these candidates cannot identify the {n_par} parameters (each pose "
                          f"gives at most {ranks.max(initial=0)} independent equations): at least {need} poses needed")
     say = progress or (lambda text: None)
     mid = prep.middle[pool] if (prep.middle is not None and index == "pred") else None
     factors = _low_rank(info) if index == "pred" and mid is None else None
+    P = len(scale) - S
+
+    def criterion(mats, mids=None):
+        """Scores of information matrices (K, P + S, P + S): the indices O1-O5 of their marginal."""
+        if index != "pred" and S:
+            return _scores(marginal(mats, S), scale[:P], index, W[:P, :P])
+        return _scores(mats, scale, index, W, mids)
 
     def batch(total, sign, members, mtotal=None):
         """Scores of ``total + sign * info[m]`` (sandwich middle ``mtotal + sign * mid[m]``) for
         each candidate m of ``members``."""
         if factors is not None:
             return _pred_update(total, factors[members], W, sign)
-        return _scores(total[None] + sign * info[members], scale, index, W,
-                       None if mid is None else mtotal[None] + sign * mid[members])
+        return criterion(total[None] + sign * info[members], None if mid is None else mtotal[None] + sign * mid[members])
 
     # A vanishing ridge (relative to the parameters' expected spread) makes the first, rank
     # deficient steps of the greedy start well defined; it does not change the final choice.
-    base = np.diag(ridge / scale**2)
+    base = np.diag(ridge / scale**2) + prior
     chosen: list[int] = []
     total, mtotal = base.copy(), base.copy()
-    for step in range(n_poses):
+    for step in range(n_total):
         scores = batch(total, 1.0, slice(None), mtotal)
         scores[chosen] = -np.inf
+        full = [g for g, n in quota.items() if np.sum(label[chosen] == g) >= n]
+        scores[np.isin(label, full) | (label < 0)] = -np.inf
         j = int(np.argmax(scores))
         chosen.append(j)
         total = total + info[j]
         mtotal = mtotal + (0.0 if mid is None else mid[j])
-        say(f"greedy start: {step + 1} of {n_poses} poses")
+        say(f"greedy start: {step + 1} of {n_total} poses")
 
     def middle_of(sel):
         return None if mid is None else base + mid[sel].sum(axis=0)
 
     def score_of(sel):
         m = middle_of(sel)
-        return float(_scores((base + info[sel].sum(axis=0))[None], scale, index, W, None if m is None else m[None])[0])
+        return float(criterion((base + info[sel].sum(axis=0))[None], None if m is None else m[None])[0])
 
     best = score_of(chosen)
     it = 0
     for it in range(1, max_iterations + 1):
-        # DETMAX excursion of size one: add the best candidate, then drop the weakest point.
+        # DETMAX excursion of size one: add the best candidate, then drop the weakest point of
+        # its placement.
         total, mtotal = base + info[chosen].sum(axis=0), middle_of(chosen)
         add = batch(total, 1.0, slice(None), mtotal)
         add[chosen] = -np.inf
+        add[label < 0] = -np.inf
         j = int(np.argmax(add))
         grown = chosen + [j]
         drop = batch(total + info[j], -1.0, grown, None if mid is None else mtotal + mid[j])
+        drop[label[grown] != label[j]] = -np.inf
         k = int(np.argmax(drop))
         new = [c for i, c in enumerate(grown) if i != k]
         new_score = score_of(new)
@@ -313,12 +382,19 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
     sel = pool[np.array(chosen)]
     values = prep.values(sel)
     if index == "pred" and not np.isfinite(values["pred"]):
-        raise FgcalError(f"no plan of {n_poses} of these candidates identifies the {n_par} parameters: "
+        raise FgcalError(f"no plan of {n_total} of these candidates identifies the {n_par} parameters: "
                          "ask for more poses")
     return Design(prep.q[sel], sel, values, index, it)
 
 
-def random_design_values(prepared: Candidates, n_poses: int, rng: np.random.Generator):
-    """A random ``n_poses`` subset of the usable candidates and its index values (for comparison)."""
-    sel = rng.choice(np.nonzero(prepared.usable)[0], size=n_poses, replace=False)
+def random_design_values(prepared: Candidates, n_poses: int, rng: np.random.Generator, groups=None):
+    """A random ``n_poses`` subset of the usable candidates (``n_poses`` at each placement of
+    ``groups``, as :func:`design_plan` takes them) and its index values (for comparison)."""
+    pool = np.nonzero(prepared.usable)[0]
+    if groups is None:
+        sel = rng.choice(pool, size=n_poses, replace=False)
+    else:
+        label = np.asarray(groups, dtype=int)[pool]
+        sel = np.concatenate([rng.choice(pool[label == g], size=n_poses, replace=False)
+                              for g in np.unique(label) if g >= 0])
     return sel, prepared.values(sel)

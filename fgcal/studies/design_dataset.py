@@ -25,7 +25,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from fgcal.measurements.dataset import Dataset
+from fgcal.estimation.build import _setup_layout
+from fgcal.estimation.calibrate import world_is_fixed
 from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
+from fgcal.measurements.types import kinematic_levels
 from fgcal.studies.design import Candidates, design_plan, random_design_values
 from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
 from fgcal.errors import FgcalError
@@ -34,6 +37,7 @@ from fgcal.estimation.noise import NoiseMode, component_table
 from fgcal.robots.model import RobotModel
 
 __all__ = ["DATASET_INDEX", "DatasetDesign", "DesignNoise", "dataset_noise", "dataset_layout", "design_from_dataset",
+           "placement_of",
            "save_plan", "load_plan", "with_dataset_tooling"]
 
 log = logging.getLogger(__name__)
@@ -165,7 +169,7 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         return DesignNoise(weights, slots, levels, mode)
     # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
     # s^2 * sens / rows to a component's variance factor (pooled over the components).
-    sens = joint_sensitivity(model, ds.joints_rad, dataset_layout(ds, model), sig, slots)
+    sens = joint_sensitivity(model, ds.joints_rad, dataset_layout(ds, model, slots=slots), sig, slots)
     excess = sum(max(levels[c][1] ** 2 / levels[c][0] ** 2 - 1.0, 0.0) * rows
                  for c, (_, rows) in sens.items() if c in levels)
     total = sum(v for c, (v, _) in sens.items() if c in levels)
@@ -187,11 +191,16 @@ def with_dataset_tooling(ds: Dataset, model: RobotModel) -> RobotModel:
     return replace(model, tooling=ds.tooling)
 
 
-def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
+def dataset_layout(ds: Dataset, model: RobotModel, q=None, slots=None) -> Layout:
     """What is measured at each pose: the dataset's own measurements at its poses (``q`` None),
     or at joint sets ``q`` (N, joints) rad the balls the instrument reaches (as many as the
     dataset usually measures per pose) at the dataset's levels. The balls are the dataset's
-    (:func:`with_dataset_tooling`)."""
+    (:func:`with_dataset_tooling`).
+
+    Contacts (types with set-up blocks) are at the dataset's poses only, each at its fixture;
+    the blocks start as the estimator starts them, from the geometry ``slots`` (internal units;
+    default the nominal): a fixture point at the mean of its predicted ball centres, a plane
+    fitted to them (at the true geometry, a noiseless measurement's)."""
     model = with_dataset_tooling(ds, model)
     levels = tuple(ds.levels())  # every measurement type brings its own rows to the information
     if not levels:
@@ -202,6 +211,7 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
     if ds.probes is not None and len(ds.probes):
         _, counts = np.unique([f"{p}/{b}" for p, b in zip(ds.probes.pose, ds.probes.ball)], return_counts=True)
         ppb = int(np.median(counts))
+    setup_kinds = [k for k in kinematic_levels(levels) if getattr(k, "uses_setup", False)]
     if q is None:
         balls = np.zeros((ds.n_poses, len(names)), dtype=bool)
         row = {p: i for i, p in enumerate(ds.pose_ids.tolist())}
@@ -209,7 +219,19 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None) -> Layout:
         for obs in point_levels:
             for p, b in zip(obs.pose.tolist(), obs.ball.tolist()):
                 balls[row[p], col[b]] = True
-        return Layout(levels, balls, ppb)
+        contacts, setup = {}, None
+        if setup_kinds:  # each pose touches the fixture it touched in the dataset
+            for kind in setup_kinds:
+                obs = getattr(ds, kind.level)
+                fixtures = np.full((ds.n_poses, len(names)), "", dtype=object)
+                fixtures[[row[p] for p in obs.pose.tolist()], [col[b] for b in obs.ball.tolist()]] = obs.fixture
+                contacts[kind.level] = fixtures.astype(str)
+            x = model.nominal if slots is None else np.asarray(slots, dtype=float)
+            setup = _setup_layout(ds, model, setup_kinds, x, model.joints_to_internal(ds.joints_deg), row)
+        return Layout(levels, balls, ppb, contacts, setup)
+    if setup_kinds and len(setup_kinds) == len(levels):
+        raise FgcalError(f"{ds.path or 'dataset'}: contacts are designed from the dataset's own poses (each at "
+                         "its fixture); candidates given as joints only touch no fixture")
     per_pose = 0
     for obs in point_levels:
         if len(obs):
@@ -232,7 +254,8 @@ def _linearisation_point(ds: Dataset, model: RobotModel):
 
 def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates=None, index: str = DATASET_INDEX,
                         random_sets: int = 200, rng: np.random.Generator | None = None, progress=None,
-                        max_iterations: int = 200, noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED) -> DatasetDesign:
+                        max_iterations: int = 200, noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED,
+                        per_placement: bool = False) -> DatasetDesign:
     """Choose ``n_poses`` of the dataset's poses (or of ``candidates``) for the dataset's robot,
     tool, measurement levels and noise.
 
@@ -247,6 +270,10 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     noise : NoiseMode or DesignNoise
         The noise designed for (:func:`dataset_noise`): ``estimated`` from ``ds`` (default) or
         ``declared``; a :class:`DesignNoise` already found is reused.
+    per_placement : bool
+        Contacts: ``n_poses`` at each placement (fixtures linked by known distances, one plate;
+        :meth:`~fgcal.measurements.setup.SetupSpec.placements`) instead of ``n_poses`` in all;
+        the random plans too.
 
     Raises
     ------
@@ -258,9 +285,10 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         raise FgcalError("--poses must be at least 1")
     model = with_dataset_tooling(ds, model)  # the candidates measure the dataset's balls
     rng = rng if rng is not None else np.random.default_rng(0)
+    found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
     if candidates is None:
         ids, q_deg = ds.pose_ids, ds.joints_deg
-        layout = dataset_layout(ds, model)
+        layout = dataset_layout(ds, model, slots=found.slots)
     else:
         ids, q_deg = (np.asarray(c) for c in candidates)
         inside = model.in_limits(model.joints_to_internal(q_deg))
@@ -268,21 +296,41 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
             log.warning("%d candidate pose(s) outside the joint limits of %s left out (first: pose %d)",
                         (~inside).sum(), model.name, ids[~inside][0])
             ids, q_deg = ids[inside], q_deg[inside]
-        layout = dataset_layout(ds, model, model.joints_to_internal(q_deg))
+        layout = dataset_layout(ds, model, model.joints_to_internal(q_deg), slots=found.slots)
     q = model.joints_to_internal(q_deg)
     where = "the candidates" if candidates is not None else f"{ds.path or 'the dataset'}"
     if len(ids) < n_poses:
         raise FgcalError(f"{where}: {len(ids)} candidate poses for a plan of {n_poses}: fewer candidates than poses")
-    found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
-    prep = Candidates.build(model, q, ds.noise, layout=layout, slots=found.slots, sigmas=found.sigmas,
-                            actual=found.actual, joint_error=found.joint_error)
+    groups = None
+    if per_placement:
+        if layout.setup is None:
+            raise FgcalError(f"{where}: a plan per placement needs contacts at fixtures")
+        groups = placement_of(layout, layout.setup.spec)
+    params = model.parameters()
+    if not world_is_fixed(ds, layout.levels):  # the gauge, held as the estimator holds it
+        params = type(params)(model, tuple(n for n in params.names if not n.startswith("base.")))
+    prep = Candidates.build(model, q, ds.noise, layout=layout, params=params, slots=found.slots,
+                            sigmas=found.sigmas, actual=found.actual, joint_error=found.joint_error)
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
-                    progress=progress)
-    rand = np.array([random_design_values(prep, n_poses, rng)[1]["pred"] for _ in range(random_sets)])
+                    progress=progress, groups=groups)
+    rand = np.array([random_design_values(prep, n_poses, rng, groups)[1]["pred"] for _ in range(random_sets)])
     return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
                          int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode)
+
+
+def placement_of(layout: Layout, spec) -> np.ndarray:
+    """(N,) int: the placement (:meth:`~fgcal.measurements.setup.SetupSpec.placements`) of each
+    pose's first contact, -1 for a pose that touches no fixture."""
+    where = spec.placements()
+    out = np.full(len(layout.balls), -1, dtype=int)
+    for fixtures in layout.contacts.values():
+        for i, row in enumerate(fixtures):
+            touched = [f for f in row if f]
+            if touched and out[i] < 0:
+                out[i] = where[touched[0]]
+    return out
 
 
 def save_plan(plan: DatasetDesign, path) -> None:

@@ -10,6 +10,9 @@ predicted measurements of the model, never from a second copy of the measurement
 * ``centres``: a measured ball centre or tracker reflector (position only),
   :func:`factors.errors.ball_centre_error`;
 * ``poses``: a measured tool pose, :func:`factors.errors.pose_error`;
+* contacts and other types with set-up blocks (``uses_setup``): the ball at its fixture point or
+  on its plane, the type's ``setup_error`` at its ``design_data``, in the parameters and the
+  free set-up entries, which close the information (a plan marginalises them);
 * the joint readings as priors on the pose's joint variables (when they carry noise).
 
 Each pose's local variables (its joints, its ball centres) are eliminated as the estimator
@@ -24,7 +27,7 @@ No I/O here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,6 +36,7 @@ from factors.errors import ball_centre_error, probe_error
 from fgcal.estimation.build import _sigmas
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset, Noise
+from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
@@ -55,17 +59,36 @@ class Layout:
     balls : ndarray of bool, shape (N, B)
         Balls (tooling order) measured at each pose, for the ``probes`` and ``centres`` levels.
     probes_per_ball : int
+    contacts : dict of str to ndarray of str, shape (N, B)
+        For measurement types with set-up blocks (``uses_setup``): the fixture each ball touches
+        at each pose ("" for none), per level.
+    setup : fgcal.measurements.setup.SetupLayout, optional
+        The set-up blocks of those contacts, at the values designed for (their start). Their free
+        entries follow the parameters in the information: they are estimated with the robot, and
+        a plan's criterion marginalises them.
     """
 
     levels: tuple
     balls: np.ndarray
     probes_per_ball: int = 4
+    contacts: dict = field(default_factory=dict)
+    setup: SetupLayout | None = None
 
     def usable(self) -> np.ndarray:
         """(N,) bool: the pose gives at least one measurement."""
         if "poses" in self.levels:
             return np.ones(len(self.balls), dtype=bool)
-        return self.balls.any(axis=1)
+        return self.balls.any(axis=1) | self.touching().any(axis=1)
+
+    def touching(self) -> np.ndarray:
+        """(N, levels with set-up blocks) int: each pose's contacts per such level."""
+        return np.column_stack([np.sum(f != "", axis=1) for f in self.contacts.values()] or
+                               [np.zeros(len(self.balls), dtype=int)])
+
+    @property
+    def n_setup(self) -> int:
+        """Free set-up entries after the parameters in the information (0 without set-up blocks)."""
+        return 0 if self.setup is None else self.setup.n_free
 
 
 def sigmas_of(noise: Noise, model: RobotModel) -> Sigmas:
@@ -134,14 +157,17 @@ def _eliminate(J_theta, J_local, J_q=None, ratio=None, sigma_u=None):
 
 
 def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, actual: Sigmas | None = None,
-                       sigma_u=None):
-    """Information (n, P, P) of n poses that each measure the balls ``balls`` (n, k) (indices);
-    with ``actual`` (the data's noise) also the sandwich's middle (see :func:`_eliminate`)."""
+                       sigma_u=None, touch=None):
+    """Information (n, P + S, P + S) of n poses that each measure the balls ``balls`` (n, k)
+    (indices) and touch, per level with set-up blocks, ``touch[level]``: balls (n, c) and fixture
+    names (n, c); S the layout's free set-up entries. With ``actual`` (the data's noise) also the
+    sandwich's middle (see :func:`_eliminate`)."""
     n, nj = q.shape
     k = balls.shape[1]
     idx = params.index
     theta = x[idx]
-    P = len(idx)
+    P = len(idx) + layout.n_setup
+    touch = touch or {}
     offsets = model.tooling.offsets() if model.tooling is not None else np.zeros((0, 3))
     sigma_q = np.broadcast_to(np.asarray(sig.joint, dtype=float), (nj,))
     with_joints = bool(np.all(sigma_q > 0))
@@ -154,6 +180,8 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, 
         """Whitened rows (n, r, P), their joint (n, r, nj) and centre (n, r, 3k) columns; ``ratio``
         the rows' actual over weighted variance; ``seen``: a joint-space error moves them."""
         r = rows_t.shape[1]
+        if rows_t.shape[2] < P:  # no set-up columns
+            rows_t = np.concatenate([rows_t, np.zeros((n, r, P - rows_t.shape[2]))], axis=2)
         local = np.zeros((n, r, n_local))
         if with_joints and rows_q is not None:
             local[:, :, :nj] = rows_q
@@ -166,6 +194,11 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, 
 
     T = model.forward(x, q)
     for kind in kinematic_levels(layout.levels):  # each measurement type's own error and noise
+        if getattr(kind, "uses_setup", False):  # contacts: rows in the parameters and the set-up blocks
+            if kind.level in touch and touch[kind.level][0].shape[1]:
+                J_t, J_q, w, c = _setup_rows(kind, model, theta, idx, x, q, *touch[kind.level], layout, sig)
+                add(J_t, J_q, ratio=np.tile((kind.sigma(act) * w) ** 2, c))
+            continue
         if kind.per_ball and not k:
             continue
         T_m = np.repeat(T, k, axis=0) if kind.per_ball else T
@@ -174,12 +207,12 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, 
         _, Jt, Jq = kind.error(theta, q_m, kind.design_data(T_m, off), idx, x, model.chain)
         w = 1.0 / kind.sigma(sig)
         ratio = np.tile((kind.sigma(act) * w) ** 2, k if kind.per_ball else 1)
-        add((Jt * w[None, :, None]).reshape(n, -1, P), (Jq * w[None, :, None]).reshape(n, -1, nj), ratio=ratio)
+        add((Jt * w[None, :, None]).reshape(n, -1, len(idx)), (Jq * w[None, :, None]).reshape(n, -1, nj), ratio=ratio)
     if probes:  # probe points on spheres around ball-centre variables tied to the kinematics
         off = offsets[balls].reshape(-1, 3)
         centre, Jt, Jq = ball_centre_error(theta, np.repeat(q, k, axis=0), off, np.zeros_like(off), idx, x,
                                            model.chain)
-        Jt, Jq = Jt.reshape(n, 3 * k, P), Jq.reshape(n, 3 * k, nj)
+        Jt, Jq = Jt.reshape(n, 3 * k, len(idx)), Jq.reshape(n, 3 * k, nj)
         add(Jt / sig.kinematic, Jq / sig.kinematic, -np.eye(3 * k)[None].repeat(n, 0) / sig.kinematic,
             ratio=(act.kinematic / sig.kinematic) ** 2)
         ppb = layout.probes_per_ball
@@ -211,9 +244,35 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, 
     return _eliminate(J_t, J_l, np.concatenate(blocks_q, axis=1), np.concatenate(ratios), su)
 
 
+def _setup_rows(kind, model, theta, idx, x, q, balls, fixtures, layout: Layout, sig: Sigmas):
+    """Whitened rows of contacts with set-up blocks at n poses, ``c`` each (balls and fixture
+    names (n, c)): ``(J (n, c w, P + S), J_q (n, c w, nj), w (w,) the rows' weights, c)``, from
+    the type's own :meth:`~fgcal.measurements.contact.SetupMeasurement.setup_error` at its
+    :meth:`design_data`."""
+    n, c = balls.shape
+    offsets = model.tooling.offsets()
+    setup = layout.setup
+    radius = model.tooling.radius
+    *payload, s = kind.design_data(None, offsets[balls].reshape(-1, 3), fixtures.reshape(-1), setup, radius)
+    _, J_t, J_q, J_s, cols = kind.setup_error(theta, np.repeat(q, c, axis=0), tuple(payload), s, idx, x, model.chain)
+    m, width, P = len(J_t), J_t.shape[1], len(idx)
+    J = np.zeros((m, width, P + setup.n_free))
+    J[:, :, :P] = J_t
+    where = setup.column()[cols]  # (m, 3) column among the free entries, -1 for fixed ones
+    for j in range(cols.shape[1]):
+        free = where[:, j] >= 0
+        J[free, :, P + where[free, j]] += J_s[free, :, j]
+    w = 1.0 / kind.sigma(sig)
+    return ((J * w[None, :, None]).reshape(n, c * width, -1), (J_q * w[None, :, None]).reshape(n, c * width, -1),
+            w, c)
+
+
 def information(model: RobotModel, q, layout: Layout, noise: Noise, params: ParameterSet | None = None,
                 slots=None, sigmas: Sigmas | None = None) -> np.ndarray:
-    """Per-pose information about the parameters, ``(N, P, P)`` (internal units: mm, rad).
+    """Per-pose information about the parameters, ``(N, P, P)`` (internal units: mm, rad); with
+    set-up blocks (``layout.setup``) about the parameters and the free set-up entries after them,
+    ``(N, P + S, P + S)`` (their priors and known distances are not in it:
+    :meth:`~fgcal.measurements.setup.SetupLayout.prior_information`).
 
     Parameters
     ----------
@@ -255,15 +314,22 @@ def _per_pose(model, q, layout, noise, params, slots, sigmas, actual=None, joint
         raise FgcalError(f"robot model {model.name}: probe points need balls of positive radius; its tool has "
                          "reflectors (radius 0): design for ball centres (position only) or poses instead")
     sig = sigmas or sigmas_of(noise, model)
-    P = len(params.index)
+    P = len(params.index) + layout.n_setup
     out = np.zeros((len(q), P, P))
     mid = np.zeros((len(q), P, P)) if actual is not None else None
     usable = layout.usable()
     counts = layout.balls.sum(axis=1) if layout.balls.size else np.zeros(len(q), dtype=int)
-    for k in np.unique(counts[usable]):
-        rows = np.nonzero(usable & (counts == k))[0]
+    # Poses are evaluated in groups with the same number of balls and of contacts per level.
+    signature = np.column_stack([counts, layout.touching()])
+    for sig_row in np.unique(signature[usable], axis=0):
+        rows = np.nonzero(usable & np.all(signature == sig_row, axis=1))[0]
+        k = int(sig_row[0])
         balls = np.array([np.nonzero(layout.balls[i])[0] for i in rows], dtype=int).reshape(len(rows), k)
-        got = _group_information(model, params, x, q[rows], balls, layout, sig, actual, joint_error)
+        touch = {}
+        for level, fixtures in layout.contacts.items():
+            b = np.array([np.nonzero(fixtures[i] != "")[0] for i in rows], dtype=int).reshape(len(rows), -1)
+            touch[level] = (b, fixtures[rows[:, None], b])
+        got = _group_information(model, params, x, q[rows], balls, layout, sig, actual, joint_error, touch)
         if mid is None:
             out[rows] = got
         else:
@@ -288,14 +354,17 @@ def joint_sensitivity(model: RobotModel, q, layout: Layout, sigmas: Sigmas, slot
     T = model.forward(x, q)
     out = {}
     for kind in kinematic_levels(layout.levels):
+        setup = getattr(kind, "uses_setup", False)
         if kind.per_ball:
-            pose, ball = np.nonzero(layout.balls)
+            pose, ball = np.nonzero(layout.contacts[kind.level] != "") if setup else np.nonzero(layout.balls)
             if not len(pose):
                 continue
             T_m, q_m, off = T[pose], q[pose], offsets[ball]
         else:
             T_m, q_m, off = T, q, np.zeros((len(q), 3))
-        _, _, Jq = kind.error(x[idx], q_m, kind.design_data(T_m, off), idx, x, model.chain)
+        # a contact's payload needs its fixture and the set-up blocks
+        more = (layout.contacts[kind.level][pose, ball], layout.setup, model.tooling.radius) if setup else ()
+        _, _, Jq = kind.error(x[idx], q_m, kind.design_data(T_m, off, *more), idx, x, model.chain)
         w2 = np.einsum("mrj,mrj->r", Jq, Jq) / kind.sigma(sigmas) ** 2  # per component column
         for name, (level, cols, *_rest) in component_table().items():
             if level == kind.level:

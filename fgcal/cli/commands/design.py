@@ -42,7 +42,8 @@ def _cmd_design_dataset(args) -> int:
     check_output_file(args.out, [*dataset_inputs(args.dataset, ds.robot)]
                       + ([Path(args.candidates)] if candidates is not None else []))
     plan = design_from_dataset(ds, dataset_model(ds), args.poses, candidates, index=args.index or DATASET_INDEX,
-                               rng=np.random.default_rng(args.seed), progress=_progress(), noise=args.noise)
+                               rng=np.random.default_rng(args.seed), progress=_progress(), noise=args.noise,
+                               per_placement=getattr(args, "per_placement", False))
     save_plan(plan, args.out)
     print("\n".join(plan.summary()))
     print(f"wrote {args.out} (pose ids of the candidates)")
