@@ -168,3 +168,19 @@ def test_verify_from_the_stations_found(tmp_path):
     other.station_centres.station[:] = "D"
     with pytest.raises(Exception, match="station D is not a station of the calibration"):
         verify(result, other, model)
+
+
+def test_gtsam_engine_equals_the_batch_and_the_rest_refuse_in_one_line(tmp_path):
+    _simulate(tmp_path, 7, n=45)
+    ds = load_dataset(tmp_path / "all")
+    model = dataset_model(ds)
+    batch = calibrate(ds, model, CalibrationOptions())
+    other = calibrate(ds, model, CalibrationOptions(engine="gtsam"))
+    assert other.names == batch.names
+    assert np.max(np.abs(other.estimate - batch.estimate) / batch.sigma) < 1e-5
+    assert np.allclose(other.sigma, batch.sigma, rtol=1e-5)
+    for args in (["online", tmp_path / "all", "--engine", "ekf", "--out", tmp_path / "o.json"],
+                 ["design", "--dataset", tmp_path / "all", "--poses", "20", "--out", tmp_path / "p.csv"]):
+        run = subprocess.run([sys.executable, "-m", "fgcal.cli", *map(str, args)], capture_output=True, text=True)
+        assert run.returncode == 2 and "Traceback" not in run.stderr
+        assert "several stations" in run.stderr.strip().splitlines()[-1]

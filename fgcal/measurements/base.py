@@ -160,8 +160,17 @@ class KinematicMeasurement(ABC):
         import factors as fx
 
         data = tuple(np.asarray(d)[None] for d in data_row)
-        return fx.kinematic_factor(lambda theta, q, i, h, c: self.error(theta, q, data, i, h, c), fx.noise_model(sigma),
-                                   index, held, t_key=t_key, q_key=q_key, q_fixed=q_fixed, chain=chain)
+        n_geo = len(index)
+
+        def error_fn(theta, q, i, h, c):
+            # theta may go on past the geometry (a joint-error block, set-up entries): no part of this error
+            e, J_t, J_q = self.error(theta[:n_geo], q, data, i, h, c)
+            if len(theta) > n_geo:
+                J_t = np.concatenate([J_t, np.zeros(J_t.shape[:2] + (len(theta) - n_geo,))], axis=2)
+            return e, J_t, J_q
+
+        return fx.kinematic_factor(error_fn, fx.noise_model(sigma), index, held, t_key=t_key, q_key=q_key,
+                                   q_fixed=q_fixed, chain=chain)
 
     def world_points(self, terms: Terms) -> dict:
         """Tool-frame points and where they were measured, per graph pose ``{i: (offsets (k, 3), world (k, 3))}``,

@@ -104,6 +104,24 @@ class StationPoint(SetupMeasurement):
         cols = start[:, None] + np.arange(6)
         return e, J_t, J_q, J_s, cols
 
+    def design_data(self, forward, offsets, fixture=None, setup=None, radius: float = 0.0) -> tuple:
+        """The payload of M noiseless centres from the stations ``fixture`` (M,), with the set-up
+        vector: ``(offsets, xyz in each station's frame, block starts, s)``; ``forward`` (M, 4, 4)
+        the tool poses, ``setup`` the layout (its start: the stations at the geometry designed for)."""
+        if fixture is None or setup is None or forward is None:
+            raise FgcalError("design for centres from several stations is not available yet: design on a "
+                             "dataset of one station")
+        fixture = np.asarray(fixture, dtype=str).reshape(-1)
+        offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+        world = tool_points(forward, offsets[:, None, :])[:, 0]
+        start = np.array([setup.offset[f] for f in fixture.tolist()], dtype=int)
+        local = np.empty_like(world)
+        for k in np.unique(start):
+            rows = start == k
+            R, p, _ = station_transform(setup.start[k:k + 6])
+            local[rows] = world[rows] @ R - p  # T x = R (x + p): x = R^T w - p
+        return offsets, local, start, setup.start
+
     def observations(self, pose, ball, values, line=None):
         raise NotImplementedError("station centres are split from centres.csv by joints.csv's station column")
 

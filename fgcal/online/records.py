@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
-from fgcal.measurements.types import kinematic_types
+from fgcal.errors import FgcalError
+from fgcal.measurements.types import BY_LEVEL, kinematic_types
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
 __all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json", "setup_types"]
@@ -54,6 +55,10 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     ``model`` converts the readings (prismatic joints are mm); all revolute without it.
     """
     levels = ds.levels() if levels is None else list(levels)
+    unsupported = [lv for lv in levels if getattr(BY_LEVEL.get(lv), "fixture_type", None) not in (None, "point", "plane")]
+    if unsupported:  # a station's block needs a rigid fit of three centres before it can start
+        raise FgcalError(f"{ds.path or 'dataset'}: the online engines do not take {', '.join(unsupported)} yet "
+                         "(centres from several stations): use fgcal calibrate")
     ids = np.asarray(ds.pose_ids, dtype=int)
     keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
     ids = ids[keep]
@@ -80,7 +85,8 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
             rec.distances += [(str(ds.distances.ball[i]), float(ds.distances.length[i])) for i in distance_rows[pid]]
         for level, rows in setup_rows.items():
             obs = getattr(ds, level)
-            rec.contacts += [(level, str(obs.ball[i]), str(obs.fixture[i])) for i in rows[pid]]
+            blocks = BY_LEVEL[level].blocks_of(obs)
+            rec.contacts += [(level, str(obs.ball[i]), str(blocks[i])) for i in rows[pid]]
         out.append(rec)
     return out
 

@@ -224,7 +224,7 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None, slots=None) -> Layout
             for kind in setup_kinds:
                 obs = getattr(ds, kind.level)
                 fixtures = np.full((ds.n_poses, len(names)), "", dtype=object)
-                fixtures[[row[p] for p in obs.pose.tolist()], [col[b] for b in obs.ball.tolist()]] = obs.fixture
+                fixtures[[row[p] for p in obs.pose.tolist()], [col[b] for b in obs.ball.tolist()]] = kind.blocks_of(obs)
                 contacts[kind.level] = fixtures.astype(str)
             x = model.nominal if slots is None else np.asarray(slots, dtype=float)
             setup = _setup_layout(ds, model, setup_kinds, x, model.joints_to_internal(ds.joints_deg), row)
