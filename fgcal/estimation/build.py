@@ -101,6 +101,9 @@ def _initial_pivot(model: RobotModel, held, q, offsets, length):
     return model.with_world_origin_at(held, np.linalg.lstsq(A, b, rcond=None)[0][:3])
 
 
+PLANE_MIN_SPREAD = 5.0  # mm (RMS) of a plane's contacts in their narrower direction: a tilt needs an area
+
+
 def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> SetupLayout:
     """The set-up blocks the measurements use, each unknown one started from the robot's start:
     a fixture point at the mean of its predicted ball centres, a plane fitted to them (its normal
@@ -123,9 +126,11 @@ def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> Setup
         if f.type == "point":
             starts[name] = c.mean(axis=0)
             continue
-        if len(c) < 3 or np.linalg.matrix_rank(c - c.mean(0), tol=1e-6) < 2:
+        spread = np.linalg.svd(c - c.mean(0), compute_uv=False)[1] / np.sqrt(len(c)) if len(c) >= 3 else 0.0
+        if len(c) < 3 or spread < PLANE_MIN_SPREAD:
             raise FgcalError(f"{ds.path or 'dataset'}: plane {name} needs contacts at three or more points "
-                             f"not on one line (it has {len(c)})")
+                             f"spread over an area, not near one point or one line (it has {len(c)}, "
+                             f"{spread:.3g} mm across (RMS) in its narrower direction; at least {PLANE_MIN_SPREAD:g})")
         n = np.linalg.svd(c - c.mean(0))[2][2]
         if np.mean((flange[name] - c) @ n) < 0:
             n = -n

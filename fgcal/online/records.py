@@ -39,6 +39,9 @@ def _rows_by_pose(obs, pose_ids):
     return {int(p): order[a:z] for p, a, z in zip(pose_ids, lo, hi)}
 
 
+READ_LEVELS = ("probes", "centres", "poses", "distances")  # what pose_records reads; `fgcal online` refuses the rest
+
+
 def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseData]:
     """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose).
 
