@@ -12,7 +12,7 @@ a time limit and an address-space limit (``resource.setrlimit``), and is classed
 - ``hung``: the time limit passed,
 - ``killed``: ended by a signal, or out of memory.
 
-Usage: ``python tools/hostile_sweep.py [--jobs 2] [--only SUBSTRING] [--timeout 150]``.
+Usage: ``python tools/hostile_sweep.py [--jobs 2] [--only SUBSTRING] [--tag contacts] [--timeout 150]``.
 """
 from __future__ import annotations
 
@@ -60,7 +60,8 @@ def run_case(case: Case, base: Path, timeout: float) -> tuple[str, str, float]:
         left = leftovers(work)
         if left:
             problems.append(f"left behind: {', '.join(left[:3])}")
-        err_lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith(("warning:", "note:"))]
+        err_lines = [ln for ln in err.splitlines()  # warnings before an error are lines of their own
+                     if ln.strip() and not ln.lower().startswith(("warning:", "note:"))]
         if case.expect == "error" or (case.expect == "either" and code != 0):
             if code == 0:
                 problems.append("exit 0 where an error was due")
@@ -85,9 +86,10 @@ def main(argv=None) -> int:
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--only", default=None, help="run the cases whose name holds this text")
     p.add_argument("--timeout", type=float, default=150.0)
+    p.add_argument("--tag", default=None, help="run the cases with this tag (contacts)")
     p.add_argument("--list", action="store_true")
     args = p.parse_args(argv)
-    todo = [c for c in cases() if args.only is None or args.only in c.name]
+    todo = [c for c in cases() if (args.only is None or args.only in c.name) and (args.tag is None or args.tag in c.tags)]
     if args.list:
         for c in todo:
             print(c.name, "::", " ".join(map(str, c.args)))

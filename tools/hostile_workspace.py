@@ -14,6 +14,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
 LANDGRAF = Path("/work/shared/data/landgraf-ur10/Series_B/measurements_joint_configurations.csv")
+MUKCA = Path("/work/shared/data/mukca-panda")  # the two-socket tool's placements (a Panda)
 MEMORY = 2 << 30  # bytes of address space for a child
 COMMANDS = {"simulate", "check", "measure", "calibrate", "verify", "report", "import", "compensate", "export",
             "online", "study", "design", "demo"}
@@ -72,12 +73,33 @@ def build_base(base: Path) -> None:
     if LANDGRAF.exists():
         lines = LANDGRAF.read_text(encoding="utf-8-sig").splitlines()
         (base / "series.csv").write_text("\n".join(lines[:60]) + "\n")
+    if MUKCA.exists():
+        build_contacts(base)
+
+
+def build_contacts(base: Path) -> None:
+    """mk (the MUKCa placements, writable), mk.urdf, cds and cds-holdout (imported, placement high held
+    out), cres.json (a contacts calibration) and cver.json (its verification)."""
+    shutil.copytree(MUKCA / "panda_2", base / "mk")
+    shutil.copy(MUKCA / "panda.urdf", base / "mk.urdf")
+    for p in [base / "mk", *(base / "mk").rglob("*")]:
+        p.chmod(0o755 if p.is_dir() else 0o644)
+    steps = [["import", "mukca", "mk", "cds", "--robot", "mk.urdf", "--chain", "panda_link0,ball_link",
+              "--holdout-placements", "high"],
+             ["calibrate", "cds", "--out", "cres.json"],
+             ["verify", "cres.json", "cds-holdout", "--out", "cver.json"]]
+    for s in steps:
+        code, out, err = fgcal(s, base)
+        if code != 0:
+            raise SystemExit(f"workspace step {s} failed: {err}")
 
 
 def files_digest(folder: Path) -> str:
     h = hashlib.sha256()
     if not folder.exists():
         return "absent"
+    if folder.is_file():
+        return hashlib.sha256(folder.read_bytes()).hexdigest()
     for p in sorted(folder.rglob("*")):
         h.update(str(p.relative_to(folder)).encode())
         if p.is_file() and not p.is_symlink():

@@ -256,6 +256,9 @@ def main(argv=None) -> int:
     except FgcalError as exc:
         print(f"fgcal: error: {exc}", file=sys.stderr)
         return 2
+    except NotImplementedError as exc:  # a combination not supported yet (an engine without a measurement type)
+        print(f"fgcal: error: not supported yet by this command or engine: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("fgcal: interrupted", file=sys.stderr)
         return 130

@@ -173,8 +173,9 @@ def _fixtures(path: Path, data: dict, num) -> SetupSpec:
             if not isinstance(f.get("normal"), list) or len(f["normal"]) != 3 or "offset" not in f:
                 raise DatasetError(f"{where}: a known plane needs normal: [nx, ny, nz] and offset: D (mm)")
             n = np.array([num(v, f"fixtures.{name}.normal") for v in f["normal"]])
-            if np.linalg.norm(n) < 1e-9:
+            if np.max(np.abs(n)) < 1e-9:
                 raise DatasetError(f"{where}: normal must not be zero")
+            n = n / np.max(np.abs(n))  # no overflow or underflow in the norm (1e300, 1e-200)
             value = np.concatenate([n / np.linalg.norm(n), [num(f["offset"], f"fixtures.{name}.offset")]])
         sigma = None if f.get("sigma") is None else num(f["sigma"], f"fixtures.{name}.sigma", 0.0)
         fixed = f.get("fixed", False)
@@ -189,7 +190,7 @@ def _fixtures(path: Path, data: dict, num) -> SetupSpec:
     cons = data.get("constraints") or {}
     if not isinstance(cons, dict) or set(cons) - {"distances"}:
         raise DatasetError(f"{path}: constraints must be a mapping with distances: [[A, B, mm, sigma], ...]")
-    distances = []
+    distances, pairs = [], {}
     items = cons.get("distances") or []
     if not isinstance(items, list):
         raise DatasetError(f"{path}: constraints.distances must be a list of [A, B, mm, sigma]")
@@ -203,6 +204,11 @@ def _fixtures(path: Path, data: dict, num) -> SetupSpec:
                 raise DatasetError(f"{where}: {short_repr(x)} is not a point fixture of fixtures:")
         if a == b:
             raise DatasetError(f"{where}: a distance needs two different fixtures")
+        pair = frozenset((a, b))
+        if pair in pairs:
+            raise DatasetError(f"{where}: the distance between {a} and {b} is given already "
+                               f"(constraints.distances[{pairs[pair]}]); give each pair once")
+        pairs[pair] = i
         dist, sig = num(item[2], f"{where} distance", 0.0), num(item[3], f"{where} sigma", 0.0)
         if dist <= 0 or sig <= 0:
             raise DatasetError(f"{where}: the distance and its sigma must be positive (mm)")
@@ -283,6 +289,9 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     if unknown:
         raise DatasetError(f"{path}: noise: unknown key(s) {', '.join(sorted(str(k)[:24] for k in unknown))}")
     values = {k: (None if v is None else num(v, f"noise.{k}", 0.0)) for k, v in noise_raw.items()}
+    zero = [k for k, v in values.items() if k in noise_keys() and v == 0]
+    if zero:  # a contact is never exact: at sigma 0 the joint readings would move to absorb every one
+        raise DatasetError(f"{path}: noise.{zero[0]} must be positive (mm), got 0")
     extra = tuple(sorted((k, v) for k, v in values.items() if k in noise_keys()))
     noise = Noise(**{k: v for k, v in values.items() if k not in noise_keys()}, extra=extra)
     provenance = data["provenance"]
@@ -448,11 +457,19 @@ def load_dataset(directory) -> Dataset:
     ds.split_station_centres()
     if ds.stations is not None and (ds.probes is not None or ds.poses is not None or ds.distances is not None):
         raise DatasetError(f"{directory}: several stations are supported for centres.csv (and contacts) only")
+    if setup.distances:  # a distance to a fixture no contact sees is not used: say so
+        seen = {str(f) for lv in ds.levels() for f in getattr(getattr(ds, lv), "fixture", ())}
+        for c in setup.distances:
+            if (c.a in seen) != (c.b in seen):
+                log.warning("%s: the distance between fixtures %s and %s is not used: no contact is at %s",
+                            directory / "dataset.yaml", c.a, c.b, c.b if c.a in seen else c.a)
     if os.path.lexists(directory / "truth.yaml"):
         ds.truth, ds.truth_outliers = load_truth(directory / "truth.yaml")
     if not ds.levels():
-        log.warning("%s: no measurements (probes.csv, centres.csv, poses.csv or distances.csv); joint readings only",
-                    directory)
+        files = ["probes.csv", *dict.fromkeys(k.file for k in kinematic_types())]
+        what = f"; dataset.yaml has fixtures but {CONTACT_FILE} has no contacts" if setup.fixtures else ""
+        log.warning("%s: no measurements (%s or %s)%s; joint readings only", directory, ", ".join(files[:-1]),
+                    files[-1], what)
     return ds
 
 

@@ -25,6 +25,7 @@ __all__ = ["ContactObservations", "SetupMeasurement", "PointContact", "PlaneCont
            "CONTACT_COLUMNS", "CONTACT_FILE"]
 
 CONTACT_FILE = "contacts.csv"
+PLANE_MIN_SPREAD = 5.0  # mm (RMS) of a plane's contacts in their narrower direction: a tilt needs an area
 CONTACT_COLUMNS = ("pose", "ball", "fixture")
 
 
@@ -152,9 +153,11 @@ class SetupMeasurement(KinematicMeasurement):
             if self.fixture_type == "point":
                 out[f] = c.mean(axis=0)
                 continue
-            if len(c) < 3 or np.linalg.matrix_rank(c - c.mean(0), tol=1e-6) < 2:
-                raise FgcalError(f"{where}: plane {f} needs contacts at three or more points not on one line "
-                                 f"(it has {len(c)})")
+            spread = np.linalg.svd(c - c.mean(0), compute_uv=False)[1] / np.sqrt(len(c)) if len(c) >= 3 else 0.0
+            if len(c) < 3 or spread < PLANE_MIN_SPREAD:
+                raise FgcalError(f"{where}: plane {f} needs contacts at three or more points spread over an area, "
+                                 f"not near one point or one line (it has {len(c)}, {spread:.3g} mm across (RMS) "
+                                 f"in its narrower direction; at least {PLANE_MIN_SPREAD:g})")
             n = np.linalg.svd(c - c.mean(0))[2][2]
             if np.mean((T[sel, :3, 3] - c) @ n) < 0:
                 n = -n

@@ -48,6 +48,15 @@ def _rows_by_pose(obs, pose_ids):
     return {int(p): order[a:z] for p, a, z in zip(pose_ids, lo, hi)}
 
 
+READ_LEVELS = ("probes", "centres", "poses", "distances")  # the built-in levels pose_records reads
+
+
+def read_levels() -> tuple:
+    """What :func:`pose_records` reads: the built-in levels and the registered types on fixture points or
+    planes (a station's block is not started online yet); ``fgcal online`` refuses the rest."""
+    return READ_LEVELS + tuple(k.level for k in setup_types() if getattr(k, "fixture_type", None) in ("point", "plane"))
+
+
 def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseData]:
     """The dataset's poses in ``joints.csv`` order with their measurements (``levels`` to choose).
 

@@ -25,7 +25,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
 from fgcal.online.engines import make_engine, pose_records, prefit
 from fgcal.online.records import record_from_json, record_to_json
-from fgcal.robots.model import SLOT_NAMES, ParameterSet, RobotModel, slots_to_file_units
+from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.robots.robot_file import model_to_dict
 
 __all__ = ["OnlineRun", "SNAPSHOT_EVERY"]
@@ -256,7 +256,8 @@ class OnlineRun:
             parameters=[ParameterEstimate(n, u, float(a), float(b), float(s)) for n, u, a, b, s in
                         zip(params.names, params.units, params.to_file_units(params.nominal()),
                             params.to_file_units(theta), sigma)],
-            covariance=cov_file, slots={n: float(v) for n, v in zip(SLOT_NAMES, slots_to_file_units(slots))},
+            covariance=cov_file, slots={n: float(v) for n, v in zip(self.model.slot_names,  # the model's own names
+                                                                  self.model.slots_to_file_units(slots))},
             held=held, iterations=len(self.processed), converged=True, pose_ids=accepted,
             options={"engine": self.engine_kind, "prior": "weak",
                      "rejected": [p for p in self.processed if not p["accepted"]]},

@@ -114,9 +114,12 @@ def _inside(child: Path, parent: Path) -> bool:
 
 def dataset_inputs(directory, robot: str | None = None) -> list[Path]:
     """The files a run reads from a dataset directory (and its model file, when it names one)."""
+    from fgcal.measurements.types import kinematic_types
+
     directory = Path(directory)
-    files = [directory / n for n in DATASET_FILES]
-    if robot and (robot.endswith((".yaml", ".yml")) or "/" in robot):
+    names = list(DATASET_FILES) + [k.file for k in kinematic_types() if k.file not in DATASET_FILES]
+    files = [directory / n for n in names]
+    if robot and (robot.endswith((".yaml", ".yml", ".urdf", ".xml")) or "/" in robot):
         files.append(Path(robot) if Path(robot).is_absolute() else directory / robot)
     return files
 

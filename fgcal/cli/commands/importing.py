@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +160,7 @@ def _cmd_import_mukca(args) -> int:
     from fgcal.io.mukca import read_mukca
     from fgcal.util.yamlio import read_text_file
     from fgcal.robots.robot_file import load_model
+    from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 
     chain = None
     if args.chain is not None:
@@ -167,14 +169,24 @@ def _cmd_import_mukca(args) -> int:
             raise FgcalError(f"--chain {args.chain!r}: expected BASE,TIP (two link names)")
         chain = {"base": parts[0], "tip": parts[1]}
     held = _columns(args.holdout_placements) or ()
-    inputs = [args.file, args.robot]
+    if args.holdout_placements is not None and not held:
+        raise FgcalError(f"--holdout-placements {args.holdout_placements!r}: no placement named "
+                         "(folder names, comma-separated)")
+    robot = args.robot
+    if not os.path.lexists(robot) and str(robot) in builtin_robot_names():
+        robot = builtin_robot_path(str(robot))  # a built-in model: its file is copied
+    inputs = [args.file, robot]
     check_output_dir(args.out, inputs, option="OUT", must_be_new=True, force=args.force)
     holdout_dir = args.out.with_name(args.out.name + "-holdout")
     if held:
         check_output_dir(holdout_dir, inputs, option="OUT-holdout", must_be_new=True, force=args.force)
-    model = load_model(args.robot, chain=chain)
-    robot_name = "robot" + args.robot.suffix.lower()
-    robot_text = read_text_file(args.robot, FgcalError, max_bytes=20 << 20)
+    try:
+        model = load_model(robot, chain=chain)
+    except FgcalError as exc:  # the hint of a dataset's loader: here the option is the way
+        raise FgcalError(str(exc).replace("chain: {base: LINK, tip: LINK} in dataset.yaml", "--chain BASE,TIP")) \
+            from None
+    robot_name = "robot" + Path(robot).suffix.lower()
+    robot_text = read_text_file(robot, FgcalError, max_bytes=20 << 20)
     imp = read_mukca(args.file, robot_name, model.n_joints, chain, args.distance, args.distance_sigma,
                      args.contact_sigma, held)
     written = [(save_dataset(imp.calibration, args.out, overwrite=args.force,

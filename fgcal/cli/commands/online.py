@@ -30,6 +30,12 @@ def _cmd_online(args) -> int:
         ds = load_dataset_meta(args.dataset)  # robot, tool and noise; poses come on standard input
     else:
         ds = load_dataset(args.dataset)
+        from fgcal.online.records import read_levels
+
+        unread = [lv for lv in ds.levels() if lv not in read_levels()]
+        if unread:  # nothing dropped in silence
+            raise FgcalError(f"{args.dataset}: the online engines do not take {', '.join(unread)} yet "
+                             f"(they take {', '.join(read_levels())}); calibrate it with fgcal calibrate")
     model = dataset_model(ds)
     from fgcal.online.checkpoint import default_checkpoint
 
