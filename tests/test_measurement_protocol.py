@@ -201,3 +201,77 @@ def test_design_information_and_verification_use_it(puma, with_heights):
     err = z_model - test.heights.z
     per_pose = [np.sqrt(np.mean(err[test.heights.pose == p] ** 2)) for p in v.pose_ids]
     assert np.allclose(v.after.position_mm, per_pose, atol=1e-9)
+
+
+@pytest.mark.parametrize("engine", ["ekf", "ukf", "isam2"])
+def test_the_online_engines_take_it(puma, with_heights, engine, tmp_path):
+    """The online engines take the registered type through the protocol: the run ends at the batch
+    solve, and the running estimate (before the final smoothing) uses the heights."""
+    import copy
+    import json
+
+    from fgcal.online.records import pose_records, read_levels, record_from_json, record_to_json
+    from fgcal.online.run import OnlineRun
+    from fgcal.robots.model import ParameterSet
+
+    assert "heights" in read_levels()  # fgcal online takes the dataset
+    ds = _simulated(puma, 7, ("centres", "heights"), n_poses=40)
+    # A pose's heights through the journal's JSON and back.
+    rec = pose_records(ds)[0]
+    back = record_from_json(json.loads(json.dumps(record_to_json(rec))))
+    assert [(lv, b) for lv, b, _ in back.generic] == [(lv, b) for lv, b, _ in rec.generic] and rec.generic
+    assert all(np.array_equal(v, w) for (_, _, v), (_, _, w) in zip(back.generic, rec.generic))
+
+    def run(data, path):
+        r = OnlineRun(data, puma, engine, path)
+        for rec in r.pending():
+            r.feed(rec)
+        running = r.engine.estimate()  # before the final smoothing
+        names = list(r.engine.params.names)
+        return r, running, names
+
+    r, (theta, _), names = run(ds, tmp_path / "h.ck")
+    accepted = [p["pose"] for p in r.processed if p["accepted"]]
+    assert len(accepted) >= 0.9 * ds.n_poses
+    result = r.result()
+    r.close()
+    batch = calibrate(ds.select(list(r.engine.seen)), puma, CalibrationOptions(prior="weak"))
+    assert result.names == batch.names
+    assert np.abs((result.estimate - batch.estimate) / batch.sigma).max() < 0.05
+    assert np.allclose(result.sigma / batch.sigma, 1, atol=0.05)
+
+    no_heights = copy.copy(ds)
+    no_heights.heights = None
+    r0, (theta0, _), names0 = run(no_heights, tmp_path / "c.ck")
+    r0.close()
+    assert names0 == names
+    params = ParameterSet(puma, tuple(names))
+    sd = np.sqrt(np.diag(params.covariance_to_file_units(_cov_internal(batch, params))))
+    shift = np.abs(params.to_file_units(theta) - params.to_file_units(theta0)) / sd
+    assert shift.max() > 0.5  # the heights moved the running estimate
+
+    # The running estimate's tool points at 20 new joint sets, against the batch's, in the batch's
+    # sigma of the prediction (the root of the trace of its covariance, as the engines report it).
+    new = _simulated(puma, 8, ("centres",), n_poses=20)
+    q = puma.joints_to_internal(new.joints_deg)
+    offsets = puma.tooling.offsets()
+    b_params = ParameterSet(puma, tuple(batch.names))
+    b_theta = b_params.from_file_units(batch.estimate)
+    b_slots = batch.slot_vector(puma)
+
+    def points(t):
+        return tool_points(puma.forward(b_params.full(t, b_slots), q), offsets).reshape(-1)
+
+    h = 1e-7
+    J = np.array([(points(b_theta + h * e) - points(b_theta - h * e)) / (2 * h) for e in np.eye(len(b_theta))]).T
+    var = np.einsum("ij,jk,ik->i", J, _cov_internal(batch, b_params), J).reshape(-1, 3).sum(axis=1)
+    p_run = tool_points(puma.forward(r.engine.params.full(theta, r.engine.held), q), offsets)
+    miss = np.linalg.norm(p_run.reshape(-1, 3) - points(b_theta).reshape(-1, 3), axis=1) / np.sqrt(var)
+    assert miss.max() < 3.0, miss.max()
+
+
+def _cov_internal(result, params):
+    """The result's covariance over ``params`` (its names, in their order) in internal units."""
+    idx = [result.names.index(n) for n in params.names]
+    scale = np.where(params.is_angle, np.radians(1.0), 1.0)
+    return result.covariance[np.ix_(idx, idx)] * np.outer(scale, scale)

@@ -141,6 +141,11 @@ class ISAM2Engine(_Engine):
         for ball, length in rec.distances:
             graph.add(DISTANCE.factor((self.ds.tooling.balls[ball], length), self.params.index, self.held,
                                       DISTANCE.sigma(sig) * np.sqrt(f), t_key=self.t_key, **qargs))
+        for kind, data, n in m.generic:  # the types taken through the protocol: their own factors
+            sigma = np.asarray(kind.sigma(sig), dtype=float) * np.sqrt(f)
+            for r in range(n):
+                graph.add(kind.factor(tuple(np.asarray(d)[r] for d in data), self.params.index, self.held, sigma,
+                                      t_key=self.t_key, **qargs))
         if m.setup is not None:
             self._add_setup(m, f, graph, values, qargs, now)
         self._keep.append(graph)
@@ -233,5 +238,7 @@ class ISAM2Engine(_Engine):
         if self._final is not None and self._final_setup is not None:
             x, cov, layout = self._final_setup
             return x.copy(), cov.copy(), layout
+        if self._final is not None and self.setup.layout is None:  # the final smoothing, as estimate() gives it
+            return self._final[0].copy(), self._final[1].copy(), None
         x, cov = self._running()
         return x.copy(), cov.copy(), self.setup.layout

@@ -11,6 +11,7 @@ from fgcal.measurements.distance import DISTANCE
 from fgcal.measurements.pose import POSE
 from fgcal.measurements.spherefit import chi2_quantile
 from fgcal.online.centres import INNOVATION_FALSE_ALARM
+from fgcal.measurements.types import BY_LEVEL
 from fgcal.online.records import PoseData
 
 __all__ = ["UpdateReport", "NoiseTracker", "PoseMeasurement"]
@@ -128,11 +129,14 @@ class PoseMeasurement:
         self.zs = np.array([p[1] for p in parts]).reshape(-1, 3)
         self.d_offsets = np.array([balls[b] for b, _ in rec.distances]).reshape(-1, 3)
         self.d_lengths = np.array([v for _, v in rec.distances], dtype=float)
+        self.generic = _generic_terms(engine, rec) if rec.generic else []  # [(kind, data payload, n)]
         blocks = [p[2] for p in parts]
         if rec.T is not None:
             blocks.append(np.diag(POSE.sigma(sig) ** 2))
         if len(self.d_lengths):
             blocks.append(np.diag(np.tile(DISTANCE.sigma(sig) ** 2, len(self.d_lengths))))
+        for kind, _, n in self.generic:
+            blocks.append(np.diag(np.tile(np.asarray(kind.sigma(sig), dtype=float) ** 2, n)))
         if setup is not None and setup.n_rows:
             blocks.append(np.diag(setup.sigmas(engine) ** 2))
         m = sum(len(b) for b in blocks)
@@ -169,6 +173,8 @@ class PoseMeasurement:
             rows.append(_pose_rows(self.engine, theta, self.rec.q, self.rec.T))
         if len(self.d_lengths):
             rows.append(_distance_rows(self.engine, theta, self.rec.q, self.d_offsets, self.d_lengths))
+        for kind, data, n in self.generic:
+            rows.append(_generic_rows(self.engine, kind, theta, self.rec.q, data, n))
         if len(x) > n_p:  # set-up entries in the state: the robot's rows do not depend on them
             rows = [(e, np.hstack([Jt, np.zeros((len(Jt), len(x) - n_p))]), Jq) for e, Jt, Jq in rows]
         others = []  # rows of other poses (pending plane contacts) or of none (known distances)
@@ -197,6 +203,28 @@ class PoseMeasurement:
             Jt = np.vstack([Jt] + [o[1] for o in others])
         Rj = np.kron(np.eye(1 + len(others)), self.Rj)
         return e, Jt, self.R0 + Jq_all @ Rj @ Jq_all.T  # joint noise folded in
+
+
+def _generic_terms(engine, rec: PoseData) -> list:
+    """The pose's measurements of the types taken through the protocol (:func:`fgcal.online.records.generic_types`):
+    ``(kind, data payload, n)`` per level in the order the pose has them, the payload from the type's
+    ``terms`` of its ``observations``."""
+    out = []
+    for level in dict.fromkeys(lv for lv, _, _ in rec.generic):
+        kind = BY_LEVEL[level]
+        mine = [(b, v) for lv, b, v in rec.generic if lv == level]
+        obs = kind.observations(np.full(len(mine), rec.pose, dtype=int), np.array([b for b, _ in mine]),
+                                np.array([v for _, v in mine], dtype=float).reshape(len(mine), -1))
+        out.append((kind, kind.terms(obs, engine.ds.tooling, {rec.pose: 0}).data, len(mine)))
+    return out
+
+
+def _generic_rows(engine, kind, theta, q, data, n):
+    """A registered type's rows (``width`` per measurement) from its ``error``, J_theta, J_q."""
+    qs = np.broadcast_to(q, (n, len(q)))
+    e, jt, jq = kind.error(theta, qs, data, engine.index, engine.held, engine.model.chain)
+    return (np.asarray(e).reshape(-1), np.asarray(jt).reshape(-1, np.shape(jt)[-1]),
+            np.asarray(jq).reshape(-1, np.shape(jq)[-1]))
 
 
 def _centre_rows(engine, theta, q, offsets, centres):

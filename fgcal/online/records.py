@@ -10,12 +10,29 @@ from fgcal.errors import FgcalError
 from fgcal.measurements.types import BY_LEVEL, kinematic_types
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json", "setup_types"]
+__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json", "setup_types",
+           "generic_types"]
+
+BUILT_IN = ("centres", "poses", "distances")  # the kinematic levels PoseData holds in fields of their own
 
 
 def setup_types() -> list:
     """The registered measurement types that depend on set-up blocks (``uses_setup``)."""
     return [k for k in kinematic_types() if getattr(k, "uses_setup", False)]
+
+
+def generic_types() -> list:
+    """The registered kinematic types taken through the measurement protocol alone (not a built-in
+    level, no set-up blocks): a pose carries their rows in :attr:`PoseData.generic`."""
+    return [k for k in kinematic_types() if not getattr(k, "uses_setup", False) and k.level not in BUILT_IN]
+
+
+def _values(obs) -> np.ndarray:
+    """The observations' values (M, k) as the type's ``observations`` takes them: its row arrays
+    (``ROW_SHAPES``) side by side, in their order."""
+    n = len(obs)
+    cols = [np.asarray(getattr(obs, name), dtype=float).reshape(n, -1) for name in type(obs).ROW_SHAPES]
+    return np.hstack(cols) if cols else np.zeros((n, 0))
 
 
 @dataclass
@@ -30,11 +47,15 @@ class PoseData:
     distances: list[tuple[str, float]] = field(default_factory=list)  # (ball, ballbar length mm)
     # (level, ball, fixture): the ball at a set-up block (a measurement type with ``uses_setup``)
     contacts: list[tuple[str, str, str]] = field(default_factory=list)
+    # (level, ball or "", values (k,)): a measurement of a type of :func:`generic_types`, its values as
+    # the type's ``observations`` takes them
+    generic: list[tuple[str, str, np.ndarray]] = field(default_factory=list)
     # probe index -> (its points, plain SphereFit, its mirror image (3,), narrow cap), from :func:`prefit`
     fits: dict | None = field(default=None, repr=False, compare=False)
 
     def measured(self) -> bool:
-        return bool(self.probes or self.centres or self.T is not None or self.distances or self.contacts)
+        return bool(self.probes or self.centres or self.T is not None or self.distances or self.contacts
+                    or self.generic)
 
 
 def _rows_by_pose(obs, pose_ids):
@@ -53,8 +74,10 @@ READ_LEVELS = ("probes", "centres", "poses", "distances")  # the built-in levels
 
 def read_levels() -> tuple:
     """What :func:`pose_records` reads: the built-in levels and the registered types on fixture points or
-    planes (a station's block is not started online yet); ``fgcal online`` refuses the rest."""
-    return READ_LEVELS + tuple(k.level for k in setup_types() if getattr(k, "fixture_type", None) in ("point", "plane"))
+    planes (a station's block is not started online yet), and every other registered type (taken through
+    the measurement protocol, :func:`generic_types`); ``fgcal online`` refuses the rest."""
+    return (READ_LEVELS + tuple(k.level for k in setup_types() if getattr(k, "fixture_type", None) in ("point", "plane"))
+            + tuple(k.level for k in generic_types()))
 
 
 def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseData]:
@@ -77,6 +100,12 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
     distance_rows = _rows_by_pose(ds.distances, ids) if "distances" in levels else {}
     setup_rows = {k.level: _rows_by_pose(getattr(ds, k.level), ids) for k in setup_types() if k.level in levels}
+    generic_rows = {}
+    for k in generic_types():
+        obs = getattr(ds, k.level, None) if k.level in levels else None
+        if obs is not None:
+            balls = obs.ball if hasattr(obs, "ball") else np.full(len(obs), "")
+            generic_rows[k.level] = (_rows_by_pose(obs, ids), balls, _values(obs))
     out = []
     for pid, q in zip(ids.tolist(), joints):
         rec = PoseData(pid, q)
@@ -96,6 +125,8 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
             obs = getattr(ds, level)
             blocks = BY_LEVEL[level].blocks_of(obs)
             rec.contacts += [(level, str(obs.ball[i]), str(blocks[i])) for i in rows[pid]]
+        for level, (rows, balls, values) in generic_rows.items():
+            rec.generic += [(level, str(balls[i]), values[i]) for i in rows[pid]]
         out.append(rec)
     return out
 
@@ -114,6 +145,12 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
             setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in rows], dtype=int),
                                                          np.array([b for _, b, _ in rows]),
                                                          np.array([f for _, _, f in rows]))
+    for kind in generic_types():  # rebuilt through the type's own observations
+        rows = [(r.pose, b, v) for r in records for lv, b, v in r.generic if lv == kind.level]
+        if rows:
+            setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in rows], dtype=int),
+                                                         np.array([b for _, b, _ in rows]),
+                                                         np.array([v for _, _, v in rows], dtype=float).reshape(len(rows), -1))
 
     def points(rows):
         return PointObservations([p for p, _, _ in rows], [b for _, b, _ in rows],
@@ -140,17 +177,20 @@ def _variant(rec: PoseData, taken: dict) -> PoseData:
         return rec
     j, k = taken["drop"]
     out = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances),
-                   list(rec.contacts), None if rec.fits is None else dict(rec.fits))
+                   list(rec.contacts), list(rec.generic), None if rec.fits is None else dict(rec.fits))
     ball, pts = rec.probes[j]
     out.probes[j] = (ball, np.delete(pts, k, axis=0))
     return out
 
 
 def record_to_json(rec: PoseData) -> dict:
-    return {"pose": rec.pose, "q": rec.q.tolist(), "probes": [[b, p.tolist()] for b, p in rec.probes],
-            "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist(),
-            "distances": [[b, float(v)] for b, v in rec.distances],
-            "contacts": [[lv, b, f] for lv, b, f in rec.contacts]}
+    out = {"pose": rec.pose, "q": rec.q.tolist(), "probes": [[b, p.tolist()] for b, p in rec.probes],
+           "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist(),
+           "distances": [[b, float(v)] for b, v in rec.distances],
+           "contacts": [[lv, b, f] for lv, b, f in rec.contacts]}
+    if rec.generic:  # (level, ball, values) of the types taken through the protocol
+        out["generic"] = [[lv, b, np.asarray(v, dtype=float).tolist()] for lv, b, v in rec.generic]
+    return out
 
 
 def record_from_json(d: dict) -> PoseData:
@@ -159,4 +199,5 @@ def record_from_json(d: dict) -> PoseData:
                     [(b, np.array(c, dtype=float)) for b, c in d["centres"]],
                     None if d["T"] is None else np.array(d["T"], dtype=float),
                     [(b, float(v)) for b, v in d.get("distances", [])],
-                    [(str(lv), str(b), str(f)) for lv, b, f in d.get("contacts", [])])
+                    [(str(lv), str(b), str(f)) for lv, b, f in d.get("contacts", [])],
+                    [(str(lv), str(b), np.array(v, dtype=float)) for lv, b, v in d.get("generic", [])])
