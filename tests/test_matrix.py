@@ -45,13 +45,9 @@ HAS_TRUTH = {"centres", "reflector", "poses", "distances"}  # simulated by fgcal
 # Cells that fail, measured on these seeded datasets (2026-12-01); strict: a fix makes them pass.
 # (iSAM2 on centres, a reflector and poses was 0.23-0.35 sigma off: its result was the running
 # estimate, not the final smoothing; fixed, those cells pass.)
-BALLBAR_ONLINE = ("measured: on a ballbar dataset (30 poses, distances only, one ball) every online engine rejects "
-                  "26-27 of the 30 poses as 'innovation implausible' (chi-square 27-1700 for 1 measurement) and "
-                  "ends with 3-4 poses; the batch takes all 30 (fgcal online exits 0 with that 3-pose result)")
+# (The online engines on a ballbar dataset reported 3-4 of 30 poses: those the running estimate took
+# before the pivot was known; the result now holds the poses of the final smoothing, which takes all.)
 XFAIL_ENGINE = {
-    ("distances", "ekf"): BALLBAR_ONLINE,
-    ("distances", "ukf"): BALLBAR_ONLINE,
-    ("distances", "isam2"): BALLBAR_ONLINE,
 }
 XFAIL_CLI = {}
 

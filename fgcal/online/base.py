@@ -298,6 +298,7 @@ class _Engine:
         self._final_gauge = gauge
         # In the engine's parameters: a held one at its value, with no variance.
         self._final_slots = sol.graph.params.full(sol.state.theta, sol.graph.held)
+        self.final_pose_ids = [int(p) for p in sol.pose_ids]  # every pose the smoothing judged (and took)
         theta = self.params.take(self._final_slots)
         keep = [names.index(n) for n in free]
         full_cov = np.zeros((len(names), len(names)))

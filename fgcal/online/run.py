@@ -251,6 +251,11 @@ class OnlineRun:
         cov_file = params.covariance_to_file_units(cov)
         sigma = np.sqrt(np.diag(cov_file))
         accepted = [p["pose"] for p in self.processed if p["accepted"]]
+        # The final smoothing judges every pose again (one refused against an early, poor estimate,
+        # such as a ballbar's before its pivot is known, may be taken): its poses are the result's.
+        smoothed = getattr(self.engine, "final_pose_ids", None)
+        if smoothed:
+            accepted = list(smoothed)
         return CalibrationResult(
             robot=self.model.name, n_poses=len(accepted),
             parameters=[ParameterEstimate(n, u, float(a), float(b), float(s)) for n, u, a, b, s in
@@ -260,6 +265,7 @@ class OnlineRun:
                                                                   self.model.slots_to_file_units(slots))},
             held=held, iterations=len(self.processed), converged=True, pose_ids=accepted,
             options={"engine": self.engine_kind, "prior": "weak",
-                     "rejected": [p for p in self.processed if not p["accepted"]]},
+                     "rejected": [p for p in self.processed if not p["accepted"] and p["pose"] not in set(accepted)],
+                     "refused_while_running": [p["pose"] for p in self.processed if not p["accepted"]]},
             dataset=str(self.ds.path) if self.ds.path else None, fgcal_version=__version__,
             robot_model=model_to_dict(self.model), setup=self.engine.setup_info())
