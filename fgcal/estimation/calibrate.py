@@ -21,6 +21,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
+from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed  # noqa: F401 (also reached here)
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
@@ -237,7 +238,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         names = [n for n in names if not n.startswith("base.")]
         if held_info:
             log.info("the world frame: %s", GAUGE_REASON)
-    _check_equations(ds, levels, len(names) + _setup_size(ds, levels))
+    _check_equations(ds, levels, len(names) + setup_size(ds, levels))
 
     priors = dict(priors or {})
     graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
@@ -293,37 +294,6 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
     else:
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
     return state, iterations, converged, rounds, declared
-
-
-GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "
-                "so the base is held at nominal and the fixtures are in its frame")
-
-
-def world_is_fixed(ds: Dataset, levels) -> bool:
-    """Whether the data fix the world frame: an instrument level, or a set-up block that is known
-    or has a prior (contacts with unknown fixtures alone leave the base free)."""
-    setup_levels = [lv for lv in levels if getattr(BY_LEVEL.get(lv), "uses_setup", False)]
-    if len(setup_levels) < len(levels):
-        return True
-    used = _used_blocks(ds, setup_levels)
-    return any(ds.setup.fixtures[f].value is not None for f in used)
-
-
-def _used_blocks(ds: Dataset, levels) -> set:
-    used = set()
-    for lv in levels:
-        kind = BY_LEVEL.get(lv)
-        if getattr(kind, "uses_setup", False):
-            used |= set(kind.blocks_of(getattr(ds, lv)).tolist())
-    return used
-
-
-def _setup_size(ds: Dataset, levels) -> int:
-    """Free set-up parameters the levels use, less the known distances between them."""
-    from fgcal.measurements.setup import BLOCK_KINDS
-
-    spec = ds.setup.subset(_used_blocks(ds, levels))
-    return sum(BLOCK_KINDS[f.type].size for f in spec.fixtures.values() if not f.fixed) - len(spec.distances)
 
 
 def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.calibrate import _unidentifiable, world_is_fixed
+from fgcal.estimation.calibrate import _unidentifiable
+from fgcal.estimation.gauge import world_is_fixed
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL

@@ -10,7 +10,7 @@ import numpy as np
 import factors as fx
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
-from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.setup_params import is_setup_name
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.holding import held_parameters, unseen_parameters
@@ -323,11 +323,12 @@ class _Engine:
         from dataclasses import replace
 
         from fgcal.estimation.build import _levels, build_graph
-        from fgcal.estimation.calibrate import _check_equations, _setup_size, _unidentifiable, split_held
+        from fgcal.estimation.calibrate import _check_equations, _unidentifiable, split_held
+        from fgcal.estimation.gauge import setup_size
 
         options = replace(self.options, prior="none", noise_scale=None)
         levels = _levels(seen, options)
-        _check_equations(seen, levels, len(names) + _setup_size(seen, levels))
+        _check_equations(seen, levels, len(names) + setup_size(seen, levels))
         graph, state, _ = build_graph(seen, self.model, names, options, priors=self.typical_prior)
         held = held_parameters(graph, state, _unidentifiable)
         held, priors = split_held(self.model, [n for n in names if n not in held], held, seen, options)
@@ -339,7 +340,7 @@ class _Engine:
         """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,
         those never seen by the measurements first, then those the final smoothing held."""
         slots = self.held if getattr(self, "_final_slots", None) is None else self._final_slots
-        from fgcal.estimation.calibrate import GAUGE_REASON
+        from fgcal.estimation.gauge import GAUGE_REASON
 
         values = self.model.slots_to_file_units(slots)
         gauge = [*self.gauge, *getattr(self, "_final_gauge", [])]
@@ -353,7 +354,7 @@ class _Engine:
 
     def setup_info(self) -> dict:
         """The result's ``setup`` section, as the batch writes it (``{}`` without set-up blocks)."""
-        from fgcal.estimation.calibrate import GAUGE_REASON
+        from fgcal.estimation.gauge import GAUGE_REASON
 
         x, _, layout = self.estimate_all()
         if layout is None:
@@ -368,7 +369,7 @@ def _gauge_names(ds: Dataset, names) -> list[str]:
     """The base's parameters among ``names`` when nothing in ``ds`` fixes the world frame (contacts
     with unknown fixtures only: :func:`fgcal.estimation.calibrate.world_is_fixed`); none for a
     dataset with no measurements yet."""
-    from fgcal.estimation.calibrate import world_is_fixed
+    from fgcal.estimation.gauge import world_is_fixed
 
     levels = ds.levels()
     if not levels or world_is_fixed(ds, levels):

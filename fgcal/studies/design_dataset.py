@@ -26,7 +26,7 @@ import numpy as np
 
 from fgcal.measurements.dataset import Dataset
 from fgcal.estimation.build import _setup_layout
-from fgcal.estimation.calibrate import world_is_fixed
+from fgcal.estimation.gauge import world_is_fixed
 from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
 from fgcal.measurements.types import kinematic_levels
 from fgcal.studies.design import Candidates, design_plan, random_design_values

@@ -1,0 +1,42 @@
+"""The world frame's gauge and the size of the set-up blocks a dataset's levels use (DESIGN.md 8.1).
+
+Where nothing in the data fixes the world frame (contacts with unknown fixtures only), the
+calibration holds the base at nominal and says so (:data:`GAUGE_REASON`). No I/O here.
+"""
+from __future__ import annotations
+
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.setup import BLOCK_KINDS
+from fgcal.measurements.types import BY_LEVEL
+
+__all__ = ["GAUGE_REASON", "world_is_fixed", "used_blocks", "setup_size"]
+
+
+GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "
+                "so the base is held at nominal and the fixtures are in its frame")
+
+
+def world_is_fixed(ds: Dataset, levels) -> bool:
+    """Whether the data fix the world frame: an instrument level, or a set-up block that is known
+    or has a prior (contacts with unknown fixtures alone leave the base free)."""
+    setup_levels = [lv for lv in levels if getattr(BY_LEVEL.get(lv), "uses_setup", False)]
+    if len(setup_levels) < len(levels):
+        return True
+    used = used_blocks(ds, setup_levels)
+    return any(ds.setup.fixtures[f].value is not None for f in used)
+
+
+def used_blocks(ds: Dataset, levels) -> set:
+    """The names of the set-up blocks the measurements at ``levels`` use."""
+    used = set()
+    for lv in levels:
+        kind = BY_LEVEL.get(lv)
+        if getattr(kind, "uses_setup", False):
+            used |= set(kind.blocks_of(getattr(ds, lv)).tolist())
+    return used
+
+
+def setup_size(ds: Dataset, levels) -> int:
+    """Free set-up parameters the levels use, less the known distances between them."""
+    spec = ds.setup.subset(used_blocks(ds, levels))
+    return sum(BLOCK_KINDS[f.type].size for f in spec.fixtures.values() if not f.fixed) - len(spec.distances)
