@@ -1,5 +1,5 @@
-"""Contacts at fixture points and on planes (DESIGN.md 8.2): the graph's rows and Jacobians against
-finite differences of plain forward kinematics written here, the files' round trip and refusals,
+"""Contacts at fixture points and on planes (DESIGN.md 8.2): the graph's rows, written here from the
+chain's tool poses, and their Jacobians against finite differences; the files' round trip and refusals,
 the gauge, the result's set-up section, and verify's consistency against a computation written
 here."""
 import numpy as np

@@ -297,23 +297,13 @@ class Graph(ArrowElimination):
     def constraint_rows(self, theta):
         """Whitened rows of the known distances between fixture points: ``(r (k,), J (k, P), e (k,))``."""
         P = len(theta)
-        cons = () if self.setup is None else self.setup.spec.distances
-        r, J, e = np.zeros(len(cons)), np.zeros((len(cons), P)), np.zeros(len(cons))
-        if not cons:
-            return r, J, e
-        s = self.setup_values(theta)
-        for i, c in enumerate(cons):
-            ka, kb = self.setup.offset[c.a], self.setup.offset[c.b]
-            diff = s[ka:ka + 3] - s[kb:kb + 3]
-            dist = np.linalg.norm(diff)
-            u = diff / max(dist, 1e-300)
-            e[i] = dist - c.distance
-            r[i] = e[i] / c.sigma
-            for k, sign in ((ka, 1.0), (kb, -1.0)):
-                cols = self._setup_col[k:k + 3]
-                ok = cols >= self.n_geo + self.K
-                J[i, cols[ok]] += sign * u[ok] / c.sigma
-        return r, J, e
+        if self.setup is None or not self.setup.spec.distances:
+            return np.zeros(0), np.zeros((0, P)), np.zeros(0)
+        e, J_s, sd = self.setup.distance_errors(self.setup_values(theta))
+        J = np.zeros((len(e), P))
+        free = self._setup_col >= self.n_geo + self.K  # fixed entries have no column
+        J[:, self._setup_col[free]] = J_s[:, free] / sd[:, None]
+        return e / sd, J, e
 
     def linearise(self, state: State) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.

@@ -13,9 +13,7 @@ import numpy as np
 
 from fgcal.measurements.setup import SetupLayout
 
-__all__ = ["SetupParameters", "is_setup_name", "SETUP_KINDS"]
-
-SETUP_KINDS = ("fixture", "plane", "station")
+__all__ = ["SetupParameters", "is_setup_name"]
 
 
 def is_setup_name(name: str) -> bool:
@@ -24,7 +22,7 @@ def is_setup_name(name: str) -> bool:
     from fgcal.measurements.setup import BLOCK_KINDS
 
     first = name.split(".", 1)[0]
-    return first in SETUP_KINDS or any(k.prefix == first for k in BLOCK_KINDS.values())
+    return any(k.prefix == first for k in BLOCK_KINDS.values())
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = ["FixtureSpec", "DistanceConstraint", "SetupSpec", "SetupLayout", "plane_basis", "plane_normal",
-           "BlockKind", "BLOCK_KINDS", "register_block_kind", "station_transform"]
+           "BlockKind", "BLOCK_KINDS", "register_block_kind", "station_transform", "distance_error"]
 
 
 @dataclass(frozen=True)
@@ -86,6 +86,13 @@ def station_transform(entries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Rz, Ry, Rx = rot(2, phi), rot(1, theta), rot(0, psi)
     dR = np.stack([_drot(2, phi) @ Ry @ Rx, Rz @ _drot(1, theta) @ Rx, Rz @ Ry @ _drot(0, psi)])
     return Rz @ Ry @ Rx, np.asarray(entries[3:6], dtype=float), dR
+
+
+def distance_error(a, b, distance: float) -> tuple[float, np.ndarray]:
+    """``|a - b| - distance`` (mm) of two points (3,) and its gradient in ``a`` (3,) (``-`` it in ``b``)."""
+    diff = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    dist = float(np.linalg.norm(diff))
+    return dist - float(distance), diff / max(dist, 1e-300)
 
 
 def _drot(axis: int, angle: float) -> np.ndarray:
@@ -313,10 +320,7 @@ class SetupLayout:
         e, J = np.zeros(len(cons)), np.zeros((len(cons), self.size))
         for i, c in enumerate(cons):
             ka, kb = self.offset[c.a], self.offset[c.b]
-            diff = s[ka:ka + 3] - s[kb:kb + 3]
-            dist = np.linalg.norm(diff)
-            e[i] = dist - c.distance
-            u = diff / max(dist, 1e-300)
+            e[i], u = distance_error(s[ka:ka + 3], s[kb:kb + 3], c.distance)
             J[i, ka:ka + 3] += u
             J[i, kb:kb + 3] -= u
         return e, J, np.array([c.sigma for c in cons], dtype=float)

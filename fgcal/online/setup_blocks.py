@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.errors import FgcalError
-from fgcal.measurements.setup import SetupLayout, SetupSpec
+from fgcal.measurements.setup import SetupLayout, SetupSpec, distance_error
 from fgcal.online.records import PoseData, setup_types
 
 __all__ = ["OnlineSetup", "SetupProposal", "WIDE_PRIOR_MM", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM"]
@@ -124,15 +124,13 @@ class SetupProposal:
             out.append((e.reshape(-1), J.reshape(m * w, -1), J_q.reshape(m * w, -1), g))
         for c in self.constraints:
             ka, kb = self.layout.offset[c.a], self.layout.offset[c.b]
-            diff = s[ka:ka + 3] - s[kb:kb + 3]
-            dist = float(np.linalg.norm(diff))
-            u = diff / max(dist, 1e-300)
+            err, u = distance_error(s[ka:ka + 3], s[kb:kb + 3], c.distance)
             J = np.zeros((1, len(x)))
             for k, sign in ((ka, 1.0), (kb, -1.0)):
                 for j in range(3):
                     if col[k + j] >= 0:
                         J[0, P + col[k + j]] += sign * u[j]
-            out.append((np.array([dist - c.distance]), J, None, None))
+            out.append((np.array([err]), J, None, None))
         return out
 
     def sigmas(self, engine) -> np.ndarray:

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fgcal.measurements.setup import distance_error
+
 __all__ = ["contact_factor", "distance_constraint_factor", "joint_gaussian_factor"]
 
 
@@ -53,13 +55,11 @@ def distance_constraint_factor(constraint, layout, keys: dict):
 
     def error(this, values, H):
         p = {n: values.atVector(keys[n]) for n in names} | fixed
-        diff = p[constraint.a] - p[constraint.b]
-        dist = float(np.linalg.norm(diff))
-        u = diff / max(dist, 1e-300)
+        err, u = distance_error(p[constraint.a], p[constraint.b], constraint.distance)
         if H is not None:
             for i, n in enumerate(names):
                 H[i] = (u if n == constraint.a else -u)[None, :]
-        return np.array([dist - constraint.distance])
+        return np.array([err])
 
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([float(constraint.sigma)]))
     return gtsam.CustomFactor(noise, [keys[n] for n in names], error)
