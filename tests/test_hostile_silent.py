@@ -90,11 +90,11 @@ def test_calibrate_options_validated(base, tmp_path, capsys, args, words):
 
 @pytest.mark.parametrize("args, words", [
     (["simulate", "x", "--cmm-sigma", "nan"], ["--cmm-sigma", "not a finite number"]),
-    (["simulate", "x", "--poses", "0"], ["--poses", "at least 1"]),
+    (["simulate", "x", "--poses", "0"], ["--poses", ">= 1"]),
     (["simulate", "x", "--balls", "-1"], ["--balls"]),
     (["simulate", "x", "--seed", "-4"], ["--seed"]),
     (["measure", "ds", "--tolerance", "nan"], ["--tolerance", "not a finite number"]),
-    (["measure", "ds", "--threshold", "-1"], ["--threshold", "must be positive"]),
+    (["measure", "ds", "--threshold", "-1"], ["--threshold", "> 0"]),
     (["design", "--out", "p.csv", "--candidates", "0"], ["--candidates"]),
     (["study", "fig13", "--trials", "0"], ["--trials"]),
     (["study", "fig13", "--workers", "-2"], ["--workers"]),

@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 from fgcal._version import __version__
-from fgcal.cli.commands.checks import (finite_float, nonnegative_float, nonnegative_int, os_error_message,
-                                       positive_float, positive_int)
+from fgcal.cli.commands.checks import MAX_POSES, os_error_message
+from fgcal.cli.options import (count, nonnegative, nonnegative_deg, nonnegative_mm, number, payload_spec, positive,
+                               positive_deg, positive_mm, probability, scheduler_address, seed)
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
 from fgcal.cli.commands.compensate import _cmd_compensate
@@ -52,30 +53,31 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--reflector", default=None, metavar="X,Y,Z",
                    help="measure one tracker reflector at X,Y,Z (mm, tool frame) instead of the model's tooling "
                         "balls (levels default to centres)")
-    s.add_argument("--poses", type=positive_int, default=None, help="number of poses (random plan; default 21)")
-    s.add_argument("--seed", type=nonnegative_int, default=0, help="random seed (default 0)")
+    s.add_argument("--poses", type=count(1, MAX_POSES), default=None, help="number of poses (random plan; default 21)")
+    s.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     s.add_argument("--plan", choices=("random", "paper"), default="random",
                    help="random reachable joint sets, or the paper's 48-pose experiment")
-    s.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
-    s.add_argument("--joint-resolution", type=nonnegative_float, default=0.01,
+    s.add_argument("--cmm-sigma", type=nonnegative_mm, default=0.01, help="CMM noise per coordinate, mm (default 0.01)")
+    s.add_argument("--joint-resolution", type=nonnegative_deg, default=0.01,
                    help="joint readings rounded to this, deg (default 0.01; 0 = exact)")
-    s.add_argument("--repeatability", type=nonnegative_float, default=0.0,
+    s.add_argument("--repeatability", type=nonnegative_deg, default=0.0,
                    help="joints land off the readings by N(0, this) deg (default 0)")
-    s.add_argument("--outliers", type=finite_float, default=0.0, help="fraction of probe points with a gross error")
-    s.add_argument("--outlier-size", type=nonnegative_float, default=0.5, help="size of a gross error, mm (default 0.5)")
-    s.add_argument("--balls", type=positive_int, default=None,
+    s.add_argument("--outliers", type=probability(), default=0.0,
+                   help="fraction (0..1) of probe points with a gross error (default 0)")
+    s.add_argument("--outlier-size", type=nonnegative_mm, default=0.5, help="size of a gross error, mm (default 0.5)")
+    s.add_argument("--balls", type=count(1, 1000), default=None,
                    help="balls measured per pose (default 3, or all the tool has if fewer)")
-    s.add_argument("--probes-per-ball", type=positive_int, default=4, help="probe points per ball (default 4)")
+    s.add_argument("--probes-per-ball", type=count(1, 1000), default=4, help="probe points per ball (default 4)")
     s.add_argument("--levels", default=None,
                    help="comma-separated files to write: probes, centres, poses (default probes; centres with "
                         "--reflector)")
-    s.add_argument("--length-sigma", type=nonnegative_float, default=0.5,
+    s.add_argument("--length-sigma", type=nonnegative_mm, default=0.5,
                    help="link length deviations, mm (default 0.5)")
-    s.add_argument("--angle-sigma", type=nonnegative_float, default=0.05,
+    s.add_argument("--angle-sigma", type=nonnegative_deg, default=0.05,
                    help="link angle deviations, deg (default 0.05)")
-    s.add_argument("--base-length-sigma", type=nonnegative_float, default=5.0,
+    s.add_argument("--base-length-sigma", type=nonnegative_mm, default=5.0,
                    help="base placement deviation, mm (default 5)")
-    s.add_argument("--base-angle-sigma", type=nonnegative_float, default=0.5,
+    s.add_argument("--base-angle-sigma", type=nonnegative_deg, default=0.5,
                    help="base angle deviation, deg (default 0.5)")
     s.add_argument("--truth", type=Path, default=None,
                    help="truth.yaml of another simulated dataset: the same actual robot (a verification set)")
@@ -93,10 +95,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--method", choices=("svd", "paper"), default="svd",
                    help="least-squares rigid fit of the good balls, or the paper's T = P' P^-1 (default svd)")
     m.add_argument("--free-radius", action="store_true", help="fit each ball's radius too")
-    m.add_argument("--threshold", type=positive_float, default=None,
+    m.add_argument("--threshold", type=positive_mm, default=None,
                    help="RMS sphere-fit residual (mm) that flags a ball; default from the CMM noise")
-    m.add_argument("--tolerance", type=positive_float, default=None, help="eqs. 19-21 tolerance for --method paper")
-    m.add_argument("--show", type=nonnegative_int, default=10, help="flagged rows to print (default 10)")
+    m.add_argument("--tolerance", type=positive_mm, default=None,
+                   help="eqs. 19-21 tolerance for --method paper, mm")
+    m.add_argument("--show", type=count(0), default=10, help="flagged rows to print (default 10)")
     m.add_argument("--force", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_cmd_measure)
 
@@ -128,14 +131,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "(harmonics, chosen by cross-validation on these poses); the simpler models are scored too")
     k.add_argument("--verification", type=Path, default=None,
                    help="held-out dataset: each model's error there is reported (never used for fitting)")
-    k.add_argument("--folds", type=int, default=5, help="cross-validation folds (default 5)")
-    k.add_argument("--max-harmonics", type=int, default=30,
+    k.add_argument("--folds", type=count(2, 1000), default=5, help="cross-validation folds (default 5)")
+    k.add_argument("--max-harmonics", type=count(1, 1000), default=30,
                    help="largest number of map harmonics per joint tried by the cross-validation (default 30)")
-    k.add_argument("--seed", type=int, default=0, help="seed of the fold assignment (default 0)")
+    k.add_argument("--seed", type=seed, default=0, help="seed of the fold assignment (default 0)")
     k.add_argument("--fold-order", choices=("random", "blocked"), default="random",
                    help="folds drawn at random, or as contiguous stretches of the poses in id (time) order, which "
                         "also scores drift over the session (default random)")
-    k.add_argument("--payload", default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
+    k.add_argument("--payload", type=payload_spec, default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
     k.set_defaults(func=_cmd_calibrate)
 
     v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")
@@ -149,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("result", type=Path)
     r.add_argument("--verify", type=Path, default=None, help="verify.json from fgcal verify")
     r.add_argument("--out", type=Path, required=True, help="output directory")
-    r.add_argument("--tolerance", type=float, default=None, metavar="MM",
+    r.add_argument("--tolerance", type=positive_mm, default=None, metavar="MM",
                    help="position tolerance (mm): pass or fail at the verification poses "
                         "(exit status 1 on fail, the report is written either way)")
     r.set_defaults(func=_cmd_report)
@@ -173,8 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "built-in robots): mm, and deg as R = Rz(RZ) Ry(RY) Rx(RX)")
     c2.add_argument("--branch", default=None, help="configuration of targets without seed joints (PUMA-type arms), "
                                                    "e.g. righty/up/noflip; default: the one reaching most targets")
-    c2.add_argument("--max-change", type=float, default=10.0, metavar="DEG",
-                    help="refuse a solution moving a joint further than this from its seed (default 10)")
+    c2.add_argument("--max-change", type=positive_deg, default=10.0, metavar="DEG",
+                    help="refuse a solution moving a joint further than this from its seed, deg (default 10)")
     c2.set_defaults(func=_cmd_compensate)
 
     e = sub.add_parser("export", help="the calibrated model as a robot model file and/or URDF")
@@ -197,21 +200,21 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--stdin", action="store_true",
                    help="read poses from standard input (DATASET gives robot, tool and noise); "
                         "records: joints,POSE,q1..q6 / probe,POSE,BALL,x,y,z / centre,... / pose,... / end,POSE")
-    o.add_argument("--interval", type=positive_float, default=1.0, help="seconds between polls with --follow")
+    o.add_argument("--interval", type=positive("s", 3600.0), default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
-    o.add_argument("--drift", type=finite_float, nargs=2, metavar=("MM", "DEG"), default=None,
-                   help="random-walk drift of the parameters per pose for ekf/ukf (default none)")
+    o.add_argument("--drift", type=number(0.0, 1000.0, unit="mm, deg"), nargs=2, metavar=("MM", "DEG"), default=None,
+                   help="random-walk drift of the parameters per pose for ekf/ukf: mm, deg (default none)")
     o.set_defaults(func=_cmd_online)
 
     st = sub.add_parser("study", help="simulation studies: the paper's Figs. 8, 9, 13, its experiment, noise sweeps")
     st.add_argument("name", choices=("fig8-9", "fig13", "experiment", "sweep-cmm", "sweep-joint",
                                      "sweep-repeatability", "design"))
     st.add_argument("--out", type=Path, default=None, help="output directory (default study-NAME); resumes")
-    st.add_argument("--trials", type=positive_int, default=None, help="trials (per point for fig8-9, experiment, sweeps)")
-    st.add_argument("--poses", type=positive_int, default=None, help="observations per calibration (fig13, sweeps)")
-    st.add_argument("--seed", type=nonnegative_int, default=0)
-    st.add_argument("--workers", type=positive_int, default=None, help="local processes (default: all cores)")
-    st.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
+    st.add_argument("--trials", type=count(1, 10**6), default=None, help="trials (per point for fig8-9, experiment, sweeps)")
+    st.add_argument("--poses", type=count(1, MAX_POSES), default=None, help="observations per calibration (fig13, sweeps)")
+    st.add_argument("--seed", type=seed, default=0)
+    st.add_argument("--workers", type=count(1, 1024), default=None, help="local processes (default: all cores)")
+    st.add_argument("--scheduler", type=scheduler_address, default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
     st.set_defaults(func=_cmd_study)
 
     de = sub.add_parser("design", help="which poses to measure: an optimal plan from a candidate pool")
@@ -221,7 +224,7 @@ def build_parser() -> argparse.ArgumentParser:
     de.add_argument("--robot", default="puma560", help="without --dataset: the robot to plan for")
     de.add_argument("--level", choices=("probes", "centres", "poses"), default="probes",
                     help="without --dataset: what is measured at a pose (default probes on 3 balls)")
-    de.add_argument("--poses", type=positive_int, default=12)
+    de.add_argument("--poses", type=count(1, MAX_POSES), default=12)
     de.add_argument("--per-placement", action="store_true",
                     help="with --dataset of contacts: --poses at each placement (fixtures linked by known "
                          "distances) instead of in all")
@@ -230,13 +233,13 @@ def build_parser() -> argparse.ArgumentParser:
                          "without: the number of random reachable candidates (default 2000)")
     de.add_argument("--index", choices=("O1", "O2", "O3", "O4", "O5", "pred"), default=None,
                     help="criterion: observability index O1-O5, or pred (predicted accuracy; default)")
-    de.add_argument("--seed", type=nonnegative_int, default=0)
+    de.add_argument("--seed", type=seed, default=0)
     de.add_argument("--noise", choices=("estimated", "declared"), default="estimated",
                     help="with --dataset: design for the noise a calibration of it estimates (default) or its "
                          "declared noise")
-    de.add_argument("--cmm-sigma", type=nonnegative_float, default=0.01)
-    de.add_argument("--joint-resolution", type=nonnegative_float, default=0.01)
-    de.add_argument("--repeatability", type=nonnegative_float, default=0.0)
+    de.add_argument("--cmm-sigma", type=nonnegative_mm, default=0.01, help="CMM noise per coordinate, mm")
+    de.add_argument("--joint-resolution", type=nonnegative_deg, default=0.01, help="joint reading resolution, deg")
+    de.add_argument("--repeatability", type=nonnegative_deg, default=0.0, help="joint repeatability, deg")
     de.add_argument("--out", type=Path, required=True, help="plan CSV: pose,q1..q6 (deg); the candidates' pose ids")
     de.set_defaults(func=_cmd_design)
 

@@ -6,13 +6,12 @@ the solve), and an output may never replace a file the same run reads.
 """
 from __future__ import annotations
 
-import argparse
 import errno
-import math
 import os
 import stat
 from pathlib import Path
 
+from fgcal.cli.options import count, finite, nonnegative, positive
 from fgcal.errors import FgcalError
 
 __all__ = ["parameter_names", "finite_float", "nonnegative_float", "positive_float", "positive_int", "nonnegative_int",
@@ -25,55 +24,12 @@ MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory
 MAX_BATCH_ROWS = 250_000  # measurement rows of one batch graph (calibrate, check) within about 1 GB
 
 
-def _float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text[:40]!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"not a finite number: {text[:40]!r}")
-    return value
-
-
-def finite_float(text: str) -> float:
-    """An argparse type: a finite number."""
-    return _float(text)
-
-
-def nonnegative_float(text: str) -> float:
-    """An argparse type: a finite number >= 0."""
-    value = _float(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
-    return value
-
-
-def positive_float(text: str) -> float:
-    """An argparse type: a finite number > 0."""
-    value = _float(text)
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
-    return value
-
-
-def _int(text: str, minimum: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text[:40]!r}") from None
-    if value < minimum:
-        raise argparse.ArgumentTypeError(f"must be at least {minimum}: {text!r}")
-    return value
-
-
-def positive_int(text: str) -> int:
-    """An argparse type: an integer >= 1."""
-    return _int(text, 1)
-
-
-def nonnegative_int(text: str) -> int:
-    """An argparse type: an integer >= 0."""
-    return _int(text, 0)
+# the option types of earlier rounds, now the checked types of fgcal.cli.options (kept for their importers)
+finite_float = finite()
+nonnegative_float = nonnegative()
+positive_float = positive()
+positive_int = count(1)
+nonnegative_int = count(0)
 
 
 def parameter_names(model, text: str | None, option: str) -> tuple[str, ...]:

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.cli.commands.checks import check_output_dir, finite_float, nonnegative_float, nonnegative_int, positive_float
+from fgcal.cli.commands.checks import check_output_dir
+from fgcal.cli.options import fraction, nonnegative_deg, positive, positive_deg, positive_mm, seed
 from fgcal.errors import FgcalError
 
 __all__ = ["add_import_parser"]
@@ -83,14 +84,14 @@ def _common(p: argparse.ArgumentParser, robot: bool = True) -> None:
     if robot:
         p.add_argument("--robot", required=True, help="built-in model name or model file of the measured robot")
     p.add_argument("--position-only", action="store_true", help="keep only the measured positions (centres.csv)")
-    p.add_argument("--holdout", type=finite_float, default=0.0,
-                   help="fraction of the rows (of the groups) to write to OUT-holdout for verification (default 0)")
-    p.add_argument("--seed", type=nonnegative_int, default=0, help="seed of the held-out draw")
-    p.add_argument("--sigma", type=positive_float, default=None,
+    p.add_argument("--holdout", type=fraction(), default=0.0,
+                   help="fraction (0..1) of the rows (of the groups) to write to OUT-holdout for verification (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the held-out draw")
+    p.add_argument("--sigma", type=positive_mm, default=None,
                    help="position noise per axis, mm (default: the file's std columns, else 0.02)")
-    p.add_argument("--orientation-sigma", type=positive_float, default=None,
+    p.add_argument("--orientation-sigma", type=positive_deg, default=None,
                    help="orientation noise, deg (default: the file's std columns, else 0.01)")
-    p.add_argument("--joint-resolution", type=nonnegative_float, default=0.0, help="joint reading resolution, deg (default 0)")
+    p.add_argument("--joint-resolution", type=nonnegative_deg, default=0.0, help="joint reading resolution, deg (default 0)")
     p.add_argument("--force", action="store_true", help="replace OUT if it exists")
     p.set_defaults(func=_cmd_import)
 
@@ -129,7 +130,7 @@ def add_import_parser(sub) -> None:
     t.add_argument("--joints", required=True, help="joint columns of the log in chain order, comma-separated")
     t.add_argument("--joint-unit", choices=("deg", "rad"), default="rad", help="default rad (as ROS logs them)")
     t.add_argument("--time-column", default="time", help="time column of the joint log (default time)")
-    t.add_argument("--max-time-difference", type=positive_float, default=0.01,
+    t.add_argument("--max-time-difference", type=positive("timestamp units", 1e9), default=0.01,
                    help="largest time between a pose and its joint reading (default 0.01, timestamp units)")
     t.add_argument("--length-unit", choices=("mm", "m"), default="m", help="unit of TUM positions (default m)")
     _table_options(t)
@@ -144,10 +145,10 @@ def add_import_parser(sub) -> None:
     mk.add_argument("--robot", type=Path, required=True, help="the robot's URDF or model file (copied into OUT)")
     mk.add_argument("--chain", default=None, help="BASE,TIP links of a URDF with more than one leaf "
                                                   "(TIP: the link at the ball's centre)")
-    mk.add_argument("--distance", type=positive_float, default=50.0, help="distance between the sockets, mm (default 50)")
-    mk.add_argument("--distance-sigma", type=positive_float, default=0.05,
+    mk.add_argument("--distance", type=positive_mm, default=50.0, help="distance between the sockets, mm (default 50)")
+    mk.add_argument("--distance-sigma", type=positive_mm, default=0.05,
                     help="uncertainty of that distance, mm (default 0.05)")
-    mk.add_argument("--contact-sigma", type=positive_float, default=0.05,
+    mk.add_argument("--contact-sigma", type=positive_mm, default=0.05,
                     help="declared seating error of the ball per axis, mm (default 0.05; estimated by calibrate)")
     mk.add_argument("--holdout-placements", default=None, help="placements (folder names) to write to OUT-holdout")
     mk.add_argument("--force", action="store_true", help="replace OUT if it exists")
