@@ -7,10 +7,10 @@ import argparse
 from pathlib import Path
 
 import pytest
+from hostile_util import call, one_line_error
 
 from fgcal.cli import build_parser
 from fgcal.cli.options import Checked, payload_spec, scheduler_address
-from hostile_util import call, one_line_error
 
 ALLOWED_TYPES = (Path, str, None)
 FREE_TYPES = (payload_spec, scheduler_address)  # checked text options

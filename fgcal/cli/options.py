@@ -14,9 +14,27 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ["Checked", "number", "finite", "positive", "nonnegative", "probability", "fraction", "count", "seed",
-           "positive_mm", "nonnegative_mm", "positive_deg", "nonnegative_deg", "scheduler_address",
-           "LENGTH_MM_MAX", "ANGLE_DEG_MAX", "MASS_KG_MAX", "SEED_MAX", "COUNT_MAX"]
+__all__ = [
+    "ANGLE_DEG_MAX",
+    "COUNT_MAX",
+    "LENGTH_MM_MAX",
+    "MASS_KG_MAX",
+    "SEED_MAX",
+    "Checked",
+    "count",
+    "finite",
+    "fraction",
+    "nonnegative",
+    "nonnegative_deg",
+    "nonnegative_mm",
+    "number",
+    "positive",
+    "positive_deg",
+    "positive_mm",
+    "probability",
+    "scheduler_address",
+    "seed",
+]
 
 LENGTH_MM_MAX = 1e6  # 1 km: no arm, tracker or fixture is larger
 ANGLE_DEG_MAX = 360.0
@@ -108,7 +126,7 @@ def fraction() -> Checked:
     return number(0.0, 1.0, high_open=True)
 
 
-def count(min: int = 1, max: int = COUNT_MAX) -> Checked:  # noqa: A002 (the names read best at the call)
+def count(min: int = 1, max: int = COUNT_MAX) -> Checked:
     """An integer in ``[min, max]``."""
     return Checked("int", min, max)
 
