@@ -350,6 +350,7 @@ def save_result(result: CalibrationResult, path) -> None:
 
 def load_result(path) -> CalibrationResult:
     """Read and check a result file; a malformed one raises ``FgcalError`` naming the file."""
+    from fgcal.estimation.result_check import validate_result
     from fgcal.util.yamlio import read_text_file
 
     path = Path(path)
@@ -393,6 +394,7 @@ def load_result(path) -> CalibrationResult:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     try:
         result.slot_vector()  # every slot of the result's own model has a value
+        validate_result(result)  # finite, sigmas >= 0, a PSD covariance, names of the model
     except FgcalError as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     return result

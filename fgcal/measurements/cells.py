@@ -6,7 +6,7 @@ import math
 from fgcal.errors import DatasetError
 from fgcal.util.yamlio import short_repr
 
-__all__ = ["MAX_MM", "MAX_DEG", "number", "integer", "pose_id", "ball_name"]
+__all__ = ["MAX_MM", "MAX_DEG", "MAX_ID", "number", "integer", "pose_id", "ball_name"]
 
 # Bounds beyond which a value is a mistake, not a measurement: 1000 km, or a million degrees.
 MAX_MM = 1e9
@@ -26,11 +26,18 @@ def number(text: str, where: str, what: str, limit: float = MAX_MM) -> float:
     return value
 
 
+MAX_ID = 2**62  # ids are 64-bit integers in every engine (numpy arrays, gtsam keys)
+
+
 def integer(text: str, where: str, what: str) -> int:
+    """``text`` as an id: an integer in ``0..2**62``."""
     try:
-        return int(text)
+        value = int(text)
     except (TypeError, ValueError):
         raise DatasetError(f"{where}: {what} must be an integer id, got {short_repr(text)}") from None
+    if not 0 <= value <= MAX_ID:
+        raise DatasetError(f"{where}: {what} id {short_repr(text)} out of range (0 to 2^62)")
+    return value
 
 
 def pose_id(text: str, where: str, known_poses) -> int:

@@ -22,7 +22,7 @@ from fgcal.estimation.result import CalibrationResult, ParameterEstimate
 from fgcal.estimation.setup_params import SetupParameters
 from fgcal.util.yamlio import atomic_write_text
 from fgcal.measurements.dataset import Dataset
-from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
+from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint, read_snapshot
 from fgcal.online.engines import make_engine, pose_records, prefit
 from fgcal.online.records import record_from_json, record_to_json
 from fgcal.robots.model import ParameterSet, RobotModel
@@ -175,7 +175,7 @@ class OnlineRun:
             self.engine.restore(None, journal)
             start = len(entries)
         elif self.snapshot_path.exists():
-            snap = json.loads(self.snapshot_path.read_text(encoding="utf-8"))
+            snap = read_snapshot(self.snapshot_path)
             if snap["n"] <= len(entries):
                 self.engine.restore(snap["state"], journal[:snap["n"]])
                 start = snap["n"]

@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 
+from fgcal.measurements.cells import MAX_ID
 from fgcal.online.records import PoseData, setup_types
 
 __all__ = ["STREAM_FORMAT", "read_stream"]
@@ -55,6 +56,8 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
             if len(f) != widths[tag]:
                 raise ValueError(f"{tag} takes {widths[tag] - 1} fields, got {len(f) - 1}")
             pose = int(f[1])
+            if not 0 <= pose <= MAX_ID:
+                raise ValueError(f"pose id {f[1][:30]} out of range (0 to 2^62)")
             if tag != "joints" and (current is None or current.pose != pose):
                 raise ValueError(f"{tag} for pose {pose} before its joints line")
             if tag in ("probe", "centre", "distance", "contact") and f[2] not in balls:
