@@ -31,7 +31,8 @@ from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
 from fgcal.util.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
-__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth"]
+__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "robot_path", "write_csv",
+           "load_truth"]
 
 log = logging.getLogger(__name__)
 
@@ -370,11 +371,23 @@ def load_dataset(directory) -> Dataset:
     return ds
 
 
+MODEL_SUFFIXES = (".yaml", ".yml", ".urdf")
+
+
+def robot_path(directory, ref: str) -> Path | None:
+    """The file a robot reference names (``robot:`` of a dataset, relative to its ``directory``;
+    the current folder when None), or None for a built-in model name. Suffixes in any case."""
+    if not (ref.lower().endswith(MODEL_SUFFIXES) or "/" in ref):
+        return None
+    path = Path(ref)
+    return path if path.is_absolute() or directory is None else Path(directory) / path
+
+
 def dataset_model(ds: Dataset) -> RobotModel:
     """The robot model a dataset names (built-in, or a file relative to the dataset directory)."""
     ref = ds.robot
-    if ds.path is not None and (ref.endswith((".yaml", ".yml", ".urdf")) or "/" in ref):
-        candidate = (ds.path / ref) if not Path(ref).is_absolute() else Path(ref)
+    candidate = robot_path(ds.path, ref) if ds.path is not None else None
+    if candidate is not None:
         model = load_model(candidate, chain=ds.chain)
     else:
         try:
@@ -400,10 +413,16 @@ def _fmt(v: float) -> str:
 
 def write_csv(path, header, rows) -> None:
     """Write a CSV file atomically; floats with full (round-trip) precision."""
-    lines = [",".join(header)]
+    lines = [",".join(map(_csv_text, header))]
     for row in rows:
-        lines.append(",".join(_fmt(v) if isinstance(v, (float, np.floating)) else str(v) for v in row))
+        lines.append(",".join(_fmt(v) if isinstance(v, (float, np.floating)) else _csv_text(v) for v in row))
     atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _csv_text(v) -> str:
+    """A text field, quoted as RFC 4180 does when it holds a separator, a quote or a line break."""
+    s = str(v)
+    return '"' + s.replace('"', '""') + '"' if any(c in s for c in ',"\r\n') else s
 
 
 def _write_into(ds: Dataset, directory: Path) -> None:

@@ -97,8 +97,9 @@ def _cmd_calibrate(args) -> int:
     from fgcal.estimation.result import save_result
 
     paths = args.dataset if isinstance(args.dataset, list) else [args.dataset]
-    for path in paths:
-        check_output_file(args.out, dataset_inputs(path))
+    for path in [*paths, args.verification]:
+        if path is not None:
+            check_output_file(args.out, dataset_inputs(path))
     loaded = [load_dataset(path) for path in paths]
     for path, one in zip(paths, loaded):
         check_output_file(args.out, dataset_inputs(path, one.robot))

@@ -69,15 +69,12 @@ def _inside(child: Path, parent: Path) -> bool:
 
 
 def dataset_inputs(directory, robot: str | None = None) -> list[Path]:
-    """The files a run reads from a dataset directory (and its model file, when it names one)."""
-    from fgcal.measurements.types import kinematic_types
+    """The inputs of a run that reads the dataset ``directory`` (see :mod:`fgcal.cli.inputs`): its
+    folder, files and the robot file its ``dataset.yaml`` names; ``robot``, a robot reference
+    relative to the folder, is added (the loaded dataset's, when dataset.yaml was unreadable before)."""
+    from fgcal.cli.inputs import dataset_files, robot_files
 
-    directory = Path(directory)
-    names = list(DATASET_FILES) + [k.file for k in kinematic_types() if k.file not in DATASET_FILES]
-    files = [directory / n for n in names]
-    if robot and (robot.endswith((".yaml", ".yml", ".urdf", ".xml")) or "/" in robot):
-        files.append(Path(robot) if Path(robot).is_absolute() else directory / robot)
-    return files
+    return dataset_files(directory) + robot_files(robot, directory)
 
 
 def _existing(path: Path, option: str):

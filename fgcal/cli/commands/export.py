@@ -11,6 +11,14 @@ from fgcal.errors import FgcalError
 log = logging.getLogger("fgcal")
 
 
+def _delta(unit: str, estimate: float, nominal: float) -> float:
+    """``estimate - nominal``; an angle's wrapped to (-180, 180] deg (179.9 and -179.9 differ by 0.2)."""
+    d = float(estimate) - float(nominal)
+    if unit == "deg":
+        d = 180.0 - (180.0 - d) % 360.0
+    return d
+
+
 def _cmd_export(args) -> int:
     from fgcal.estimation.result import load_result
     from fgcal.robots.robot_file import save_model
@@ -28,6 +36,9 @@ def _cmd_export(args) -> int:
     if args.deltas:
         check_output_file(args.deltas, [args.result, args.model, args.urdf], option="--deltas")
     result = load_result(args.result)
+    if result.joint_errors.get("names"):  # the side table is an output too: checked before anything is written
+        check_output_file(Path(str(args.urdf or args.model or args.deltas) + ".joint_errors.csv"),
+                          [args.result, args.model, args.urdf, args.deltas], option="joint-error table")
     model = result.model()
     from dataclasses import replace
 
@@ -44,14 +55,14 @@ def _cmd_export(args) -> int:
     if args.deltas:
         from fgcal.io.dataset_io import write_csv
 
-        rows = [[p.name, p.unit, p.nominal, p.estimate, p.estimate - p.nominal, p.sigma, "identified"]
+        rows = [[p.name, p.unit, p.nominal, p.estimate, _delta(p.unit, p.estimate, p.nominal), p.sigma, "identified"]
                 for p in result.parameters]
         nominal = model.slots_to_file_units(model.nominal)
         for h in result.held:
             unit = "deg" if model.slot_is_angle[model.slot(h["name"])] else "mm"
             value = float(h["value"])
             rows.append([h["name"], unit, float(nominal[model.slot(h["name"])]), value,
-                         value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
+                         _delta(unit, value, float(nominal[model.slot(h["name"])])), "", "held: " + h["reason"]])
         write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
         print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
     if result.joint_errors.get("names"):  # what neither format can hold goes beside them as a table

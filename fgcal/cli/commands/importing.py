@@ -57,7 +57,9 @@ def _cmd_import(args) -> int:
 
     if not 0 <= args.holdout < 1:
         raise FgcalError("--holdout is a fraction from 0 to below 1")
-    inputs = [args.file, getattr(args, "joint_log", None)]
+    from fgcal.cli.inputs import run_inputs
+
+    inputs = run_inputs(robots=[getattr(args, "robot", None)], files=[args.file, getattr(args, "joint_log", None)])
     check_output_dir(args.out, inputs, option="OUT", must_be_new=True, force=args.force)
     if args.holdout > 0:
         check_output_dir(args.out.with_name(args.out.name + "-holdout"), inputs, option="OUT-holdout",

@@ -20,6 +20,8 @@ def _cmd_online(args) -> int:
 
     if args.stdin and args.follow:
         raise FgcalError("--stdin and --follow: choose one source of new poses")
+    if args.checkpoint:  # read and appended to: it must not be one of the dataset's files
+        check_output_file(args.checkpoint, [args.out, *dataset_inputs(args.dataset)], option="--checkpoint")
     if args.out:
         check_output_file(args.out, [args.checkpoint, *dataset_inputs(args.dataset)])
     if args.plot:
