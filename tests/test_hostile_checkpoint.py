@@ -3,7 +3,6 @@
 import json
 
 import pytest
-
 from hostile_util import call, one_line_error, small_dataset
 
 

@@ -7,11 +7,10 @@ import json
 import shutil
 
 import pytest
+from hostile_util import REPO, call, one_line_error, small_dataset
 
 from fgcal.cli.inputs import dataset_files, run_inputs
 from fgcal.io.dataset_io import write_csv
-
-from hostile_util import REPO, call, one_line_error, small_dataset
 
 
 def _digest(p):

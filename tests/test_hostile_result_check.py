@@ -7,11 +7,10 @@ import json
 
 import numpy as np
 import pytest
+from hostile_util import call, one_line_error, small_dataset
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.result import load_result
-
-from hostile_util import call, one_line_error, small_dataset
 
 
 @pytest.fixture(scope="module")

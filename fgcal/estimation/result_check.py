@@ -15,7 +15,7 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 
-__all__ = ["validate_result", "PSD_TOLERANCE"]
+__all__ = ["PSD_TOLERANCE", "validate_result"]
 
 PSD_TOLERANCE = 1e-9  # smallest eigenvalue allowed, relative to the largest (round-off of a PSD matrix)
 SIGMA_TOLERANCE = 1e-6  # relative agreement of a sigma with the square root of its covariance entry

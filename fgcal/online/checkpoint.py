@@ -9,8 +9,15 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 
-__all__ = ["CHECKPOINT_FORMAT", "SNAPSHOT_EVERY", "INPUT_NAMES", "MAX_POSE_ID", "default_checkpoint", "read_checkpoint",
-           "read_snapshot"]
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "INPUT_NAMES",
+    "MAX_POSE_ID",
+    "SNAPSHOT_EVERY",
+    "default_checkpoint",
+    "read_checkpoint",
+    "read_snapshot",
+]
 
 MAX_POSE_ID = 2**62  # pose ids are 64-bit in every engine (gtsam keys, numpy arrays): larger ones are refused
 
@@ -97,13 +104,14 @@ def read_snapshot(path) -> dict:
         raise FgcalError(f"{path}: the snapshot of the checkpoint is not readable; use --restart") from None
     state = snap.get("state") if isinstance(snap, dict) else None
     n = snap.get("n") if isinstance(snap, dict) else None
-    ok = isinstance(n, int) and not isinstance(n, bool) and n >= 0 and isinstance(state, dict) \
-        and _finite_numbers(state.get("x"))
-    if ok:
+    ok = False
+    if isinstance(n, int) and not isinstance(n, bool) and n >= 0 and isinstance(state, dict) \
+            and _finite_numbers(state.get("x")):
         k = len(state["x"])
         P = state.get("P")
+        names = state.get("names")
         ok = isinstance(P, list) and len(P) == k and all(_finite_numbers(r, k) for r in P) \
-            and (not isinstance(state.get("names"), list) or all(isinstance(s, str) for s in state["names"])) \
+            and (not isinstance(names, list) or all(isinstance(s, str) for s in names)) \
             and isinstance(state.get("setup", {}), dict)
     if not ok:
         raise FgcalError(f"{path}: the snapshot of the checkpoint is malformed (a count n, a finite state x and "
