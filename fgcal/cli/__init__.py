@@ -249,6 +249,15 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+MAX_ERROR_LINE = 600  # characters of an error line
+
+
+def _one_line(message: str) -> str:
+    """An error message as one line of at most :data:`MAX_ERROR_LINE` characters."""
+    text = " ".join(message.split())
+    return text if len(text) <= MAX_ERROR_LINE else f"{text[:MAX_ERROR_LINE]}... ({len(text)} characters)"
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -256,8 +265,8 @@ def main(argv=None) -> int:
                         format="%(levelname)s: %(message)s")
     try:
         return args.func(args)
-    except FgcalError as exc:
-        print(f"fgcal: error: {exc}", file=sys.stderr)
+    except FgcalError as exc:  # one line, bounded: no message carries a file's content in bulk
+        print(f"fgcal: error: {_one_line(str(exc))}", file=sys.stderr)
         return 2
     except NotImplementedError as exc:  # a combination not supported yet (an engine without a measurement type)
         print(f"fgcal: error: not supported yet by this command or engine: {exc}", file=sys.stderr)

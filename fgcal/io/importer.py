@@ -29,6 +29,7 @@ from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
 from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
 from fgcal.robots.transforms import matrix_to_quaternion
+from fgcal.io.skipped import skipped_summary
 from fgcal.util.yamlio import dump_yaml
 
 __all__ = ["DEFAULT_POSITION_SIGMA", "DEFAULT_ORIENTATION_SIGMA", "ImportResult", "to_datasets", "import_table"]
@@ -39,6 +40,7 @@ DEFAULT_POSITION_SIGMA = 0.02  # mm: a laser tracker at a few metres
 DEFAULT_ORIENTATION_SIGMA = 0.01  # deg: a 6-DoF probe
 PROBE = "P"
 MIN_ROWS = 4
+MAX_FIT_ROWS = 20_000  # rows the base and tool start fit uses (evenly spread over the file)
 
 
 @dataclass
@@ -129,21 +131,28 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
     if holdout > 0:
         rng = rng or np.random.default_rng(0)
         unique = np.unique(groups)
-        hold = np.isin(groups, rng.choice(unique, size=int(round(holdout * len(unique))), replace=False))
+        n_held = int(round(holdout * len(unique)))
+        if n_held == 0:
+            raise FgcalError(f"--holdout {holdout:g} of {len(unique)} row group(s) holds out none; give at least "
+                             f"{0.5 / len(unique):.3g} (or 0 for no hold-out set)")
+        hold = np.isin(groups, rng.choice(unique, size=n_held, replace=False))
     if (~hold).sum() < MIN_ROWS:
         raise DatasetError(f"{m.source}: {(~hold).sum()} rows to calibrate from; the base and tool fit needs at least "
                            f"{MIN_ROWS}")
     # Fitted on the calibration rows only, so the held-out rows stay unseen; measured orientations
     # are used for the start even when only positions are kept.
+    fit = np.flatnonzero(~hold)
+    if len(fit) > MAX_FIT_ROWS:  # 12 parameters: evenly spread rows fit them as well, in bounded memory
+        fit = fit[np.linspace(0, len(fit) - 1, MAX_FIT_ROWS).round().astype(int)]
     if m.R is None:
-        slots, rms = fit_base_and_point(model, m.joints_rad[~hold], m.xyz[~hold])
+        slots, rms = fit_base_and_point(model, m.joints_rad[fit], m.xyz[fit])
     else:
-        slots, rms = fit_base_and_tool(model, m.joints_rad[~hold], m.T[~hold])
+        slots, rms = fit_base_and_tool(model, m.joints_rad[fit], m.T[fit])
     log.info("base and tool fitted to %d rows: RMS %.3g mm", (~hold).sum(), rms)
     model_dict = model_to_dict(model, slots)
     model_dict["name"] = name or f"{model.name}-imported"
     model_dict["description"] = (f"{model.name} nominal links; base (instrument to robot) and tool (flange to the "
-                                 f"measured {'point' if m.R is None else 'frame'}) fitted to {int((~hold).sum())} rows of "
+                                 f"measured {'point' if m.R is None else 'frame'}) fitted to {len(fit)} rows of "
                                  f"{Path(m.source).name} (RMS {rms:.3g} mm before calibration)")
     model_dict.pop("volume", None)
     model_dict["tooling"] = {"radius": 0.0, "balls": {PROBE: [0.0, 0.0, 0.0]}}
@@ -153,7 +162,7 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         noise = Noise(noise.cmm_sigma, noise.joint_resolution)
 
     def make(mask, part):
-        prov = {"source": m.source, "part": part, "rows": int(mask.sum()), "skipped": list(m.skipped),
+        prov = {"source": m.source, "part": part, "rows": int(mask.sum()), "skipped": skipped_summary(m.skipped),
                 "note": "pose id = line in the source file", **(provenance or {})}
         ds = Dataset(robot="robot.yaml", tooling=tooling, noise=noise, provenance=prov, pose_ids=ids[mask],
                      joints_deg=np.degrees(m.joints_rad[mask]))

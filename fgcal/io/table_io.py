@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import math
+from array import array
 import re
 from dataclasses import dataclass, field
 from enum import Enum
@@ -19,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcal.errors import DatasetError
+from fgcal.io.skipped import bounded
 
 __all__ = ["AngleUnit", "LengthUnit", "QuaternionOrder", "ColumnSpec", "Measurements", "detect_format",
            "read_lines", "read_columns", "read_measurements", "rotation_from_columns"]
@@ -255,11 +257,14 @@ def rotation_from_columns(values, spec: ColumnSpec) -> np.ndarray:
     return Rotation.from_quat(xyzw).as_matrix()
 
 
+MAX_TABLE_BYTES = 512 << 20  # an import reads about 10 bytes of memory a byte of table: beyond this, refused
+
+
 def read_lines(path: Path) -> list[str]:
     """The lines of a text file (UTF-8, byte-order mark ignored); :class:`DatasetError` when unreadable."""
     from fgcal.util.yamlio import read_text_file
 
-    return read_text_file(path, DatasetError).removeprefix("\ufeff").splitlines()
+    return read_text_file(path, DatasetError, MAX_TABLE_BYTES).removeprefix("\ufeff").splitlines()
 
 
 def _csv_rows(reader, path):
@@ -316,7 +321,8 @@ def read_columns(path, required, optional=(), delimiter: str | None = None, deci
         raise DatasetError(f"{path}: line 1: {what}missing column(s) {', '.join(missing)} (header: "
                            f"{', '.join(header[:12])}{' ...' if len(header) > 12 else ''})")
     wanted = list(required) + [n for c in optional if all(n in col for n in c) for n in c]
-    out, skipped = [], []
+    kept, columns = array("q"), {n: array("d") for n in wanted}  # 8 bytes a value, not a dict a row
+    skipped: list[str] = []
     for line, record in rows:
         if not record or all(not c.strip() for c in record):
             continue
@@ -339,11 +345,13 @@ def read_columns(path, required, optional=(), delimiter: str | None = None, deci
         if reason:
             skipped.append(f"line {line}: {reason}")
             continue
-        out.append((line, values))
-    if not out:
-        raise DatasetError(f"{path}: no usable rows ({len(skipped)} skipped{': ' + skipped[0] if skipped else ''})")
-    return (np.array([ln for ln, _ in out], dtype=int),
-            {n: np.array([v[n] for _, v in out], dtype=float) for n in wanted}, skipped)
+        kept.append(line)
+        for n in wanted:
+            columns[n].append(values[n])
+    if not kept:
+        raise DatasetError(f"{path}: no usable rows ({len(skipped)} skipped{': ' + bounded(skipped[0]) if skipped else ''})")
+    return (np.frombuffer(kept, dtype=np.int64).astype(int),
+            {n: np.frombuffer(columns[n], dtype=float).copy() for n in wanted}, skipped)
 
 
 def read_measurements(path, spec: ColumnSpec) -> Measurements:

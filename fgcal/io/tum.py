@@ -15,9 +15,18 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fgcal.errors import DatasetError
+from fgcal.io.skipped import bounded
 from fgcal.io.table_io import QUATERNION_NORM_TOLERANCE, AngleUnit, LengthUnit, Measurements, read_columns, read_lines
 
 __all__ = ["read_tum", "join_by_time", "read_tum_with_joint_log"]
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
@@ -34,7 +43,8 @@ def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
         try:
             v = [float(f) for f in fields]
         except ValueError:
-            skipped.append(f"line {i}: not a number in {s!r}")
+            k = next(j for j, f in enumerate(fields) if not _is_number(f))
+            skipped.append(f"line {i}: field {k + 1} is not a number")
             continue
         if not all(math.isfinite(x) for x in v):
             skipped.append(f"line {i}: not finite")
@@ -45,7 +55,7 @@ def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
         rows.append(v)
         lines.append(i)
     if not rows:
-        raise DatasetError(f"{path}: no usable TUM rows ({len(skipped)} skipped{': ' + skipped[0] if skipped else ''})")
+        raise DatasetError(f"{path}: no usable TUM rows ({len(skipped)} skipped{': ' + bounded(skipped[0]) if skipped else ''})")
     a = np.array(rows)
     return np.array(lines), a[:, 0], a[:, 1:4] * LengthUnit(length_unit).to_mm, Rotation.from_quat(a[:, 4:]).as_matrix(), \
         skipped

@@ -26,6 +26,7 @@ import numpy as np
 
 from fgcal.errors import ModelError
 from fgcal.robots.kinematics import chain_for
+from fgcal.util.yamlio import short_repr
 
 __all__ = ["Inertials", "Payload", "inertials_from_dict", "inertials_to_dict", "model_inertials", "gravity_torques"]
 
@@ -66,13 +67,13 @@ class Inertials:
 
 def _number(v, where):
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ModelError(f"{where}: expected a finite number, got {v!r}")
+        raise ModelError(f"{where}: expected a finite number, got {short_repr(v)}")
     return float(v)
 
 
 def _triple(v, where):
     if not isinstance(v, (list, tuple)) or len(v) != 3:
-        raise ModelError(f"{where}: expected a list of 3 numbers, got {v!r}")
+        raise ModelError(f"{where}: expected a list of 3 numbers, got {short_repr(v)}")
     return [_number(x, f"{where}[{i}]") for i, x in enumerate(v)]
 
 
@@ -109,7 +110,7 @@ def inertials_from_dict(value, n_links: int, source: str, last_row=None) -> Iner
     for i, row in enumerate(links):
         w = f"{where}.links[{i}]"
         if not isinstance(row, dict) or set(row) - {"mass", "com"} or "mass" not in row:
-            raise ModelError(f"{w}: expected {{mass: kg, com: [x, y, z] mm}}, got {row!r}")
+            raise ModelError(f"{w}: expected {{mass: kg, com: [x, y, z] mm}}, got {short_repr(row)}")
         m = _number(row["mass"], f"{w}.mass")
         if m < 0:
             raise ModelError(f"{w}.mass: must not be negative")

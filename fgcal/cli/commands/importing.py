@@ -65,8 +65,10 @@ def _cmd_import(args) -> int:
         check_output_dir(args.out.with_name(args.out.name + "-holdout"), inputs, option="OUT-holdout",
                          must_be_new=True, force=args.force)
     m, robot, name, settings = _measurements(args)
-    for s in m.skipped:
-        print(f"skipped {args.file}: {s}")
+    from fgcal.io.skipped import skipped_report
+
+    for line in skipped_report(m.skipped, str(args.file)):
+        print(line)
     result = to_datasets(m, robot, position_only=args.position_only, holdout=args.holdout,
                          rng=np.random.default_rng(args.seed), position_sigma=args.sigma,
                          orientation_sigma=args.orientation_sigma, joint_resolution=args.joint_resolution, name=name,
