@@ -201,6 +201,9 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
             raise DatasetError(f"{path}: {what} must be a finite number, got {short_repr(value)}")
         if minimum is not None and value < minimum:
             raise DatasetError(f"{path}: {what} must be >= {minimum}, got {short_repr(value)}")
+        if abs(value) > MAX_META_VALUE:  # squared in the weights: 1e308 overflows
+            raise DatasetError(f"{path}: {what} = {value:g} is absurdly large (beyond {MAX_META_VALUE:g}; a unit "
+                               "mistake?)")
         return float(value)
 
     tool = data["tool"]
@@ -372,6 +375,7 @@ def load_dataset(directory) -> Dataset:
 
 
 MODEL_SUFFIXES = (".yaml", ".yml", ".urdf")
+MAX_META_VALUE = 1e9  # any number of dataset.yaml (mm, deg): 1000 km
 
 
 def robot_path(directory, ref: str) -> Path | None:

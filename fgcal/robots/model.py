@@ -171,7 +171,7 @@ class RobotModel:
                 if value.shape != shape:
                     raise ValueError(f"{key} must have shape {shape}, got {value.shape}")
                 object.__setattr__(self, key, value)
-        if self.joint_map is not None and abs(np.linalg.det(self.joint_map)) < 1e-12:
+        if self.joint_map is not None and not np.linalg.cond(self.joint_map) < 1e10:  # relative, not det
             raise ValueError("joint_map must be invertible")
 
     # ------------------------------------------------------------------ structure

@@ -202,6 +202,8 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
     extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
     if not np.allclose(mounting, np.eye(4), rtol=0.0, atol=1e-12):
         extra["mounting"] = euler_dict(mounting)
+    if "urdf" in extra:
+        _check_urdf_block(extra["urdf"], n, source)
     if "inertials" in extra:  # checked, and the folded last link's centre of mass moved with it (fgcal.robots.gravity)
         from fgcal.robots.gravity import inertials_from_dict, inertials_to_dict
 
@@ -215,6 +217,21 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
         raise ModelError(f"{source}: {exc}") from None
 
 
+def _check_urdf_block(value, n: int, source: str) -> None:
+    """``urdf: {text, base, tip, frame_changes}``: the imported URDF an export copies (written by fgcal)."""
+    ok = isinstance(value, dict) and isinstance(value.get("text"), str) \
+        and all(value.get(k) is None or isinstance(value.get(k), str) for k in ("base", "tip"))
+    fc = value.get("frame_changes") if ok else None
+    ok = ok and isinstance(fc, list) and len(fc) == n and all(
+        np.shape(c) == (4, 4) and np.all(np.isfinite(np.asarray(c, dtype=float))) for c in fc
+        if isinstance(c, list) and all(isinstance(r, list) and all(isinstance(x, (int, float)) for x in r) for r in c))
+    ok = ok and all(isinstance(c, list) and all(isinstance(r, list) and all(isinstance(x, (int, float)) for x in r)
+                                                 for r in c) for c in fc)
+    if not ok:
+        raise ModelError(f"{source}: urdf: expected the block fgcal writes on import ({{text: URDF, base: LINK, "
+                         f"tip: LINK, frame_changes: {n} 4x4 matrices}}), got {short_repr(value)}")
+
+
 def _coupling(value, n: int, angle, source: str):
     """``coupling: {matrix: n x n, offset: n (deg/mm)}``: joint variables from readings."""
     if value is None:
@@ -226,8 +243,10 @@ def _coupling(value, n: int, angle, source: str):
         if not isinstance(rows, list) or len(rows) != n:
             raise ModelError(f"{source}: coupling.matrix: expected {n} rows of {n} numbers")
         matrix = np.array([_vector(r, n, f"{source}: coupling.matrix[{i}]") for i, r in enumerate(rows)])
-        if abs(np.linalg.det(matrix)) < 1e-12:
-            raise ModelError(f"{source}: coupling.matrix: is singular (readings must determine the joints)")
+        cond = np.linalg.cond(matrix)  # relative: a gearbox diag(1/125) is well conditioned, det 1e-11 or not
+        if not np.isfinite(cond) or cond > 1e10:
+            raise ModelError(f"{source}: coupling.matrix: is singular (condition number {cond:.3g}; readings must "
+                             "determine the joints)")
     offset = None
     if m.get("offset") is not None:
         offset = _vector(m["offset"], n, f"{source}: coupling.offset")

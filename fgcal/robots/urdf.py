@@ -68,11 +68,14 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
     """
     name = name or model.name
     origins = chain_origins(model, slots)
+    joint_names = list(model.joint_names)
+    child_names = [_unique(f"link_{j}", ["world", "base_link", "tool"]) for j in joint_names]
+    mounts = [_unique(m, joint_names) for m in ("base_mount", "tool_mount")]
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(name)}>",
              "  <!-- written by fgcal: joint origins carry the calibrated geometry; lengths in metres;"
              " effort and velocity limits unknown to fgcal (1e6) -->",
              '  <link name="world"/>', '  <link name="base_link"/>',
-             '  <joint name="base_mount" type="fixed"><parent link="world"/><child link="base_link"/>'
+             f'  <joint name={quoteattr(mounts[0])} type="fixed"><parent link="world"/><child link="base_link"/>'
              f"{_origin(origins[0])}</joint>"]
     parent = "base_link"
     limits = model.joint_limits.copy()
@@ -81,14 +84,14 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
     for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
         M = np.eye(4) if k == 0 else origins[k]
         lo, hi = limits[k]
-        child = f"link_{jname}"
+        child = child_names[k]
         lines.append(f"  <link name={quoteattr(child)}/>")
         lines.append(f'  <joint name={quoteattr(jname)} type="{kind.value}"><parent link={quoteattr(parent)}/>'
                      f"<child link={quoteattr(child)}/>{_origin(M)}<axis xyz=\"0 0 1\"/>"
                      f'<limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/></joint>')
         parent = child
     lines.append('  <link name="tool"/>')
-    lines.append(f'  <joint name="tool_mount" type="fixed"><parent link={quoteattr(parent)}/><child link="tool"/>'
+    lines.append(f'  <joint name={quoteattr(mounts[1])} type="fixed"><parent link={quoteattr(parent)}/><child link="tool"/>'
                  f"{_origin(origins[-1] @ model.tool_offset_matrix)}</joint>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
@@ -154,8 +157,10 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
         first = (_path_to_root(joints, links, chain[0].parent) + chain)[0]
         _set_origin(elements[first.name], world_root @ first.origin)
     else:
-        _add_link(root, "world", first=True)
-        _add_fixed(root, "world_to_" + roots[0], "world", roots[0], world_root)
+        world = _unique("world", links)  # a link of that name elsewhere in the URDF keeps its name
+        _add_link(root, world, first=True)
+        links = [*links, world]
+        _add_fixed(root, _unique(f"{world}_to_{roots[0]}", joints), world, roots[0], world_root)
     # tip -> tool: the calibrated tool frame relative to the tip link.
     T_world_tip = Jw[-1]
     after = chain[chain.index(moving[-1]) + 1:]
@@ -164,12 +169,23 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
     x = np.asarray(slots, dtype=float)
     A_t = euler_zyx_trans(*[x[model.slot(f"tool.{f}")] for f in EULER_FIELDS])
     tool = np.linalg.inv(T_world_tip) @ F[-1] @ A_t @ model.tool_offset_matrix
-    tool_name = "tool" if "tool" not in links else "fgcal_tool"
+    tool_name = _unique("tool" if "tool" not in links else "fgcal_tool", links)
     _add_link(root, tool_name)
-    _add_fixed(root, f"{tool_name}_mount", info["tip"], tool_name, tool)
+    _add_fixed(root, _unique(f"{tool_name}_mount", [*joints, *(e.get("name") for e in root.findall("joint"))]),
+               info["tip"], tool_name, tool)
     root.insert(0, ET.Comment(" calibrated by fgcal: actuated joint origins, world root (measuring instrument) and "
                               "tool link; lengths in metres "))
     return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
+
+
+def _unique(name: str, taken) -> str:
+    """``name``, or ``name_2``, ``name_3`` ... when ``taken`` (names of links or joints) has it."""
+    taken = set(taken)
+    k, out = 1, name
+    while out in taken:
+        k += 1
+        out = f"{name}_{k}"
+    return out
 
 
 def _path_to_root(joints, links, link) -> list:

@@ -24,7 +24,7 @@ import numpy as np
 from fgcal.errors import ModelError
 from fgcal.robots.model import JointType, RobotModel
 from fgcal.robots.transforms import rot, to_euler_zyx_trans
-from fgcal.util.yamlio import read_text_file
+from fgcal.util.yamlio import read_text_file, short_repr
 
 __all__ = ["UrdfJoint", "parse_urdf", "urdf_chain", "model_from_urdf", "load_urdf_model", "rpy_matrix"]
 
@@ -51,10 +51,15 @@ def _floats(text, n, where) -> np.ndarray:
     try:
         values = np.array([float(v) for v in (text or "").split()], dtype=float)
     except ValueError:
-        raise ModelError(f"{where}: expected {n} numbers, got {text!r}") from None
+        raise ModelError(f"{where}: expected {n} numbers, got {short_repr(text, 40)}") from None
     if values.shape != (n,) or not np.all(np.isfinite(values)):
-        raise ModelError(f"{where}: expected {n} finite numbers, got {text!r}")
+        raise ModelError(f"{where}: expected {n} finite numbers, got {short_repr(text, 40)}")
     return values
+
+
+def _limit(text, where) -> float:
+    """A joint limit (rad or m): one finite number."""
+    return float(_floats(text, 1, where)[0])
 
 
 def parse_urdf(text: str, source: str = "<urdf>") -> tuple[str, dict[str, UrdfJoint], list[str]]:
@@ -72,10 +77,15 @@ def parse_urdf(text: str, source: str = "<urdf>") -> tuple[str, dict[str, UrdfJo
     if root.tag != "robot":
         raise ModelError(f"{source}: the root element is <{root.tag}>, expected <robot>")
     links = [str(e.get("name")) for e in root.findall("link")]
-    joints = {}
+    twice = sorted({k for k in links if links.count(k) > 1}) if len(set(links)) < len(links) else []
+    if twice:
+        raise ModelError(f"{source}: link name(s) {short_repr(', '.join(twice[:3]), 60)} used twice")
+    joints: dict = {}
     for e in root.findall("joint"):
         name, kind = e.get("name"), e.get("type")
-        where = f"{source}: joint {name!r}"
+        where = f"{source}: joint {short_repr(name, 60)}"
+        if name in joints:
+            raise ModelError(f"{where}: joint name used twice")
         parent, child = e.find("parent"), e.find("child")
         if not name or kind is None or parent is None or child is None:
             raise ModelError(f"{where}: needs a name, a type, <parent link=...> and <child link=...>")
@@ -93,8 +103,8 @@ def parse_urdf(text: str, source: str = "<urdf>") -> tuple[str, dict[str, UrdfJo
         scale = 1000.0 if kind == "prismatic" else 1.0
         lower = upper = None
         if lim is not None and kind != "continuous":
-            lower = scale * float(lim.get("lower", "0")) if lim.get("lower") is not None else None
-            upper = scale * float(lim.get("upper", "0")) if lim.get("upper") is not None else None
+            lower = scale * _limit(lim.get("lower"), f"{where}: limit lower") if lim.get("lower") is not None else None
+            upper = scale * _limit(lim.get("upper"), f"{where}: limit upper") if lim.get("upper") is not None else None
         joints[name] = UrdfJoint(name, kind, parent.get("link"), child.get("link"), T, axis / max(norm, 1e-300),
                                  lower, upper, e.find("mimic") is not None)
     return str(root.get("name") or "robot"), joints, links
@@ -234,6 +244,10 @@ def model_from_urdf(text: str, source: str = "<urdf>", base: str | None = None, 
         wide = 4 * np.pi if _MOVING[j.kind] is JointType.REVOLUTE else 1e4
         lo = j.lower if j.lower is not None else -wide
         hi = j.upper if j.upper is not None else wide
+        if lo < -wide or hi > wide:  # beyond two turns (10 m): no limit in practice, and no joint draws there
+            log.warning("%s: joint %s: limits %.6g..%.6g taken as %.6g..%.6g", source, j.name, lo, hi,
+                        max(lo, -wide), min(hi, wide))
+            lo, hi = max(lo, -wide), min(hi, wide)
         if not lo < hi:
             raise ModelError(f"{source}: joint {j.name!r}: limit lower {lo} is not below upper {hi}")
         limits.append((lo, hi))

@@ -53,6 +53,8 @@ def parameter_names(model, text: str | None, option: str) -> tuple[str, ...]:
                 else "unknown parameter name(s)")
         raise FgcalError(f"{option}: {', '.join(b[:30] for b in bad[:5])}: {what}; "
                          f"{'estimated' if option == '--exclude' else 'known'}: {', '.join(pool)}")
+    if option == "--exclude" and set(pool) <= set(names):
+        raise FgcalError(f"--exclude: all {len(pool)} estimated parameters excluded; nothing is left to calibrate")
     return names
 
 
