@@ -39,6 +39,10 @@ def _cmd_design_dataset(args) -> int:
             raise FgcalError("with --dataset, --candidates is a joints.csv-like file (pose,q1..q6 deg), "
                              f"not a count: {args.candidates}")
         candidates = load_plan(Path(args.candidates))
+        n = dataset_model(ds).n_joints
+        if candidates[1].shape[1] != n:
+            raise FgcalError(f"--candidates {args.candidates}: {candidates[1].shape[1]} joint columns, but the "
+                             f"dataset's robot has {n} joints")
     check_output_file(args.out, [*dataset_inputs(args.dataset, ds.robot)]
                       + ([Path(args.candidates)] if candidates is not None else []))
     plan = design_from_dataset(ds, dataset_model(ds), args.poses, candidates, index=args.index or DATASET_INDEX,
