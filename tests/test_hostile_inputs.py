@@ -1,4 +1,4 @@
-"""One notion of the inputs of a run (``fgcal.cli.inputs``): no output replaces, or lies in a
+"""One notion of the inputs of a run (``fgcal.cli.commands.inputs``): no output replaces, or lies in a
 replaced folder with, a dataset's files, the robot file its dataset.yaml names (resolved against
 the dataset's folder, suffix in any case), a robot given by option, a result or a side table."""
 import csv
@@ -9,7 +9,7 @@ import shutil
 import pytest
 from hostile_util import REPO, call, one_line_error, small_dataset
 
-from fgcal.cli.inputs import dataset_files, run_inputs
+from fgcal.cli.commands.inputs import dataset_files, run_inputs
 from fgcal.io.dataset_io import write_csv
 
 

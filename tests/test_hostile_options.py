@@ -1,6 +1,6 @@
 """Every numeric option of every command is a checked type (finite, in range, its unit in the help).
 
-The mechanism (``fgcal.cli.options``) is tested once here over the whole parser, so an option
+The mechanism (``fgcal.cli.commands.options``) is tested once here over the whole parser, so an option
 added later with a bare ``type=float`` or ``type=int`` fails this test.
 """
 import argparse
@@ -10,7 +10,7 @@ import pytest
 from hostile_util import call, one_line_error
 
 from fgcal.cli import build_parser
-from fgcal.cli.options import Checked, payload_spec, scheduler_address
+from fgcal.cli.commands.options import Checked, payload_spec, scheduler_address
 
 ALLOWED_TYPES = (Path, str, None)
 FREE_TYPES = (payload_spec, scheduler_address)  # checked text options

@@ -65,3 +65,20 @@ def test_verify_refuses_a_result_of_another_robot(puma, ur10, tmp_path, capsys):
     code, _, err = call(["report", tmp_path / "ur10.json", "--verify", tmp_path / "v.json", "--out",
                          tmp_path / "rep"], capsys)
     one_line_error(code, err, "a verification of a puma560 result", "for ur10")
+
+
+def test_two_studies_on_one_out_refused(tmp_path, capsys):
+    """A study holds a lock on its --out; a second one started meanwhile ends in one line."""
+    import fcntl
+    import os
+
+    out = tmp_path / "st"
+    out.mkdir()
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        code, _, err = call(["study", "fig13", "--trials", "1", "--poses", "8", "--out", out, "--workers", "1"], capsys)
+        one_line_error(code, err, "in use by another fgcal study")
+        assert not (out / "trials.csv").exists()
+    finally:
+        os.close(fd)

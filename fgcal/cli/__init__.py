@@ -11,17 +11,29 @@ import sys
 from pathlib import Path
 
 from fgcal._version import __version__
-from fgcal.cli.commands.checks import MAX_POSES, os_error_message
-from fgcal.cli.options import (count, nonnegative, nonnegative_deg, nonnegative_mm, number, payload_spec, positive,
-                               positive_deg, positive_mm, probability, scheduler_address, seed)
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
+from fgcal.cli.commands.checks import MAX_POSES, os_error_message
 from fgcal.cli.commands.compensate import _cmd_compensate
 from fgcal.cli.commands.demo import _cmd_demo
 from fgcal.cli.commands.design import _cmd_design
 from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
+from fgcal.cli.commands.options import (
+    count,
+    nonnegative,
+    nonnegative_deg,
+    nonnegative_mm,
+    number,
+    payload_spec,
+    positive,
+    positive_deg,
+    positive_mm,
+    probability,
+    scheduler_address,
+    seed,
+)
 from fgcal.cli.commands.report import _cmd_report
 from fgcal.cli.commands.simulate import _cmd_simulate
 from fgcal.cli.commands.study import _cmd_study

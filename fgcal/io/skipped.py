@@ -6,7 +6,7 @@ cut to :data:`MAX_QUOTE` characters.
 """
 from __future__ import annotations
 
-__all__ = ["MAX_QUOTE", "MAX_EXAMPLES", "bounded", "skipped_summary", "skipped_report"]
+__all__ = ["MAX_EXAMPLES", "MAX_QUOTE", "bounded", "skipped_report", "skipped_summary"]
 
 MAX_QUOTE = 200  # characters of file content (or of one reason) an error or a report quotes
 MAX_EXAMPLES = 5  # skipped rows named by example

@@ -5,6 +5,7 @@ import sys
 
 import numpy as np
 
+from fgcal.io.skipped import bounded
 from fgcal.measurements.cells import MAX_ID
 from fgcal.online.records import PoseData, setup_types
 
@@ -73,7 +74,7 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
             if not all(np.isfinite(values)):
                 raise ValueError("a number is not finite")
         except ValueError as exc:
-            warn(f"stdin: line {n} skipped: {exc}")
+            warn(f"stdin: line {n} skipped: {bounded(str(exc))}")
             continue
         if tag == "joints":
             if current is not None:

@@ -11,7 +11,7 @@ import os
 import stat
 from pathlib import Path
 
-from fgcal.cli.options import count, finite, nonnegative, positive
+from fgcal.cli.commands.options import count, finite, nonnegative, positive
 from fgcal.errors import FgcalError
 
 __all__ = ["parameter_names", "finite_float", "nonnegative_float", "positive_float", "positive_int", "nonnegative_int",
@@ -24,7 +24,7 @@ MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory
 MAX_BATCH_ROWS = 250_000  # measurement rows of one batch graph (calibrate, check) within about 1 GB
 
 
-# the option types of earlier rounds, now the checked types of fgcal.cli.options (kept for their importers)
+# the option types of earlier rounds, now the checked types of fgcal.cli.commands.options (kept for their importers)
 finite_float = finite()
 nonnegative_float = nonnegative()
 positive_float = positive()
@@ -71,10 +71,10 @@ def _inside(child: Path, parent: Path) -> bool:
 
 
 def dataset_inputs(directory, robot: str | None = None) -> list[Path]:
-    """The inputs of a run that reads the dataset ``directory`` (see :mod:`fgcal.cli.inputs`): its
+    """The inputs of a run that reads the dataset ``directory`` (see :mod:`fgcal.cli.commands.inputs`): its
     folder, files and the robot file its ``dataset.yaml`` names; ``robot``, a robot reference
     relative to the folder, is added (the loaded dataset's, when dataset.yaml was unreadable before)."""
-    from fgcal.cli.inputs import dataset_files, robot_files
+    from fgcal.cli.commands.inputs import dataset_files, robot_files
 
     return dataset_files(directory) + robot_files(robot, directory)
 

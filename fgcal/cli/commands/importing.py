@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.cli.commands.checks import check_output_dir
-from fgcal.cli.options import fraction, nonnegative_deg, positive, positive_deg, positive_mm, seed
+from fgcal.cli.commands.options import fraction, nonnegative_deg, positive, positive_deg, positive_mm, seed
 from fgcal.errors import FgcalError
 
 __all__ = ["add_import_parser"]
@@ -57,7 +57,7 @@ def _cmd_import(args) -> int:
 
     if not 0 <= args.holdout < 1:
         raise FgcalError("--holdout is a fraction from 0 to below 1")
-    from fgcal.cli.inputs import run_inputs
+    from fgcal.cli.commands.inputs import run_inputs
 
     inputs = run_inputs(robots=[getattr(args, "robot", None)], files=[args.file, getattr(args, "joint_log", None)])
     check_output_dir(args.out, inputs, option="OUT", must_be_new=True, force=args.force)
