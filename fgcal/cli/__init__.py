@@ -20,20 +20,8 @@ from fgcal.cli.commands.design import _cmd_design
 from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
-from fgcal.cli.commands.options import (
-    count,
-    nonnegative,
-    nonnegative_deg,
-    nonnegative_mm,
-    number,
-    payload_spec,
-    positive,
-    positive_deg,
-    positive_mm,
-    probability,
-    scheduler_address,
-    seed,
-)
+from fgcal.cli.commands.options import (count, nonnegative_deg, nonnegative_mm, number, payload_spec, positive,
+                                        positive_deg, positive_mm, probability, scheduler_address, seed)
 from fgcal.cli.commands.report import _cmd_report
 from fgcal.cli.commands.simulate import _cmd_simulate
 from fgcal.cli.commands.study import _cmd_study
@@ -150,7 +138,8 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--fold-order", choices=("random", "blocked"), default="random",
                    help="folds drawn at random, or as contiguous stretches of the poses in id (time) order, which "
                         "also scores drift over the session (default random)")
-    k.add_argument("--payload", type=payload_spec, default=None, help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
+    k.add_argument("--payload", type=payload_spec, default=None,
+                   help="load on the tool for the gravity torques: KG or KG,X,Y,Z (mm)")
     k.set_defaults(func=_cmd_calibrate)
 
     v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")
@@ -222,8 +211,10 @@ def build_parser() -> argparse.ArgumentParser:
     st.add_argument("name", choices=("fig8-9", "fig13", "experiment", "sweep-cmm", "sweep-joint",
                                      "sweep-repeatability", "design"))
     st.add_argument("--out", type=Path, default=None, help="output directory (default study-NAME); resumes")
-    st.add_argument("--trials", type=count(1, 10**6), default=None, help="trials (per point for fig8-9, experiment, sweeps)")
-    st.add_argument("--poses", type=count(1, MAX_POSES), default=None, help="observations per calibration (fig13, sweeps)")
+    st.add_argument("--trials", type=count(1, 10**6), default=None,
+                    help="trials (per point for fig8-9, experiment, sweeps)")
+    st.add_argument("--poses", type=count(1, MAX_POSES), default=None,
+                    help="observations per calibration (fig13, sweeps)")
     st.add_argument("--seed", type=seed, default=0)
     st.add_argument("--workers", type=count(1, 1024), default=None, help="local processes (default: all cores)")
     st.add_argument("--scheduler", type=scheduler_address, default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
