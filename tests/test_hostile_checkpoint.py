@@ -33,6 +33,7 @@ JOURNAL = {
     "no accepted key": lambda d: d.pop("accepted"),
     "no pose key": lambda d: d.pop("pose"),
     "pose 2^64": lambda d: d.update(pose=2**64),
+    "pose -1": lambda d: d.update(pose=-1),
     "pose string": lambda d: d.update(pose="1"),
     "history nan": lambda d: d["history"]["estimate"].__setitem__(0, float("nan")),
     "history short sigma": lambda d: d["history"].update(sigma=[1.0]),

@@ -274,9 +274,9 @@ def test_streams(dataset):
     from fgcal.online.stream import read_stream
 
     ds = load_dataset(dataset)
-    lines = [f"joints,{p},{','.join(map(str, q))}" for p, q in zip(ds.pose_ids, ds.joints_deg)]
+    lines = [f"joints,{p},{','.join(map(str, q))}" for p, q in zip(ds.pose_ids, ds.joints_deg, strict=True)]
     probes = [f"probe,{p},{b},{x},{y},{z}" for p, b, (x, y, z) in
-              zip(ds.probes.pose, ds.probes.ball, ds.probes.xyz)]
+              zip(ds.probes.pose, ds.probes.ball, ds.probes.xyz, strict=True)]
     text = "\n".join(lines[:2] + probes[:8] + ["end,1", "pose,2,1,2,3,1,0,0,0", "distance,2,B,100",
                                                "centre,2,B,1,2,3"])
 

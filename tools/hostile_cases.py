@@ -356,6 +356,9 @@ def cases() -> list[Case]:
     ]
     if (REPO / "tools").exists() and MUKCA.exists():
         C += [c for c in contact_cases() if not c.tags.append("contacts")]
+    from hostile_cases2 import cases as round2  # issue 26: every numeric option, inputs, results, checkpoints
+
+    C += [c for c in round2() if MUKCA.exists() or "contacts" not in c.tags]
     return C
 
 

@@ -73,8 +73,8 @@ def _entry_problem(e) -> str:
     if not isinstance(e, dict):
         return "not a mapping"
     pose = e.get("pose")
-    if not isinstance(pose, int) or isinstance(pose, bool) or abs(pose) > MAX_POSE_ID:
-        return f"pose {str(pose)[:30]!r} is not a pose id (an integer of at most 2^62)"
+    if not isinstance(pose, int) or isinstance(pose, bool) or not 0 <= pose <= MAX_POSE_ID:
+        return f"pose {str(pose)[:30]!r} is not a pose id (an integer from 0 to 2^62)"
     if not isinstance(e.get("accepted"), bool) or not isinstance(e.get("reason", ""), str):
         return f"pose {pose}: no accepted: true|false or reason"
     if "f" in e and not _finite_numbers([e["f"]]):
