@@ -14,8 +14,20 @@ import numpy as np
 
 from .errors import ball_centre_error, distance_error, pose_ball_centres_error, pose_error, probe_error
 
-__all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "probes_factor", "ball_centre_factor", "ball_centres_factor",
-           "pose_factor", "distance_factor", "joint_prior", "parameter_prior"]
+__all__ = [
+    "ball_centre_factor",
+    "ball_centres_factor",
+    "centre_key",
+    "distance_factor",
+    "joint_key",
+    "joint_prior",
+    "noise_model",
+    "parameter_prior",
+    "pose_factor",
+    "probe_factor",
+    "probes_factor",
+    "theta_key",
+]
 
 
 def theta_key() -> int:

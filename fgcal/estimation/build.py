@@ -8,15 +8,15 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, Sigmas
-from fgcal.robots.gravity import model_inertials
 from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.setup_params import SetupParameters, is_setup_name
 from fgcal.measurements.dataset import Dataset
-from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.posefit import rigid_fit
+from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from fgcal.measurements.types import all_levels, kinematic_levels, kinematic_types
+from fgcal.robots.gravity import model_inertials
 from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import to_euler_zyx_trans

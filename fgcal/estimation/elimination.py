@@ -13,7 +13,7 @@ import numpy as np
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
     from fgcal.estimation.graph import Linearisation, State
 
-__all__ = ["ArrowElimination", "POSE_CHUNK"]
+__all__ = ["POSE_CHUNK", "ArrowElimination"]
 
 POSE_CHUNK = 2000  # poses per block of work (bounds the temporaries)
 

@@ -9,7 +9,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.setup import BLOCK_KINDS
 from fgcal.measurements.types import BY_LEVEL
 
-__all__ = ["GAUGE_REASON", "world_is_fixed", "used_blocks", "setup_size"]
+__all__ = ["GAUGE_REASON", "setup_size", "used_blocks", "world_is_fixed"]
 
 
 GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "

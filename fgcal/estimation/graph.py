@@ -26,7 +26,7 @@ from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import ParameterSet
 
-__all__ = ["Sigmas", "Graph", "State", "LEVELS"]
+__all__ = ["LEVELS", "Graph", "Sigmas", "State"]
 
 LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
@@ -54,7 +54,7 @@ class Sigmas:
                 return value
         raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
 
-    def replaced(self, **values) -> "Sigmas":
+    def replaced(self, **values) -> Sigmas:
         """A copy with the given sigmas changed (fields or ``other`` ones); itself when none are
         given (the same object means the same noise: a linearisation stays valid)."""
         if not values:
@@ -73,7 +73,7 @@ class State:
     q: np.ndarray
     c: np.ndarray
 
-    def copy(self) -> "State":
+    def copy(self) -> State:
         return State(self.theta.copy(), self.q.copy(), self.c.copy())
 
 

@@ -20,15 +20,26 @@ import numpy as np
 
 from fgcal.estimation.build import build_graph
 from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
+from fgcal.estimation.noise import NoiseMode, fit_test
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
-from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
-from fgcal.estimation.noise import NoiseMode, fit_test
 from fgcal.robots.model import RobotModel
 
-__all__ = ["FoldOrder", "ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_validate", "compare_models",
-           "HARMONICS_GRID", "SIGMA_GRID", "REUSED", "REUSED_NOTE"]
+__all__ = [
+    "HARMONICS_GRID",
+    "REUSED",
+    "REUSED_NOTE",
+    "SIGMA_GRID",
+    "CVProblem",
+    "FoldOrder",
+    "ModelScore",
+    "ModelSelection",
+    "compare_models",
+    "cross_validate",
+    "cv_problem",
+]
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +81,7 @@ class ModelSelection:
                 "reason": self.reason}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ModelSelection":
+    def from_dict(cls, d: dict) -> ModelSelection:
         return cls([ModelScore(**s) for s in d["scores"]], d["recommended"], int(d["folds"]), d.get("reason", ""))
 
     def score(self, model) -> ModelScore:

@@ -27,8 +27,21 @@ from scipy import special
 
 from fgcal.measurements.types import all_levels, kinematic_types
 
-__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "component_table", "MIN_REDUNDANCY",
-           "OUTLIER_ALPHA", "components", "update_sigmas", "find_outliers", "fit_test", "scaled_inverse", "robust_scale"]
+__all__ = [
+    "MIN_REDUNDANCY",
+    "OUTLIER_ALPHA",
+    "LevelNoise",
+    "NoiseMode",
+    "Outlier",
+    "OutlierMode",
+    "component_table",
+    "components",
+    "find_outliers",
+    "fit_test",
+    "robust_scale",
+    "scaled_inverse",
+    "update_sigmas",
+]
 
 log = logging.getLogger(__name__)
 

@@ -12,21 +12,32 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset
-from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.joint_errors import corrected_joints, outside_region
-from fgcal.robots.kinematics import tool_points
-from fgcal.measurements.measure import measure_probes
-from fgcal.robots.model import RobotModel
-from fgcal.measurements.posefit import rigid_fit
 from fgcal.estimation.result import CalibrationResult
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.measure import measure_probes
+from fgcal.measurements.posefit import rigid_fit
+from fgcal.measurements.types import kinematic_levels
+from fgcal.robots.kinematics import tool_points
+from fgcal.robots.model import RobotModel
 from fgcal.robots.transforms import pose_difference
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
-           "compare_poses", "compare_points", "check_same_robot", "check_verification"]
+__all__ = [
+    "Comparison",
+    "ErrorStats",
+    "Verification",
+    "check_same_robot",
+    "check_verification",
+    "compare_points",
+    "compare_poses",
+    "error_stats",
+    "measured_points",
+    "measured_poses",
+    "verify",
+]
 
 
 @dataclass

@@ -17,21 +17,21 @@ from pathlib import Path
 
 import numpy as np
 
+from fgcal.errors import DatasetError, FgcalError
+from fgcal.io.setup_io import read_fixtures, read_stations, stations_dict
 from fgcal.measurements.cells import MAX_DEG, ball_name, pose_id
 from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
+from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
 from fgcal.measurements.point import POINT
-from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
 from fgcal.measurements.setup import SetupSpec
-from fgcal.io.setup_io import read_fixtures, read_stations, stations_dict
 from fgcal.measurements.types import kinematic_types, noise_keys
-from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
 from fgcal.util.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
-__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth"]
+__all__ = ["dataset_model", "load_dataset", "load_dataset_meta", "load_truth", "read_joints", "save_dataset", "write_csv"]
 
 log = logging.getLogger(__name__)
 

@@ -20,8 +20,18 @@ from scipy.spatial.transform import Rotation
 
 from fgcal.errors import DatasetError
 
-__all__ = ["AngleUnit", "LengthUnit", "QuaternionOrder", "ColumnSpec", "Measurements", "detect_format",
-           "read_lines", "read_columns", "read_measurements", "rotation_from_columns"]
+__all__ = [
+    "AngleUnit",
+    "ColumnSpec",
+    "LengthUnit",
+    "Measurements",
+    "QuaternionOrder",
+    "detect_format",
+    "read_columns",
+    "read_lines",
+    "read_measurements",
+    "rotation_from_columns",
+]
 
 _MISSING = ("", "nan", "na", "n/a", "none", "null")
 _DECIMAL_COMMA = re.compile(r"^\s*[+-]?\d*,\d+([eE][+-]?\d+)?\s*$")
@@ -208,7 +218,7 @@ class Measurements:
         keys = {}
         return np.array([keys.setdefault(tuple(np.round(g, 6)), len(keys)) for g in self.group_values], dtype=int)
 
-    def subset(self, mask) -> "Measurements":
+    def subset(self, mask) -> Measurements:
         def cut(a):
             return None if a is None else a[mask]
         return Measurements(self.line[mask], self.joints_rad[mask], self.xyz[mask], cut(self.R), cut(self.position_std),

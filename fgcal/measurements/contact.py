@@ -21,8 +21,16 @@ from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, Observ
 from fgcal.measurements.setup import plane_normal
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["ContactObservations", "SetupMeasurement", "PointContact", "PlaneContact", "CONTACT", "PLANE_CONTACT",
-           "CONTACT_COLUMNS", "CONTACT_FILE"]
+__all__ = [
+    "CONTACT",
+    "CONTACT_COLUMNS",
+    "CONTACT_FILE",
+    "PLANE_CONTACT",
+    "ContactObservations",
+    "PlaneContact",
+    "PointContact",
+    "SetupMeasurement",
+]
 
 CONTACT_FILE = "contacts.csv"
 PLANE_MIN_SPREAD = 5.0  # mm (RMS) of a plane's contacts in their narrower direction: a tilt needs an area

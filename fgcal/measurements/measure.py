@@ -14,13 +14,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, PointObservations, PoseObservations
 from fgcal.errors import FgcalError
+from fgcal.measurements.dataset import Dataset, PointObservations, PoseObservations
 from fgcal.measurements.posefit import check_homogeneous, nearest_rotation, paper_pose, rigid_fit
 from fgcal.measurements.spherefit import fit_sphere, fit_spheres_checked
 from fgcal.robots.transforms import matrix_to_quaternion
 
-__all__ = ["QualityRow", "Measurement", "measure_probes", "derived_dataset", "quality_csv"]
+__all__ = ["Measurement", "QualityRow", "derived_dataset", "measure_probes", "quality_csv"]
 
 log = logging.getLogger(__name__)
 

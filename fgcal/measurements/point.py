@@ -14,7 +14,7 @@ from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, Observ
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["PointObservations", "PointMeasurement", "POINT"]
+__all__ = ["POINT", "PointMeasurement", "PointObservations"]
 
 
 @dataclass

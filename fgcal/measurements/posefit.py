@@ -19,7 +19,7 @@ import numpy as np
 
 from fgcal.measurements.spherefit import FALSE_ALARM, MIN_THRESHOLD_MM, chi2_quantile
 
-__all__ = ["paper_pose", "homogeneity_errors", "check_homogeneous", "RigidFit", "rigid_fit", "nearest_rotation"]
+__all__ = ["RigidFit", "check_homogeneous", "homogeneity_errors", "nearest_rotation", "paper_pose", "rigid_fit"]
 
 
 def _check_pair(tool_points, world_points, minimum: int):

@@ -21,7 +21,7 @@ from fgcal.measurements.setup import station_transform
 from fgcal.robots.kinematics import tool_points
 from fgcal.robots.transforms import to_euler_zyx_trans
 
-__all__ = ["StationPointObservations", "StationPoint", "STATION_POINT"]
+__all__ = ["STATION_POINT", "StationPoint", "StationPointObservations"]
 
 
 @dataclass

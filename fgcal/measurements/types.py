@@ -13,8 +13,17 @@ from fgcal.measurements.point import POINT
 from fgcal.measurements.pose import POSE
 from fgcal.measurements.station import STATION_POINT
 
-__all__ = ["KINEMATIC_TYPES", "BY_LEVEL", "LEVELS", "kinematic_levels", "all_levels", "kinematic_types",
-           "register", "unregister", "noise_keys"]
+__all__ = [
+    "BY_LEVEL",
+    "KINEMATIC_TYPES",
+    "LEVELS",
+    "all_levels",
+    "kinematic_levels",
+    "kinematic_types",
+    "noise_keys",
+    "register",
+    "unregister",
+]
 
 KINEMATIC_TYPES = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT)
 BY_LEVEL = {t.level: t for t in KINEMATIC_TYPES}

@@ -10,10 +10,10 @@ import numpy as np
 import factors as fx
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
-from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
-from fgcal.estimation.setup_params import is_setup_name
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.holding import held_parameters, unseen_parameters
+from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.setup_params import is_setup_name
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
@@ -203,7 +203,7 @@ class _Engine:
             return best
 
         def without_one(rec):
-            for j, (ball, pts) in enumerate(rec.probes):
+            for j, (_ball, pts) in enumerate(rec.probes):
                 for k in range(len(pts) if len(pts) >= 4 else 0):
                     yield _variant(rec, {"drop": (j, k)}), (), (j, k)
 

@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.measurements.spherefit import (best_of_candidates, chi2_quantile, fit_spheres_batch, fit_spheres_checked,
-                                          mirror_through_points)
+from fgcal.measurements.spherefit import (
+    best_of_candidates,
+    chi2_quantile,
+    fit_spheres_batch,
+    fit_spheres_checked,
+    mirror_through_points,
+)
 from fgcal.online.records import PoseData
 
-__all__ = ["prefit", "INNOVATION_FALSE_ALARM", "NARROW_CAP", "NEAR_ENOUGH"]
+__all__ = ["INNOVATION_FALSE_ALARM", "NARROW_CAP", "NEAR_ENOUGH", "prefit"]
 
 INNOVATION_FALSE_ALARM = 1e-6
 MIRROR_CHI2 = chi2_quantile(1 - INNOVATION_FALSE_ALARM, 1)  # a mirror image this close in fit is a candidate

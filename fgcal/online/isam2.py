@@ -176,7 +176,7 @@ class ISAM2Engine(_Engine):
             k += 3
         x = prop.augment(*now)[0]
         chain = self.model.chain
-        for e, J, Jq, group in prop.rows(self, x):
+        for _e, _J, Jq, group in prop.rows(self, x):
             if group is None:
                 continue
             width = group.kind.width

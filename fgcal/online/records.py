@@ -5,13 +5,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
 from fgcal.errors import FgcalError
+from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
 from fgcal.measurements.types import BY_LEVEL, kinematic_types
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json", "setup_types",
-           "generic_types"]
+__all__ = [
+    "PoseData",
+    "generic_types",
+    "pose_records",
+    "record_from_json",
+    "record_to_json",
+    "records_dataset",
+    "setup_types",
+]
 
 BUILT_IN = ("centres", "poses", "distances")  # the kinematic levels PoseData holds in fields of their own
 

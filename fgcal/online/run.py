@@ -20,15 +20,15 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
 from fgcal.estimation.setup_params import SetupParameters
-from fgcal.util.yamlio import atomic_write_text
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
 from fgcal.online.engines import make_engine, pose_records, prefit
 from fgcal.online.records import record_from_json, record_to_json
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.robots.robot_file import model_to_dict
+from fgcal.util.yamlio import atomic_write_text
 
-__all__ = ["OnlineRun", "SNAPSHOT_EVERY"]
+__all__ = ["SNAPSHOT_EVERY", "OnlineRun"]
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from fgcal.errors import FgcalError
 from fgcal.measurements.setup import SetupLayout, SetupSpec, distance_error
 from fgcal.online.records import PoseData, setup_types
 
-__all__ = ["OnlineSetup", "SetupProposal", "WIDE_PRIOR_MM", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM"]
+__all__ = ["PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup", "SetupProposal"]
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,7 @@ class Pending:
         return [self.pose, self.q.tolist(), self.level, self.ball, self.fixture]
 
     @classmethod
-    def from_json(cls, d) -> "Pending":
+    def from_json(cls, d) -> Pending:
         return cls(int(d[0]), np.array(d[1], dtype=float), str(d[2]), str(d[3]), str(d[4]))
 
 

@@ -17,9 +17,20 @@ import numpy as np
 
 from fgcal.estimation.result import CalibrationResult
 
-__all__ = ["AccuracyStats", "accuracy_stats", "PoseFlags", "flag_poses", "ToleranceVerdict", "tolerance_verdict",
-           "HeldCost", "held_parameter_cost", "predicted_position_sigma", "round_to_sigma", "OUTLIER_Z",
-           "verification_joints"]
+__all__ = [
+    "OUTLIER_Z",
+    "AccuracyStats",
+    "HeldCost",
+    "PoseFlags",
+    "ToleranceVerdict",
+    "accuracy_stats",
+    "flag_poses",
+    "held_parameter_cost",
+    "predicted_position_sigma",
+    "round_to_sigma",
+    "tolerance_verdict",
+    "verification_joints",
+]
 
 OUTLIER_Z = 3.5  # robust z-score (median, 1.4826 MAD) above which a pose's error is an outlier
 MAD_TO_SIGMA = 1.4826

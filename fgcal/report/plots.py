@@ -10,9 +10,17 @@ from matplotlib.figure import Figure
 
 from fgcal.estimation.result import CalibrationResult
 
-__all__ = ["plot_sigmas", "plot_correlation", "plot_residuals", "plot_verification", "plot_error_distribution",
-           "plot_workspace_errors", "plot_poses",
-           "plot_convergence", "RESIDUAL_LEVELS"]
+__all__ = [
+    "RESIDUAL_LEVELS",
+    "plot_convergence",
+    "plot_correlation",
+    "plot_error_distribution",
+    "plot_poses",
+    "plot_residuals",
+    "plot_sigmas",
+    "plot_verification",
+    "plot_workspace_errors",
+]
 
 RESIDUAL_LEVELS = {"probes_mm": ("probe points: distance off the sphere", "mm"),
                    "centres_mm": ("ball centres (per coordinate)", "mm"),

@@ -10,15 +10,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.report.accuracy import (OUTLIER_Z, AccuracyStats, accuracy_stats, flag_poses, held_parameter_cost,
-                                   predicted_position_sigma, round_to_sigma, tolerance_verdict, verification_joints)
 from fgcal.errors import FgcalError
 from fgcal.estimation.result import CalibrationResult
+from fgcal.report.accuracy import (
+    OUTLIER_Z,
+    AccuracyStats,
+    accuracy_stats,
+    flag_poses,
+    held_parameter_cost,
+    predicted_position_sigma,
+    round_to_sigma,
+    tolerance_verdict,
+    verification_joints,
+)
 from fgcal.report.uncertainty import parameter_table, verdict
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Block", "Section", "ReportContent", "build_content", "num", "training_flags"]
+__all__ = ["Block", "ReportContent", "Section", "build_content", "num", "training_flags"]
 
 MAX_FLAGGED_ROWS = 30
 

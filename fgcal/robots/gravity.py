@@ -27,7 +27,7 @@ import numpy as np
 from fgcal.errors import ModelError
 from fgcal.robots.kinematics import chain_for
 
-__all__ = ["Inertials", "Payload", "inertials_from_dict", "inertials_to_dict", "model_inertials", "gravity_torques"]
+__all__ = ["Inertials", "Payload", "gravity_torques", "inertials_from_dict", "inertials_to_dict", "model_inertials"]
 
 STANDARD_GRAVITY = 9.81
 

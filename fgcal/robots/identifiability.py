@@ -15,7 +15,7 @@ import numpy as np
 
 from fgcal.robots.model import ParameterSet, RobotModel
 
-__all__ = ["identification_jacobian", "compact_jacobian", "Identifiability", "analyse", "minimal_parameters"]
+__all__ = ["Identifiability", "analyse", "compact_jacobian", "identification_jacobian", "minimal_parameters"]
 
 
 def identification_jacobian(params: ParameterSet, q, slots=None, measurement="pose",

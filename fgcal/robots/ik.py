@@ -18,7 +18,7 @@ from fgcal.errors import FgcalError
 from fgcal.robots.model import RobotModel, slot
 from fgcal.robots.transforms import check_transform, euler_zyx_trans, pose_difference, rot, so3_left_jacobian_inverse
 
-__all__ = ["Branch", "BRANCHES", "solve_puma", "solve_puma_batch", "solve_numeric", "wrap_into_limits", "IKError"]
+__all__ = ["BRANCHES", "Branch", "IKError", "solve_numeric", "solve_puma", "solve_puma_batch", "wrap_into_limits"]
 
 
 class IKError(FgcalError):

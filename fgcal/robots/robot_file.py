@@ -31,11 +31,11 @@ import numpy as np
 
 from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
-from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
+from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.util.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
-__all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT", "euler_dict"]
+__all__ = ["FORMAT", "euler_dict", "load_model", "model_from_dict", "model_to_dict", "save_model"]
 
 FORMAT = "fgcal-robot/1"
 

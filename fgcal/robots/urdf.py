@@ -23,7 +23,7 @@ import numpy as np
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["chain_origins", "to_urdf", "calibrated_urdf", "export_urdf", "rpy"]
+__all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "rpy", "to_urdf"]
 
 
 def rpy(R) -> tuple[float, float, float]:

@@ -32,19 +32,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factors.errors import ball_centre_error, probe_error
-
+from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
+from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.types import kinematic_levels
-from fgcal.errors import FgcalError
-from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
 from fgcal.studies.plans import UP, ball_access
 
-__all__ = ["Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
-           "information_and_middle", "joint_sensitivity"]
+__all__ = [
+    "Layout",
+    "cap_directions",
+    "information",
+    "information_and_middle",
+    "joint_sensitivity",
+    "layout_from_access",
+    "sigmas_of",
+]
 
 
 

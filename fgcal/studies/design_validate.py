@@ -13,14 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.estimation.calibrate import calibrate
-from fgcal.estimation.options import CalibrationOptions
-from fgcal.measurements.dataset import Dataset
-from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 from fgcal.errors import FgcalError
+from fgcal.estimation.calibrate import calibrate
 from fgcal.estimation.noise import NoiseMode
-from fgcal.robots.model import RobotModel
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.verification import verify
+from fgcal.measurements.dataset import Dataset
+from fgcal.robots.model import RobotModel
+from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 
 __all__ = ["HeldOutComparison", "compare_on_held_out"]
 

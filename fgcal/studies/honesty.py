@@ -22,11 +22,18 @@ from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Noise
 from fgcal.robots.kinematics import forward, jacobians, tool_points
 from fgcal.robots.model import SLOT_NAMES, ParameterSet, slots_from_file_units
-from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.robots.transforms import pose_difference
+from fgcal.studies.simulate import SimulationSettings, simulate
 
-__all__ = ["Scenario", "SCENARIOS", "run_scenario", "add_gross_errors", "summarise", "scenario_dataset",
-           "online_agreement"]
+__all__ = [
+    "SCENARIOS",
+    "Scenario",
+    "add_gross_errors",
+    "online_agreement",
+    "run_scenario",
+    "scenario_dataset",
+    "summarise",
+]
 
 Z95 = 1.959963984540054
 
@@ -174,8 +181,8 @@ def online_agreement(model, kind: str, seed: int, reverse: bool = False, scenari
     prediction, lands more than a radius from the true centre: the mirror image) and
     ``batch_truth`` (largest |batch - truth| over the batch sigma).
     """
-    from fgcal.online.engines import make_engine, pose_records
     from fgcal.measurements.spherefit import fit_spheres_checked
+    from fgcal.online.engines import make_engine, pose_records
 
     ds, truth, _, _ = scenario_dataset(model, scenario, seed)
     batch = calibrate(ds, model, replace(scenario.options, prior="weak"))
@@ -213,7 +220,7 @@ def run_scenario(model, scenario: Scenario, seeds) -> list[dict]:
         q_new = rng.uniform(model.joint_limits[:, 0], model.joint_limits[:, 1], size=(100, 6))
         true_pts = tool_points(forward(truth, q_new), points)
 
-        def rms(slots):
+        def rms(slots, q_new=q_new, true_pts=true_pts):
             return float(np.sqrt(np.mean(np.sum((tool_points(forward(slots, q_new), points) - true_pts) ** 2, axis=2))))
 
         base = _baseline(ds, model, model.identifiable_names())

@@ -15,7 +15,7 @@ from fgcal.robots.kinematics import forward, tool_points
 from fgcal.robots.model import RobotModel, Tooling
 from fgcal.robots.transforms import quaternion_to_matrix
 
-__all__ = ["UP", "PLAN_MARGIN_MM", "PLAN_MARGIN_DEG", "ball_access", "random_plan", "paper_points", "paper_plan"]
+__all__ = ["PLAN_MARGIN_DEG", "PLAN_MARGIN_MM", "UP", "ball_access", "paper_plan", "paper_points", "random_plan"]
 
 UP = np.array([0.0, 0.0, 1.0])  # the CMM's probe comes down from +z of the world
 MAX_APPROACH_ANGLE_DEG = 110.0  # a ball whose stem points up more steeply than this is hidden

@@ -56,7 +56,8 @@ class ProbedPoses:
 
         Sphere fits of known radius with the residual check (as
         :func:`fgcal.measurements.spherefit.fit_spheres_checked`), then a least-squares rigid fit of
-        each pose's three or more good balls with its chi-square check, all vectorised. Returns the rows (into ``pose_ids``) of the accepted poses, ``(K',)``,
+        each pose's three or more good balls with its chi-square check, all vectorised. Returns the rows
+        (into ``pose_ids``) of the accepted poses, ``(K',)``,
         and their poses ``(K', 4, 4)``.
         """
         from fgcal.measurements.posefit import rigid_fit

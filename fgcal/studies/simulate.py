@@ -18,15 +18,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.measurements.dataset import Dataset, Noise, PointObservations
 from fgcal.measurements.types import all_levels, kinematic_levels
-from fgcal.errors import FgcalError
-from fgcal.robots.kinematics import tool_points
 from fgcal.robots.deviations import Deviations
+from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import RobotModel, Tooling
 from fgcal.studies.plans import UP, ball_access, paper_plan, random_plan
 
-__all__ = ["draw_truth", "measure", "simulate", "SimulationSettings"]
+__all__ = ["SimulationSettings", "draw_truth", "measure", "simulate"]
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ from fgcal.errors import FgcalError
 from fgcal.studies.study import RESULT_COLUMNS, Trial, run_trial
 from fgcal.util.yamlio import atomic_write_bytes, atomic_write_text
 
-__all__ = ["read_rows", "run_study", "study_figures", "Progress"]
+__all__ = ["Progress", "read_rows", "run_study", "study_figures"]
 
 log = logging.getLogger(__name__)
 
@@ -182,7 +182,8 @@ def run_study(trials: list[Trial], out_dir, workers: int | None = None, schedule
         return rows
     if scheduler:
         try:
-            from distributed import Client, as_completed as dask_completed
+            from distributed import Client
+            from distributed import as_completed as dask_completed
         except ImportError:
             raise FgcalError("--scheduler needs Dask: pip install 'dask[distributed]' (or fgcal's [study] extra)") \
                 from None

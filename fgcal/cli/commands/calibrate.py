@@ -5,9 +5,9 @@ import logging
 
 import numpy as np
 
+from fgcal.cli.commands.check import _measurement_rows, _warn_units
 from fgcal.cli.commands.checks import MAX_BATCH_ROWS, check_output_file, dataset_inputs, parameter_names
 from fgcal.errors import FgcalError
-from fgcal.cli.commands.check import _measurement_rows, _warn_units
 
 log = logging.getLogger("fgcal")
 
@@ -93,8 +93,8 @@ def _print_result(result) -> None:
 def _cmd_calibrate(args) -> int:
     from fgcal.estimation.calibrate import calibrate
     from fgcal.estimation.options import CalibrationOptions
-    from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import save_result
+    from fgcal.io.dataset_io import dataset_model, load_dataset
 
     paths = args.dataset if isinstance(args.dataset, list) else [args.dataset]
     for path in paths:
@@ -168,8 +168,8 @@ def _parse_payload(text):
 
 def _compare_models(args, ds, model, options):
     """``calibrate --model``: cross-validated comparison of the models up to the one asked for."""
-    from fgcal.io.dataset_io import load_dataset
     from fgcal.estimation.model_select import HARMONICS_GRID, compare_models
+    from fgcal.io.dataset_io import load_dataset
 
     ver = load_dataset(args.verification) if args.verification is not None else None
     results, _ = compare_models(ds, model, options, up_to=args.model, verification=ver, folds=args.folds,

@@ -158,9 +158,9 @@ def _cmd_import_mukca(args) -> int:
     """``fgcal import mukca``: the two-socket tool's placements as contacts at unknown fixture points."""
     from fgcal.io.dataset_io import save_dataset
     from fgcal.io.mukca import read_mukca
-    from fgcal.util.yamlio import read_text_file
     from fgcal.robots.robot_file import load_model
     from fgcal.util.resources import builtin_robot_names, builtin_robot_path
+    from fgcal.util.yamlio import read_text_file
 
     chain = None
     if args.chain is not None:

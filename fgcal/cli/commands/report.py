@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import logging
 
-
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.errors import FgcalError
 
@@ -13,9 +12,8 @@ log = logging.getLogger("fgcal")
 def _cmd_report(args) -> int:
     import json
 
-    from fgcal.report.document import write_report
     from fgcal.estimation.result import load_result
-
+    from fgcal.report.document import write_report
     from fgcal.util.yamlio import read_text_file
 
     check_output_dir(args.out, [args.result, args.verify])
