@@ -187,8 +187,8 @@ def distance_factor(index, held, offset, length: float, sigma: float, *, t_key: 
                     q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
     """A ballbar length (mm) from the world origin (the pivot) to the tool ball at ``offset`` (3,)."""
     offset = np.array(offset, dtype=float).reshape(1, 3)
-    length = np.array([float(length)])
-    return kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, length, i, h, c),
+    lengths = np.array([float(length)])
+    return kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, lengths, i, h, c),
                              noise_model([sigma], robust), index, held, t_key=t_key, q_key=q_key, q_fixed=q_fixed,
                              chain=chain)
 

@@ -282,7 +282,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         noise_mode = NoiseMode.DECLARED
     state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
                                                                    outlier_mode)
-    return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
+    return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
                     outlier_mode, held_info, theta_start, priors)
 
 
@@ -445,6 +445,7 @@ def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
     if getattr(params, "block", None) is None:  # BlockParameters, or set-up parameters around them
         return {}
     names = list(params.block.names)
+    assert options.joint_errors is not None  # a block is built only from a spec
     return {"spec": options.joint_errors.to_dict(), "names": names,
             "map_terms": sum(n.startswith("map.") for n in names),
             "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],

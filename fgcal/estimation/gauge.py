@@ -31,7 +31,7 @@ def used_blocks(ds: Dataset, levels) -> set:
     used = set()
     for lv in levels:
         kind = BY_LEVEL.get(lv)
-        if getattr(kind, "uses_setup", False):
+        if kind is not None and getattr(kind, "uses_setup", False):
             used |= set(kind.blocks_of(getattr(ds, lv)).tolist())
     return used
 

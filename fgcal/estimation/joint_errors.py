@@ -19,6 +19,7 @@ import logging
 import re
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
@@ -187,6 +188,7 @@ class JointErrorBlock:
         for k, (kind, j, h) in enumerate(self._terms()):
             if kind == "compliance":
                 if tau is None:
+                    assert self.inertials is not None  # a compliance term needs the masses
                     tau = gravity_torques(slots, q, self.inertials, self.payload, self.chain)
                 G[:, j, k] = tau[:, j]
             else:
@@ -202,7 +204,7 @@ class BlockParameters:
     geometry only; ``names``, ``units``, ``nominal`` and the unit conversions cover both.
     """
 
-    geometric: object
+    geometric: Any  # a ParameterSet (or a SetupParameters over one)
     block: JointErrorBlock
 
     @property

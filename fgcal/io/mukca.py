@@ -174,7 +174,10 @@ def read_mukca(directory, robot_file, n_joints: int, chain: dict | None, distanc
     for side, names in sides.items():
         if not names:
             continue
-        q_all, pose, fixture, lines = [], [], [], []
+        q_all: list = []
+        pose: list[int] = []
+        fixture: list[str] = []
+        lines: list = []
         fixtures, distances = {}, []
         for p in names:
             present = []

@@ -185,6 +185,7 @@ class Dataset:
         other = st != self.world_station
         if other.any():
             c = self.centres
+            assert c.line is not None  # read from a file
             self.station_centres = StationPointObservations(c.pose[other], c.ball[other], c.xyz[other], st[other],
                                                             c.line[other])
             self.centres = c.subset(~other) if (~other).any() else None

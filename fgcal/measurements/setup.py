@@ -261,7 +261,10 @@ class SetupLayout:
     def build(cls, spec: SetupSpec, starts: dict) -> SetupLayout:
         """``starts``: block name -> its start value (a point (3,), a plane (normal (3,), d), a
         station's entries (6,)) for blocks whose value is unknown."""
-        offset, reference, start, free = {}, {}, [], []
+        offset: dict[str, int] = {}
+        reference: dict[str, np.ndarray] = {}
+        start: list[float] = []
+        free: list[bool] = []
         for name, f in spec.fixtures.items():
             kind = BLOCK_KINDS[f.type]
             offset[name] = len(start)
@@ -365,7 +368,7 @@ class SetupLayout:
     def describe(self, s) -> dict:
         """The blocks' values in ``s`` as a plain dict (points mm; planes unit normal and offset mm;
         stations ``pose``: phi, theta, psi (deg), px, py, pz (mm); other kinds their entries)."""
-        out = {}
+        out: dict[str, dict[str, object]] = {}
         for name, f in self.spec.fixtures.items():
             k = self.offset[name]
             if f.type == "point":

@@ -4,6 +4,7 @@ smoothing by the batch solve. No I/O here."""
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 
@@ -218,7 +219,7 @@ class _Engine:
     def _report(self, rec: PoseData, reason=None, m: PoseMeasurement | None = None, f: float = 1.0) -> UpdateReport:
         """The pose's report (accepted when ``reason`` is None), with what a replay needs: the
         noise estimate the pose added, and for an accepted pose its noise factor and how it was taken."""
-        journal = {} if self.noise.last is None else {"noise": list(self.noise.last)}
+        journal: dict[str, Any] = {} if self.noise.last is None else {"noise": list(self.noise.last)}
         if reason is not None:
             return UpdateReport(rec.pose, False, reason, journal)
         self.records.append(rec)

@@ -54,6 +54,7 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, prediction=None, spr
     bad += [f"ball {b}: {len(p)} probe points" for b, p in rec.probes if len(p) < 3]
     sigma = max(sigma_cmm, 1e-6)
     prefit([rec], tooling, sigma_cmm)
+    assert rec.fits is not None  # set by prefit
     fits = [rec.fits[j][1:] for j, (_, p) in enumerate(rec.probes) if len(p) >= 3]
     kept, narrow = [], {}
     for (ball, pts), (fit, mirror, thin) in zip(usable, fits):

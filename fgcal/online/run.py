@@ -84,6 +84,7 @@ class OnlineRun:
         import fcntl
 
         ck = self.checkpoint
+        assert ck is not None  # opened only with a checkpoint
         if self.ds.path is not None:
             folder = Path(self.ds.path).resolve()
             target = ck.resolve()
@@ -242,7 +243,7 @@ class OnlineRun:
         gone = {h["name"] for h in held}
         keep = [i for i, n in enumerate(params.names) if n not in gone]
         x, cov_all, layout = self.engine.estimate_all()
-        kept = ParameterSet(self.model, tuple(params.names[i] for i in keep))
+        kept: ParameterSet | SetupParameters = ParameterSet(self.model, tuple(params.names[i] for i in keep))
         if layout is not None:  # the set-up blocks' free entries follow, as the batch names them
             keep += list(range(len(params), len(x)))
             kept = SetupParameters(kept, layout)

@@ -198,7 +198,7 @@ class OnlineSetup:
         prior = layout.prior()[1][n_before:] if layout is not None else np.zeros(0)
         wide = np.concatenate([[WIDE_PRIOR_MM] * 3 if self.spec.fixtures[n].type == "point"
                                else [WIDE_PRIOR_MM / 1000.0] * 2 + [WIDE_PRIOR_MM]
-                               for n in started if not self.spec.fixtures[n].fixed] or [np.zeros(0)])
+                               for n in started if not self.spec.fixtures[n].fixed] or [[]])
         sigma = np.where(np.isfinite(prior), prior, wide)
         groups = []
         here = [(lv, b, n) for lv, b, n in rec.contacts if layout is not None and n in layout.offset]
@@ -267,7 +267,7 @@ def _groups(kinds, contacts, q, tooling, layout, current: bool) -> list:
     return out
 
 
-def _centres(engine, theta, touches):
+def _centres(engine, theta, touches) -> tuple[np.ndarray, np.ndarray]:
     """Predicted ball centres (k, 3) and tool origins (k, 3) of ``touches`` ((q, ball), ...) at ``theta``."""
     balls = engine.ds.tooling.balls
     centres, origins = [], []

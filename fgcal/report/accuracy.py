@@ -62,7 +62,8 @@ def accuracy_stats(errors_mm, error_xyz_mm=None) -> AccuracyStats:
         return AccuracyStats(0, nan, nan, nan, nan, nan)
     bias = None
     if error_xyz_mm is not None and len(error_xyz_mm):
-        bias = tuple(float(v) for v in np.mean(np.asarray(error_xyz_mm, dtype=float), axis=0))
+        bx, by, bz = (float(v) for v in np.mean(np.asarray(error_xyz_mm, dtype=float), axis=0))
+        bias = (bx, by, bz)
     return AccuracyStats(int(e.size), float(e.mean()), float(e.std(ddof=1)) if e.size > 1 else 0.0,
                          float(np.sqrt(np.mean(e**2))), float(np.percentile(e, 95)), float(e.max()), bias)
 

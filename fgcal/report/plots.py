@@ -72,7 +72,7 @@ def plot_residuals(result: CalibrationResult, level: str, ax=None):
         ax.hist(values, bins=min(60, max(10, values.size // 10)), density=True, color="0.6", label="residuals")
         summary_key = {"probes_mm": "probes", "centres_mm": "centres", "poses_position_mm": "poses",
                        "poses_rotation_deg": "poses", "joints_deg": "joints"}.get(level)
-        s = result.levels.get(summary_key)
+        s = result.levels.get(summary_key) if summary_key else None
         sigma = None
         if s is not None:
             sigma = s.sigma_rotation_deg if level == "poses_rotation_deg" else s.sigma

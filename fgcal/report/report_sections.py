@@ -132,7 +132,7 @@ def _parameter_rows(result: CalibrationResult):
     header = ["name", "unit", "nominal", "estimate", "sigma", "deviation", "95% interval", "deviation/sigma", "flags"]
     rows, flagged = [], []
     for r in parameter_table(result):
-        if r.sigma is None:
+        if r.sigma is None or r.interval95 is None:
             cells = [r.name, r.unit, f"{r.nominal:.8g}", f"{r.estimate:.8g}", "-", "0", "-", "-"]
         else:
             est, sig = round_to_sigma(r.estimate, r.sigma)

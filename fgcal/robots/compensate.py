@@ -115,7 +115,7 @@ class Compensation:
 
 def _choose_branch(model: RobotModel, x_seed, targets) -> tuple[Branch | None, np.ndarray | None]:
     """The PUMA branch whose nominal solutions are within the limits for the most targets."""
-    best = (None, None, -1)
+    best: tuple[Branch | None, np.ndarray | None, int] = (None, None, -1)
     for branch in BRANCHES:
         q, ok = solve_puma_batch(model, targets, branch, slots=x_seed)
         ok = ok & np.all(np.isfinite(q), axis=1) & model.in_limits(np.nan_to_num(q))

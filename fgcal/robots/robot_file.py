@@ -264,7 +264,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     def value(name):
         return round(float(values[model.slot(name)]), 12)
 
-    out = {"format": FORMAT, "name": model.name}
+    out: dict[str, object] = {"format": FORMAT, "name": model.name}
     if model.description:
         out["description"] = model.description
     out["base"] = {f: value(f"base.{f}") for f in EULER_FIELDS}
@@ -279,7 +279,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     if model.joint_names != default_names or not np.all(model.joint_is_angle):
         out["joints"] = [{"name": nm, "type": t.value} for nm, t in zip(model.joint_names, model.joint_types)]
     if model.joint_map is not None or model.joint_offset is not None:
-        c = {}
+        c: dict[str, list] = {}
         if model.joint_map is not None:
             c["matrix"] = [[float(v) for v in row] for row in model.joint_map]
         if model.joint_offset is not None:

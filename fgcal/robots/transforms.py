@@ -93,7 +93,7 @@ def matrix_to_quaternion(R) -> np.ndarray:
         tr = np.trace(m)
         if tr > 0:
             s = 2.0 * np.sqrt(tr + 1.0)
-            q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+            q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
         else:
             i = int(np.argmax(np.diag(m)))
             j, n = (i + 1) % 3, (i + 2) % 3
@@ -103,8 +103,7 @@ def matrix_to_quaternion(R) -> np.ndarray:
             q[1 + i] = 0.25 * s
             q[1 + j] = (m[j, i] + m[i, j]) / s
             q[1 + n] = (m[n, i] + m[i, n]) / s
-        q = np.asarray(q)
-        q /= np.linalg.norm(q)
+        q = q / np.linalg.norm(q)
         out[k] = q if q[0] >= 0 else -q
     return out.reshape(R.shape[:-2] + (4,))
 

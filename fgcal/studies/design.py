@@ -251,7 +251,7 @@ class Candidates:
         scale = deviations.sigmas(params.names)
         S, P = layout.n_setup, len(params.names)
         prior = np.zeros((P + S, P + S))
-        if S:
+        if S and layout.setup is not None:
             prior[P:, P:] = layout.setup.prior_information(layout.setup.start)
         # Of parameters the pool confounds, the estimator holds the tool's angles first: so does the design.
         order = _hold_order(params.names)

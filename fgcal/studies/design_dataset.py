@@ -97,7 +97,8 @@ class DatasetDesign:
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
-        return tuple(float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
+        q25, q50, q75 = (float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
+        return q25, q50, q75
 
     def summary(self) -> list[str]:
         lo, med, hi = self.random_quartiles()

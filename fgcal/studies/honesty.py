@@ -90,7 +90,7 @@ def add_mirrored_caps(ds, truth, n: int, rng, half_angle_deg: float = 8.0) -> li
 
     pr = ds.probes
     keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
-    out = []
+    out: list[tuple[int, str]] = []
     for k in rng.permutation(len(keys)):
         if len(out) == n:
             break
@@ -152,7 +152,9 @@ def _reference(result, truth, model, q, points) -> np.ndarray:
     if not held:
         return t
     params = ParameterSet(model, tuple(names + held))
-    J = jacobians(truth, q, points).point_slots[..., params.index].reshape(-1, len(names) + len(held))
+    slots = jacobians(truth, q, points).point_slots
+    assert slots is not None  # asked for by the points
+    J = slots[..., params.index].reshape(-1, len(names) + len(held))
     x = result.slot_vector()
     dh = np.array([truth[SLOT_NAMES.index(n)] - x[SLOT_NAMES.index(n)] for n in held])
     return t + np.linalg.lstsq(J[:, :len(names)], J[:, len(names):] @ dh, rcond=None)[0]

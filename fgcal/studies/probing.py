@@ -82,8 +82,8 @@ class ProbedPoses:
             ok[whole], T[whole] = rigid_fits(tool[whole], centre[whole], np.sqrt(var[whole].mean(axis=1)))
         for k in np.nonzero(~whole & (good.sum(axis=1) >= 3))[0]:  # a ball failed its check: the other balls
             g = good[k]
-            fit = rigid_fit(tool[k, g], centre[k, g], sigma=float(np.sqrt(var[k, g].mean())))
-            ok[k], T[k] = fit.ok, fit.T
+            rigid = rigid_fit(tool[k, g], centre[k, g], sigma=float(np.sqrt(var[k, g].mean())))
+            ok[k], T[k] = rigid.ok, rigid.T
         rows = np.nonzero(ok)[0]
         return rows, T[rows]
 

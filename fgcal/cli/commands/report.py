@@ -23,7 +23,7 @@ def _cmd_report(args) -> int:
         text = read_text_file(args.verify, max_bytes=256 * 1024 * 1024)
         try:
             verification = json.loads(text)
-        except ValueError as exc:
+        except json.JSONDecodeError as exc:
             raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
                              f"line {getattr(exc, 'lineno', '?')})") from None
         from fgcal.estimation.verification import check_verification
