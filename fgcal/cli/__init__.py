@@ -20,8 +20,19 @@ from fgcal.cli.commands.design import _cmd_design
 from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
-from fgcal.cli.commands.options import (count, nonnegative_deg, nonnegative_mm, number, payload_spec, positive,
-                                        positive_deg, positive_mm, probability, scheduler_address, seed)
+from fgcal.cli.commands.options import (
+    count,
+    nonnegative_deg,
+    nonnegative_mm,
+    number,
+    payload_spec,
+    positive,
+    positive_deg,
+    positive_mm,
+    probability,
+    scheduler_address,
+    seed,
+)
 from fgcal.cli.commands.report import _cmd_report
 from fgcal.cli.commands.simulate import _cmd_simulate
 from fgcal.cli.commands.study import _cmd_study

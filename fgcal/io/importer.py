@@ -22,17 +22,18 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.errors import DatasetError, FgcalError
+from fgcal.io.import_checks import check_fit
+from fgcal.io.skipped import skipped_summary
+from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
+from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.measurements.handeye import fit_base_and_point, fit_base_and_tool
 from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
-from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
 from fgcal.robots.transforms import matrix_to_quaternion
-from fgcal.io.skipped import skipped_summary
 from fgcal.util.yamlio import dump_yaml
 
-__all__ = ["DEFAULT_POSITION_SIGMA", "DEFAULT_ORIENTATION_SIGMA", "ImportResult", "to_datasets", "import_table"]
+__all__ = ["DEFAULT_ORIENTATION_SIGMA", "DEFAULT_POSITION_SIGMA", "ImportResult", "import_table", "to_datasets"]
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,8 @@ class ImportResult:
         RMS distance (mm) between measured and modelled points after the base and tool fit.
     skipped : list of str
         Rows of the source left out, ``"line L: reason"``.
+    rotation_rms_deg : float or None
+        RMS angle (deg) between modelled and measured orientations after the fit (pose data).
     """
 
     calibration: Dataset
@@ -64,6 +67,7 @@ class ImportResult:
     robot: dict
     rms: float
     skipped: list
+    rotation_rms_deg: float | None = None
 
     def save(self, out, overwrite: bool = False) -> list[Path]:
         """Write the calibration dataset to ``out`` and the held-out one to ``out-holdout``."""
@@ -95,7 +99,8 @@ def _noise(m: Measurements, position_sigma, orientation_sigma, joint_resolution)
 def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = False, holdout: float = 0.0,
                 rng: np.random.Generator | None = None, position_sigma: float | None = None,
                 orientation_sigma: float | None = None, joint_resolution: float = 0.0, name: str | None = None,
-                provenance: dict | None = None) -> ImportResult:
+                provenance: dict | None = None, chain: dict | None = None,
+                accept_fit: bool = False) -> ImportResult:
     """Calibration (and held-out) datasets with base and tool fitted to the measurements.
 
     Parameters
@@ -117,10 +122,21 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         Name of the written robot model (default ``ROBOT-imported``).
     provenance : dict, optional
         Added to each dataset's provenance.
+    chain : dict, optional
+        ``{"base": LINK, "tip": LINK}``: the chain of a URDF with more than one leaf.
+    accept_fit : bool
+        Import even when the nominal model's fit looks like a unit or convention mistake
+        (:func:`fgcal.io.import_checks.check_fit`); the findings are logged as warnings.
+
+    Raises
+    ------
+    DatasetError
+        When the fit looks like such a mistake (and ``accept_fit`` is false): the message names
+        the likely cause and the option that fixes it.
     """
     if not 0 <= holdout < 1:
         raise FgcalError("--holdout is a fraction from 0 to below 1")
-    model = load_model(robot)
+    model = load_model(robot, chain=chain)
     n_joints = model.joint_limits.shape[0]
     if m.joints_rad.shape[1] != n_joints:
         raise DatasetError(f"{m.source}: {m.joints_rad.shape[1]} joint columns, robot {model.name} has {n_joints} joints")
@@ -141,18 +157,26 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
                            f"{MIN_ROWS}")
     # Fitted on the calibration rows only, so the held-out rows stay unseen; measured orientations
     # are used for the start even when only positions are kept.
-    fit = np.flatnonzero(~hold)
-    if len(fit) > MAX_FIT_ROWS:  # 12 parameters: evenly spread rows fit them as well, in bounded memory
-        fit = fit[np.linspace(0, len(fit) - 1, MAX_FIT_ROWS).round().astype(int)]
+    rows_fit = np.flatnonzero(~hold)
+    if len(rows_fit) > MAX_FIT_ROWS:  # 12 parameters: evenly spread rows fit them as well, in bounded memory
+        rows_fit = rows_fit[np.linspace(0, len(rows_fit) - 1, MAX_FIT_ROWS).round().astype(int)]
     if m.R is None:
-        slots, rms = fit_base_and_point(model, m.joints_rad[fit], m.xyz[fit])
+        slots, rms = fit_base_and_point(model, m.joints_rad[rows_fit], m.xyz[rows_fit])
     else:
-        slots, rms = fit_base_and_tool(model, m.joints_rad[fit], m.T[fit])
-    log.info("base and tool fitted to %d rows: RMS %.3g mm", (~hold).sum(), rms)
+        slots, rms = fit_base_and_tool(model, m.joints_rad[rows_fit], m.T[rows_fit])
+    fit = check_fit(model, slots, m.joints_rad[rows_fit], m.xyz[rows_fit], None if m.R is None else m.R[rows_fit])
+    log.info("base and tool fitted to %d rows: RMS %.3g mm%s", len(rows_fit), rms,
+             "" if fit.rotation_rms_deg is None else f", {fit.rotation_rms_deg:.3g} deg")
+    if not fit.ok:
+        if not accept_fit:
+            raise DatasetError(f"{m.source}: " + "; ".join(fit.problems)
+                               + " (--accept-fit imports it anyway)")
+        for problem in fit.problems:
+            log.warning("%s: %s (imported: --accept-fit)", m.source, problem)
     model_dict = model_to_dict(model, slots)
     model_dict["name"] = name or f"{model.name}-imported"
     model_dict["description"] = (f"{model.name} nominal links; base (instrument to robot) and tool (flange to the "
-                                 f"measured {'point' if m.R is None else 'frame'}) fitted to {len(fit)} rows of "
+                                 f"measured {'point' if m.R is None else 'frame'}) fitted to {len(rows_fit)} rows of "
                                  f"{Path(m.source).name} (RMS {rms:.3g} mm before calibration)")
     model_dict.pop("volume", None)
     model_dict["tooling"] = {"radius": 0.0, "balls": {PROBE: [0.0, 0.0, 0.0]}}
@@ -173,7 +197,7 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         return ds
 
     return ImportResult(make(~hold, "calibration"), make(hold, "holdout") if hold.any() else None, model_dict, rms,
-                        list(m.skipped))
+                        list(m.skipped), fit.rotation_rms_deg)
 
 
 def import_table(path, robot: str, spec: ColumnSpec, **options) -> ImportResult:

@@ -18,7 +18,7 @@ from fgcal.errors import DatasetError
 from fgcal.io.skipped import bounded
 from fgcal.io.table_io import QUATERNION_NORM_TOLERANCE, AngleUnit, LengthUnit, Measurements, read_columns, read_lines
 
-__all__ = ["read_tum", "join_by_time", "read_tum_with_joint_log"]
+__all__ = ["join_by_time", "read_tum", "read_tum_with_joint_log"]
 
 
 def _is_number(text: str) -> bool:

@@ -31,11 +31,11 @@ import numpy as np
 
 from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
-from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
+from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.util.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
-__all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT", "euler_dict"]
+__all__ = ["FORMAT", "euler_dict", "load_model", "model_from_dict", "model_to_dict", "save_model"]
 
 FORMAT = "fgcal-robot/1"
 
@@ -222,11 +222,12 @@ def _check_urdf_block(value, n: int, source: str) -> None:
     ok = isinstance(value, dict) and isinstance(value.get("text"), str) \
         and all(value.get(k) is None or isinstance(value.get(k), str) for k in ("base", "tip"))
     fc = value.get("frame_changes") if ok else None
-    ok = ok and isinstance(fc, list) and len(fc) == n and all(
-        np.shape(c) == (4, 4) and np.all(np.isfinite(np.asarray(c, dtype=float))) for c in fc
-        if isinstance(c, list) and all(isinstance(r, list) and all(isinstance(x, (int, float)) for x in r) for r in c))
-    ok = ok and all(isinstance(c, list) and all(isinstance(r, list) and all(isinstance(x, (int, float)) for x in r)
-                                                 for r in c) for c in fc)
+
+    def matrix(c) -> bool:
+        return (isinstance(c, list) and len(c) == 4 and all(isinstance(r, list) and len(r) == 4 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in r) for r in c))
+
+    ok = ok and isinstance(fc, list) and len(fc) == n and all(matrix(c) for c in fc)
     if not ok:
         raise ModelError(f"{source}: urdf: expected the block fgcal writes on import ({{text: URDF, base: LINK, "
                          f"tip: LINK, frame_changes: {n} 4x4 matrices}}), got {short_repr(value)}")
@@ -283,7 +284,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     def value(name):
         return round(float(values[model.slot(name)]), 12)
 
-    out = {"format": FORMAT, "name": model.name}
+    out: dict[str, object] = {"format": FORMAT, "name": model.name}
     if model.description:
         out["description"] = model.description
     out["base"] = {f: value(f"base.{f}") for f in EULER_FIELDS}
@@ -298,7 +299,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     if model.joint_names != default_names or not np.all(model.joint_is_angle):
         out["joints"] = [{"name": nm, "type": t.value} for nm, t in zip(model.joint_names, model.joint_types)]
     if model.joint_map is not None or model.joint_offset is not None:
-        c = {}
+        c: dict[str, list] = {}
         if model.joint_map is not None:
             c["matrix"] = [[float(v) for v in row] for row in model.joint_map]
         if model.joint_offset is not None:

@@ -6,7 +6,6 @@ import logging
 import os
 from pathlib import Path
 
-
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.errors import FgcalError
 
