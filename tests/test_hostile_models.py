@@ -88,3 +88,13 @@ def test_model_urdf_block_checked(value):
 def test_builtin_models_still_load():
     for name in ("puma560", "ur10", "ur5"):
         assert load_model(name).n_joints == 6
+
+
+def test_urdf_first_axis_removed_is_one_error():
+    """Found by tests/test_properties.py: joint 1 without <axis> (x by default) put the base frame at
+    the ZYX singularity: a ValueError traceback, now one ModelError line."""
+    text = PANDA.replace('<axis xyz="0 0 1"/>', "", 1)
+    try:
+        model_from_urdf(text, "p.urdf", **CHAIN)
+    except ModelError as exc:
+        assert "\n" not in str(exc)

@@ -207,7 +207,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec
             raise DatasetError(f"{path}: {what} must be a finite number, got {short_repr(value)}")
         if minimum is not None and value < minimum:
             raise DatasetError(f"{path}: {what} must be >= {minimum}, got {short_repr(value)}")
-        if abs(value) > MAX_META_VALUE:  # squared in the weights: 1e308 overflows
+        if abs(value) > MAX_META_VALUE and not what.endswith(".normal"):  # squared in weights; a normal is a direction
             raise DatasetError(f"{path}: {what} = {value:g} is absurdly large (beyond {MAX_META_VALUE:g}; a unit "
                                "mistake?)")
         return float(value)

@@ -237,8 +237,12 @@ def model_from_urdf(text: str, source: str = "<urdf>", base: str | None = None, 
         # singular: calibrate a frame turned by 90 deg about y, and keep the turn as a constant.
         tool_offset = _frame(rot(1, np.pi / 2), np.zeros(3))
         A_t = A_t @ np.linalg.inv(tool_offset)
-    nominal = np.concatenate([to_euler_zyx_trans(A_b), np.array(rows, dtype=float).reshape(-1),
-                              to_euler_zyx_trans(A_t)])
+    try:
+        nominal = np.concatenate([to_euler_zyx_trans(A_b), np.array(rows, dtype=float).reshape(-1),
+                                  to_euler_zyx_trans(A_t)])
+    except ValueError as exc:  # the base frame at the ZYX singularity (found by tests/test_properties.py)
+        raise ModelError(f"{source}: the chain's base or tool frame cannot be written as ZYX angles ({exc}); "
+                         "check the first joint's <axis> and <origin>") from None
     limits = []
     for j in moving:
         wide = 4 * np.pi if _MOVING[j.kind] is JointType.REVOLUTE else 1e4
