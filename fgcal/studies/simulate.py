@@ -32,6 +32,7 @@ from fgcal.studies.simulate_setup import SetupSimulation, simulate_contacts, sta
 __all__ = ["CONTACT_LEVELS", "SetupSimulation", "SimulationSettings", "draw_truth", "measure", "simulate"]
 
 CONTACT_LEVELS = ("contacts", "plane_contacts")  # simulated by fgcal.studies.simulate_setup, not per pose
+EXACT_SEATING_SIGMA = 1e-6  # mm: the contact_sigma declared for exact seatings (a dataset refuses 0)
 
 log = logging.getLogger(__name__)
 
@@ -233,7 +234,7 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
         distances = cp.setup.distances
         setup_truth.update(cp.truth)
         noise = replace(noise, extra=tuple((k, v) for k, v in noise.extra if k != "contact_sigma")
-                        + (("contact_sigma", float(s.setup.contact_sigma)),))
+                        + (("contact_sigma", float(s.setup.contact_sigma or EXACT_SEATING_SIGMA)),))
         provenance["contacts"] = {"placements": s.setup.placements, "socket_distance_mm": s.setup.socket_distance,
                                   "configs": s.setup.configs, "datum": s.setup.datum, "plane": s.setup.plane,
                                   "ball": ball}
@@ -259,7 +260,8 @@ def _check_settings(model: RobotModel, s: SimulationSettings) -> Tooling:
     for lv in s.levels:
         if lv not in all_levels():
             raise FgcalError(f"unknown measurement level {lv!r} ({', '.join(all_levels())})")
-    if s.n_balls < 1 or s.n_balls > len(tooling.balls):
+    regular = [lv for lv in s.levels if lv not in CONTACT_LEVELS]
+    if regular and (s.n_balls < 1 or s.n_balls > len(tooling.balls)):
         raise FgcalError(f"--balls must be between 1 and {len(tooling.balls)}")
     if s.probes_per_ball < 4 and "probes" in s.levels:
         raise FgcalError("--probes-per-ball must be at least 4 (a sphere needs 4 points)")

@@ -25,12 +25,12 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from fgcal.errors import FgcalError
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec
 from fgcal.robots.model import RobotModel
+from fgcal.robots.single_pose import jacobians_one
 from fgcal.robots.transforms import rot
 
 __all__ = ["ContactPoses", "SetupSimulation", "reach", "simulate_contacts", "station_truths", "to_station_frame"]
@@ -115,58 +115,66 @@ def _sampling_limits(model: RobotModel) -> tuple[np.ndarray, np.ndarray]:
 
 def _ball_point(model: RobotModel, slots, q, ball) -> tuple[np.ndarray, np.ndarray]:
     """The ball centre (3,) mm at joints ``q`` (n,) and its Jacobian in the joints (3, n)."""
-    jac = model.chain.jacobians(slots, q[None], offsets=np.asarray(ball, dtype=float)[None])
+    jac = jacobians_one(model.chain, slots, q, offsets=np.asarray(ball, dtype=float)[None])
     return jac.points[0, 0], jac.point_joints[0, 0]
 
 
-def reach(model: RobotModel, slots, target, ball, q_start, tol_mm: float = 1e-9) -> np.ndarray | None:
+def reach(model: RobotModel, slots, target, ball, q_start, tol_mm: float = 1e-10,
+          max_steps: int = 80) -> np.ndarray | None:
     """Joints (n,) within the limits putting tool point ``ball`` (3,) at ``target`` (3,) mm, or None.
 
-    Bounded least squares from ``q_start`` with the analytic Jacobian, then minimum-norm
-    Gauss-Newton steps to ``tol_mm`` (the problem is underdetermined: n joints, 3 equations).
+    Damped least squares (Levenberg-Marquardt on the minimum-norm step, the joints clipped into
+    their limits) from ``q_start``, to ``tol_mm``; None when it stalls (a target out of reach, a
+    limit in the way). The problem is underdetermined (n joints, 3 equations): the start picks
+    the configuration.
     """
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
     target = np.asarray(target, dtype=float)
-
-    def fun(q):
-        return _ball_point(model, slots, q, ball)[0] - target
-
-    def jac(q):
-        return _ball_point(model, slots, q, ball)[1]
-
-    margin = 1e-6 * (hi - lo)
-    q0 = np.clip(q_start, lo + margin, hi - margin)
-    q = least_squares(fun, q0, jac=jac, bounds=(lo, hi), method="dogbox", xtol=1e-3, ftol=1e-3, gtol=1e-3,
-                      max_nfev=100).x
-    for _ in range(10):
-        p, J = _ball_point(model, slots, q, ball)
-        e = p - target
-        if np.linalg.norm(e) < 0.1 * tol_mm:
-            break
-        try:
-            q = q - J.T @ np.linalg.solve(J @ J.T, e)
-        except np.linalg.LinAlgError:
+    q = np.clip(np.asarray(q_start, dtype=float), lo, hi)
+    p, J = _ball_point(model, slots, q, ball)
+    e = p - target
+    err = float(np.linalg.norm(e))
+    damping = 1e2  # mm^2 against J J^T ~ (1000 mm/rad)^2
+    for k in range(max_steps):
+        if err <= tol_mm:
+            return q
+        if k == max_steps // 3 and err > 1.0:  # far off after a third of the steps: out of reach from here
             return None
-    if not np.linalg.norm(fun(q)) <= tol_mm or np.any(q < lo) or np.any(q > hi):
-        return None
-    return q
+        step = J.T @ np.linalg.solve(J @ J.T + damping * np.eye(3), e)
+        q_new = np.clip(q - step, lo, hi)
+        p_new, J_new = _ball_point(model, slots, q_new, ball)
+        e_new = p_new - target
+        err_new = float(np.linalg.norm(e_new))
+        if err_new < err:
+            q, J, e, err = q_new, J_new, e_new, err_new
+            damping = max(damping / 10.0, 1e-12)
+        else:
+            damping *= 10.0
+            if damping > 1e12:
+                break
+    return q if err <= tol_mm else None
 
 
 def _angle_deg(Ra, Rb) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def _configurations(model, slots, target, ball, rng, count, keep=None) -> list[np.ndarray]:
+def _configurations(model, slots, target, ball, rng, count, keep=None, near=()) -> list[np.ndarray]:
     """Up to ``count`` varied joint sets reaching ``target()`` (a new seating each time): each from a
-    random start, pairwise more than ``MIN_JOINT_SEPARATION_DEG`` and ``MIN_ROTATION_DEG`` apart;
-    ``keep(T)`` may refuse a tool pose."""
+    random start (or, every other try, from one of the joint sets ``near`` moved by N(0, 0.3 rad)),
+    pairwise more than ``MIN_JOINT_SEPARATION_DEG`` and ``MIN_ROTATION_DEG`` apart; ``keep(T)`` may
+    refuse a tool pose."""
     lo, hi = _sampling_limits(model)
     found: list = []
     frames: list = []
-    for _ in range(TRIES_PER_CONFIG * count):
+    for attempt in range(TRIES_PER_CONFIG * count):
         if len(found) == count:
             break
-        q = reach(model, slots, target(), ball, rng.uniform(lo, hi))
+        if len(near) and attempt % 2 == 0:
+            start = near[rng.integers(len(near))] + rng.normal(size=model.n_joints) * 0.3
+        else:
+            start = rng.uniform(lo, hi)
+        q = reach(model, slots, target(), ball, start)
         if q is None:
             continue
         T = model.forward(slots, q[None])[0]
@@ -288,7 +296,7 @@ def _plane_contacts(model, slots, rng, s: SetupSimulation, ball, radius) -> tupl
             x = x0 + rho * (np.cos(phi) * u + np.sin(phi) * v)
             centre = x + (radius + rng.normal() * s.contact_sigma) * n
             got = _configurations(model, slots, lambda c=centre: c, ball, rng, 1,
-                                  keep=lambda T, c=centre, n=n: float(n @ (T[:3, 3] - c)) >= 0.0)
+                                  keep=lambda T, c=centre, n=n: float(n @ (T[:3, 3] - c)) >= 0.0, near=found)
             found += got
         if len(found) == s.plane:
             return found, n, float(n @ x0)

@@ -110,7 +110,7 @@ def add_setup_options(s) -> None:
                    help="the plane's normal is tilted from the world z by up to this, deg (default 10)")
     g.add_argument("--patch-radius", type=positive_float, default=200.0, metavar="MM",
                    help="the plane's contacts spread over a disc of this radius, mm (default 200)")
-    g.add_argument("--contact-sigma", type=nonnegative_float, default=0.02, metavar="MM",
+    g.add_argument("--contact-sigma", type=positive_float, default=0.02, metavar="MM",
                    help="seating error of the ball in a socket or on the plane, mm per axis (default 0.02)")
     g.add_argument("--stations", type=positive_int, default=1, metavar="N",
                    help="the centres measured from N instrument stations in turn (S1 is the world; each other "
