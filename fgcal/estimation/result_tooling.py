@@ -8,7 +8,7 @@ import math
 from fgcal.measurements.contact import CONTACT_FILE
 from fgcal.measurements.types import BY_LEVEL
 
-__all__ = ["tooling_record", "check_tooling"]
+__all__ = ["check_tooling", "tooling_record"]
 
 
 def _finite3(v) -> bool:
