@@ -211,7 +211,7 @@ def test_command_writes_contacts_that_calibrate_and_verify(tmp_path):
     run = _fgcal("simulate", tmp_path / "ds", *common, "--sockets", 2, "--configs", 8, "--plane", 15,
                  "--datum", 6, "--datum-sigma", 0.005, "--seed", 3)
     assert run.returncode == 0, run.stderr
-    assert "32 contacts, 15 plane_contacts" in run.stdout
+    assert "38 contacts, 15 plane_contacts" in run.stdout  # 2 plates x 2 sockets x 8, 6 at the datum
     meta = yaml.safe_load((tmp_path / "ds" / "dataset.yaml").read_text())
     assert meta["fixtures"]["datum"]["sigma"] == 0.005 and meta["fixtures"]["table"] == {"type": "plane"}
     assert meta["noise"]["contact_sigma"] == 0.02 and meta["tool"] == {"radius": 5.0, "balls": {"B": [0.0, 0.0, 30.0]}}

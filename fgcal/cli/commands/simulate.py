@@ -79,7 +79,8 @@ def _cmd_simulate(args) -> int:
         print(f"note: {note}", file=sys.stderr)
     save_dataset(ds, args.out, overwrite=args.force)
     counts = ", ".join(f"{len(getattr(ds, lv))} {lv}" for lv in ds.levels())
-    print(f"wrote {args.out}: {ds.n_poses} poses ({args.plan} plan), {counts}; truth in truth.yaml")
+    plan = f" ({args.plan} plan)" if ds.provenance.get("plan") else ""
+    print(f"wrote {args.out}: {ds.n_poses} poses{plan}, {counts}; truth in truth.yaml")
     return 0
 
 
