@@ -145,21 +145,23 @@ ROBOTS = {"puma560": lambda: load_model("puma560"),
 @pytest.mark.parametrize("robot", sorted(ROBOTS))
 def test_contacts_recover_the_simulated_truth(robot):
     """Three two-socket plates (10 configurations per socket) and 20 table contacts, seating noise
-    0.02 mm, exact readings: the tool point at 60 new poses (aligned) is within 1.5 times the
-    prediction, RMS over four datasets; the seating noise is found; something was to be found."""
-    model = replace(ROBOTS[robot](), tooling=Tooling(0.0, {"B": BALL}))
+    0.02 mm, exact readings, a ball off the tool axis: the tool point at 60 new poses (aligned) is
+    within 1.5 times the prediction, RMS over six datasets (one dataset's ratio scatters from 0.2 to
+    2.2: a few parameter directions dominate it); the seating noise is found; something was to be found."""
+    ball = np.array([15.0, -10.0, 40.0])
+    model = replace(ROBOTS[robot](), tooling=Tooling(0.0, {"B": ball}))
     settings = SimulationSettings(levels=("contacts", "plane_contacts"), noise=Noise(0.01, 0.0, 0.0),
                                   setup=SetupSimulation(placements=3, configs=10, plane=20, contact_sigma=SIGMA,
                                                         distance_sigma=0.0005))
     errors, predicted = [], []
-    for seed in range(4):
+    for seed in range(6):
         ds, _ = simulate(model, np.random.default_rng(seed), settings)
         result = calibrate(ds, model, CalibrationOptions())
         truth = model.slots_from_file_units(np.array([ds.truth[n] for n in model.slot_names]))
         q = _new_joints(model, 100 + seed)
-        err, pred = _tool_point_error(result, model, truth, q, BALL)
+        err, pred = _tool_point_error(result, model, truth, q, ball)
         T0, T = model.forward(model.nominal, q), model.forward(truth, q)
-        assert cs.aligned_rms(T0[:, :3, :3] @ BALL + T0[:, :3, 3], T[:, :3, :3] @ BALL + T[:, :3, 3]) > 10 * pred
+        assert cs.aligned_rms(T0[:, :3, :3] @ ball + T0[:, :3, 3], T[:, :3, :3] @ ball + T[:, :3, 3]) > 10 * pred
         assert result.noise["contacts"].used == pytest.approx(SIGMA, rel=0.3)
         assert "world frame" in result.setup["gauge"]
         errors.append(err)

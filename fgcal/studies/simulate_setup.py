@@ -40,6 +40,7 @@ log = logging.getLogger(__name__)
 MIN_JOINT_SEPARATION_DEG = 20.0  # two configurations at one socket differ by more (norm of the joints' change)
 MIN_ROTATION_DEG = 10.0          # ... and their tool frames by more than this rotation
 TRIES_PER_CONFIG = 12            # IK attempts (random starts) per wanted configuration
+GIVE_UP_AFTER = 3                # ... but none more after this many per configuration found nothing
 MAX_DRAWS = 50                   # fixture locations drawn before giving up
 
 
@@ -168,8 +169,8 @@ def _configurations(model, slots, target, ball, rng, count, keep=None, near=()) 
     found: list = []
     frames: list = []
     for attempt in range(TRIES_PER_CONFIG * count):
-        if len(found) == count:
-            break
+        if len(found) == count or (not found and attempt >= GIVE_UP_AFTER * count):
+            break  # done, or a target nothing reaches: let the caller draw another
         if len(near) and attempt % 2 == 0:
             start = near[rng.integers(len(near))] + rng.normal(size=model.n_joints) * 0.3
         else:
