@@ -250,7 +250,8 @@ def test_command_stations_and_refusals(tmp_path):
              "no tooling"),
             (["--tool-ball", "0,0"], "--tool-ball: expected"),
             (["--tool-ball", "0,0,30,-1", "--plane", "5"], "radius must not be negative"),
-            (["--reflector", "0,0,1", "--tool-ball", "0,0,1", "--sockets", "1"], "give one tool")):
+            (["--reflector", "0,0,1", "--tool-ball", "0,0,1", "--sockets", "1"], "give one tool"),
+            (["--sockets", "1", "--poses", "5"], "--poses and --plan are the instrument's poses")):
         run = _fgcal("simulate", tmp_path / "bad", *args)
         assert run.returncode == 2 and words in run.stderr and len(run.stderr.strip().splitlines()) == 1, run.stderr
 

@@ -276,6 +276,9 @@ def _check_settings(model: RobotModel, s: SimulationSettings) -> Tooling:
     if any(lv in CONTACT_LEVELS for lv in s.levels) != u.has_contacts:
         raise FgcalError("contacts are simulated with --sockets, --datum or --plane (the levels contacts, "
                          "plane_contacts come with them)")
+    if u.has_contacts and not regular and (s.n_poses is not None or s.plan != "random"):
+        raise FgcalError("--poses and --plan are the instrument's poses: contacts alone come from --sockets, "
+                         "--configs, --datum and --plane (add --levels centres, say, for both)")
     if u.has_contacts and (u.ball or tooling.names[0]) not in tooling.balls:
         raise FgcalError(f"no tool ball {u.ball!r} ({', '.join(tooling.names)})")
     if u.placements > 0 and (u.configs < 1 or u.socket_distance <= 0 or u.distance_sigma <= 0):
