@@ -15,9 +15,12 @@ log = logging.getLogger("fgcal")
 
 
 def _cmd_simulate(args) -> int:
+    from dataclasses import replace
+
     from fgcal.io.dataset_io import save_dataset
     from fgcal.measurements.dataset import Noise
     from fgcal.robots.deviations import Deviations
+    from fgcal.robots.model import Tooling
     from fgcal.robots.robot_file import load_model
     from fgcal.studies.simulate import SimulationSettings, simulate
 
@@ -37,10 +40,6 @@ def _cmd_simulate(args) -> int:
         chain = {"base": parts[0], "tip": parts[1]}
     model = load_model(args.robot, chain=chain)
     levels = args.levels
-    from dataclasses import replace
-
-    from fgcal.robots.model import Tooling
-
     if args.reflector is not None and args.tool_ball is not None:
         raise FgcalError("--reflector and --tool-ball: give one tool (a reflector, or a ball that touches)")
     if args.reflector is not None:
