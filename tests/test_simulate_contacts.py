@@ -239,6 +239,9 @@ def test_command_stations_and_refusals(tmp_path):
     assert list(ds.setup.fixtures) == ["S2", "S3"] and len(ds.station_centres) == 20
     result = calibrate(ds, dataset_model(ds), CalibrationOptions())
     assert {f"station.S{k}.pz" for k in (2, 3)} <= set(result.names)
+    run = _fgcal("simulate", tmp_path / "ver", "--reflector", "0,0,50", "--stations", 3, "--truth",
+                 tmp_path / "st" / "truth.yaml")
+    assert run.returncode == 2 and "omit --stations" in run.stderr
     helptext = _fgcal("simulate", "--help").stdout
     for option, unit in (("--sockets", "N"), ("--socket-distance", "mm"), ("--contact-sigma", "mm"),
                          ("--plane-tilt", "deg"), ("--datum-sigma", "mm"), ("--tool-ball", "mm"),

@@ -196,6 +196,9 @@ def simulate(model: RobotModel, rng: np.random.Generator, settings: SimulationSe
     tooling = _check_settings(model, s)
     regular = tuple(lv for lv in s.levels if lv not in CONTACT_LEVELS)
     new_robot = truth is None
+    if not new_robot and s.setup.stations > 1:  # new stations would bear the names of the calibration's
+        raise FgcalError("--stations with --truth: a verification set of the same robot is measured from the "
+                         "world station (its other stations' frames would be new); omit --stations")
     truth = draw_truth(model, rng, s.deviations) if truth is None else np.asarray(truth, dtype=float)
     notes: list = []
     noise = s.noise
