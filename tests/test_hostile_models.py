@@ -98,3 +98,17 @@ def test_urdf_first_axis_removed_is_one_error():
         model_from_urdf(text, "p.urdf", **CHAIN)
     except ModelError as exc:
         assert "\n" not in str(exc)
+
+
+def test_urdf_entities_refused_before_expansion():
+    """An entity expanded 83 times (below expat's 100x guard) made an 18 MB URDF a 1.5 GB document:
+    any <!ENTITY is refused before parsing (URDFs use none); external ones are never fetched."""
+    big = "x" * 1000
+    doc = (f'<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY e "{big}">]>\n'
+           + PANDA.split("?>", 1)[1].replace('name="panda"', 'name="&e;&e;&e;"', 1))
+    with pytest.raises(ModelError, match="entities"):
+        model_from_urdf(doc, "e.urdf", **CHAIN)
+    xxe = '<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY s SYSTEM "file:///etc/passwd">]>\n<robot name="&s;"/>'
+    with pytest.raises(ModelError) as err:
+        model_from_urdf(xxe, "x.urdf")
+    assert "root:" not in str(err.value)

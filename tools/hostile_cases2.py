@@ -112,6 +112,20 @@ def _urdf_limit(attr):
     return f
 
 
+def _urdf_entities():
+    """mk2.urdf: 2 MB of entity text referenced 83 times (the 18 MB / 83x case, scaled down)."""
+    def f(w):
+        t = (w / "mk.urdf").read_text()
+        head, body = t.split("?>", 1)
+        ent = '<!DOCTYPE robot [<!ENTITY e "' + "x" * (2 << 20) + '">]>'
+        body = body.replace("<robot ", "<!-- " + "&e;" * 0 + " -->\n<robot ", 1).replace(
+            'name="panda"', 'name="' + "&e;" * 83 + '"', 1)
+        (w / "mk2.urdf").write_text(head + "?>\n" + ent + body)
+        y = w / "cds" / "dataset.yaml"
+        y.write_text(y.read_text().replace("robot: robot.urdf", "robot: ../mk2.urdf"))
+    return f
+
+
 def _unusable_rows(n):
     def f(w):
         good = (w / "series.csv").read_text().splitlines()
@@ -211,6 +225,7 @@ def special_cases() -> list[Case]:
         Case("urdf limit -inf", ["check", "cds"], _urdf_limit('lower="-inf"'), guard=("cds",), tags=["contacts"]),
         Case("urdf limit -1e300", ["check", "cds"], _urdf_limit('lower="-1e300"'), guard=("cds",), expect="warn",
              words=("taken as",), tags=["contacts"]),
+        Case("urdf entity expanded 83x", ["check", "cds"], _urdf_entities(), guard=("cds",), tags=["contacts"]),
         Case("model urdf: hello", ["check", "ds"], chain(write("ds/m.yaml", _model({"urdf": "hello"})),
                                                          edit(DS_YAML, "robot: puma560", "robot: m.yaml"))),
         Case("model gearbox coupling 1/125", ["simulate", "gear", "--robot", "g.yaml", "--poses", "8"],
