@@ -20,6 +20,7 @@ from fgcal._version import __version__
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
+from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed  # noqa: F401 (also reached here)
 from fgcal.estimation.graph import Graph, Sigmas, State
@@ -70,7 +71,7 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
             kind = BY_LEVEL[level]
             dist, angle = kind.metric(e)
             sigma, sigma_angle = kind.reported_sigma(sig)
-            out[level] = LevelSummary(len(e), _rms(dist), "mm", sigma, vf, redundancy,
+            out[level] = LevelSummary(len(e), _rms(dist), getattr(kind, "unit", "mm"), sigma, vf, redundancy,
                                       None if angle is None else _rms(angle), sigma_angle)
             continue
         norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
@@ -182,6 +183,7 @@ class Solution:
     held: list = field(default_factory=list)  # {"name", "value" (file units), "reason"} per held parameter
     theta_start: np.ndarray | None = None  # the start (nominal chain, base fitted) in internal units
     priors: dict = field(default_factory=dict)  # weakly identifiable parameters: their prior sigma (internal)
+    refused: list = field(default_factory=list)  # rows refused before the solve (fgcal.estimation.admit)
 
 
 def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None):
@@ -230,6 +232,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     if options.joint_errors is not None:
         names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
+    ds, refused = admit_rows(ds, model, levels)
     held_info = []
     if not world_is_fixed(ds, levels):  # the gauge: nothing in the data fixes the world frame
         for n in [n for n in names if n.startswith("base.")]:
@@ -265,7 +268,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
                                                                    outlier_mode)
     return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start, priors)
+                    outlier_mode, held_info, theta_start, priors, refused)
 
 
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
@@ -409,14 +412,19 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         at_readings=at_readings(graph, state, read_raw),
         pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
-        setup=_setup_info(graph, state, held_info))
+        setup=_setup_info(graph, state, held_info, sol.refused))
 
 
-def _setup_info(graph: Graph, state: State, held_info) -> dict:
-    """What a result keeps of the set-up unknowns (see :class:`CalibrationResult`)."""
+def _setup_info(graph: Graph, state: State, held_info, refused=()) -> dict:
+    """What a result keeps of the set-up unknowns (see :class:`CalibrationResult`); with cameras
+    also their start and the refused corners."""
     if graph.setup is None:
         return {}
     out = {**graph.setup.spec.to_dict(), "estimated": graph.setup.describe(graph.setup_values(state.theta))}
+    if any(f.type == "camera" for f in graph.setup.spec.fixtures.values()):
+        out["start"] = graph.setup.describe(graph.setup.start)
+    if refused:
+        out["refused"] = list(refused)
     if any(h["reason"] == GAUGE_REASON for h in held_info):
         out["gauge"] = GAUGE_REASON
     return out

@@ -32,11 +32,12 @@ def used_blocks(ds: Dataset, levels) -> set:
     for lv in levels:
         kind = BY_LEVEL.get(lv)
         if getattr(kind, "uses_setup", False):
-            used |= set(kind.blocks_of(getattr(ds, lv)).tolist())
+            obs = getattr(ds, lv)
+            used |= set(kind.all_blocks(obs) if hasattr(kind, "all_blocks") else kind.blocks_of(obs).tolist())
     return used
 
 
 def setup_size(ds: Dataset, levels) -> int:
     """Free set-up parameters the levels use, less the known distances between them."""
     spec = ds.setup.subset(used_blocks(ds, levels))
-    return sum(BLOCK_KINDS[f.type].size for f in spec.fixtures.values() if not f.fixed) - len(spec.distances)
+    return sum(sum(f.entries_free(BLOCK_KINDS[f.type].size)) for f in spec.fixtures.values()) - len(spec.distances)

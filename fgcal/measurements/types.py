@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from fgcal.measurements.contact import CONTACT, PLANE_CONTACT
 from fgcal.measurements.distance import DISTANCE
+from fgcal.measurements.pixels import PIXELS
 from fgcal.measurements.point import POINT
 from fgcal.measurements.pose import POSE
 from fgcal.measurements.station import STATION_POINT
@@ -16,7 +17,7 @@ from fgcal.measurements.station import STATION_POINT
 __all__ = ["KINEMATIC_TYPES", "BY_LEVEL", "LEVELS", "kinematic_levels", "all_levels", "kinematic_types",
            "register", "unregister", "noise_keys"]
 
-KINEMATIC_TYPES = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT)
+KINEMATIC_TYPES = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT, PIXELS)
 BY_LEVEL = {t.level: t for t in KINEMATIC_TYPES}
 LEVELS = ("probes",) + tuple(BY_LEVEL)  # the dataset's measurement levels, richest first
 
