@@ -22,7 +22,7 @@ from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed  # noqa: F401 (also reached here)
+from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, setup_size, tool_is_free, world_is_fixed  # noqa: F401
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
@@ -241,6 +241,12 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         names = [n for n in names if not n.startswith("base.")]
         if held_info:
             log.info("the world frame: %s", GAUGE_REASON)
+    if tool_is_free(ds, levels):  # a target (or camera) of unknown pose on the tool: the tool's frame is its
+        for n in [n for n in names if n.startswith("tool.")]:
+            held_info.append({"name": n, "value": float(model.slots_to_file_units(model.nominal)[model.slot(n)]),
+                              "reason": TOOL_GAUGE_REASON})
+        names = [n for n in names if not n.startswith("tool.")]
+        log.info("%s", TOOL_GAUGE_REASON)
     _check_equations(ds, levels, len(names) + setup_size(ds, levels))
 
     priors = dict(priors or {})
@@ -372,7 +378,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())
     red_total = sum(n.redundancy for n in noise_table.values())
     outliers = name_outliers(graph, lin, h, ds, pose_ids)
-    costly = [h_ for h_ in held_info if h_["reason"] != GAUGE_REASON]  # the gauge is a choice of frame: no cost
+    costly = [h_ for h_ in held_info if h_["reason"] not in (GAUGE_REASON, TOOL_GAUGE_REASON)]  # a choice of frame
     if costly:
         cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in costly], graph.readings,
                             _measured_points(ds, levels))

@@ -9,7 +9,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.setup import BLOCK_KINDS
 from fgcal.measurements.types import BY_LEVEL
 
-__all__ = ["GAUGE_REASON", "world_is_fixed", "used_blocks", "setup_size"]
+__all__ = ["GAUGE_REASON", "TOOL_GAUGE_REASON", "world_is_fixed", "tool_is_free", "used_blocks", "setup_size"]
 
 
 GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "
@@ -24,6 +24,22 @@ def world_is_fixed(ds: Dataset, levels) -> bool:
         return True
     used = used_blocks(ds, setup_levels)
     return any(ds.setup.fixtures[f].value is not None for f in used)
+
+
+TOOL_GAUGE_REASON = ("the tool frame: the cameras see the tool only through an unknown pose on it (a target's or "
+                     "a camera's), so the tool is held at nominal and that pose is in its frame")
+
+
+def tool_is_free(ds: Dataset, levels) -> bool:
+    """Whether nothing fixes the tool frame: every level is a camera's (a type with ``tool_blocks``)
+    and every block mounted on the tool that it uses is unknown (no value, no prior)."""
+    kinds = [BY_LEVEL.get(lv) for lv in levels]
+    if not kinds or not all(hasattr(k, "tool_blocks") for k in kinds):
+        return False
+    on_tool = set()
+    for lv, k in zip(levels, kinds, strict=True):
+        on_tool |= set(k.tool_blocks(getattr(ds, lv)))
+    return bool(on_tool) and all(ds.setup.fixtures[n].value is None for n in on_tool)
 
 
 def used_blocks(ds: Dataset, levels) -> set:

@@ -181,6 +181,10 @@ class Pixels(SetupMeasurement):
         """Every block the corners use: their cameras and targets."""
         return list(dict.fromkeys(obs.camera.tolist() + obs.target.tolist()))
 
+    def tool_blocks(self, obs: PixelObservations) -> list:
+        """The blocks mounted on the tool (eye-to-hand: targets, eye-in-hand: cameras)."""
+        return [n for n in self.all_blocks(obs) if obs.specs[n].mount == "tool"]
+
     def terms(self, obs: PixelObservations, tooling, row_of_pose, layout=None) -> Terms:
         return Terms(np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int), self._payload(obs, layout))
 
