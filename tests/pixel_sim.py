@@ -14,7 +14,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from contact_sim import UrdfChain, _sample_joints, perturbed_urdf
 
 K_TRUE = np.array([900.0, 905.0, 652.0, 498.0, -0.08, 0.03, 0.0005, -0.0003, 0.0])
@@ -110,9 +109,8 @@ def camera_dataset(out_dir, urdf_path, chain: dict, rng, mode: str = "eye-to-han
         target = pose([-(cols - 1) * square / 2, -(rows - 1) * square / 2, 40.0], 0.2, 0.0, 0.0)
     else:
         camera = pose([0.0, 40.0, 30.0], 0.1, 0.05, -0.05)
-        target = looking_at(np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]))  # placed below
-        target = pose(c + np.array([0.0, 0.0, -350.0]) - np.array([(cols - 1) * square / 2, (rows - 1) * square / 2, 0]),
-                      0.3, 0.0, 0.0)
+        half = np.array([(cols - 1) * square / 2, (rows - 1) * square / 2, 0.0])
+        target = pose(c + np.array([0.0, 0.0, -350.0]) - half, 0.3, 0.0, 0.0)
     ok = []
     for qi, Fi in zip(pool, fk, strict=True):
         T_ct = (np.linalg.inv(camera) @ Fi @ target if mode == "eye-to-hand"
@@ -137,14 +135,16 @@ def camera_dataset(out_dir, urdf_path, chain: dict, rng, mode: str = "eye-to-han
         if n in estimate:
             k_file[i] = K_TRUE[i] * scale[n] if n in scale else 0.0
     ball = "{}" if tool_ball is None else "{B: [" + ", ".join(repr(float(v)) for v in tool_ball) + "]}"
-    noise = f"{{cmm_sigma: {reflector_sigma!r}, joint_resolution: 0.0}}" if reflector_sigma else "{joint_resolution: 0.0}"
+    noise = (f"{{cmm_sigma: {reflector_sigma!r}, joint_resolution: 0.0}}" if reflector_sigma
+             else "{joint_resolution: 0.0}")
     lines = ["format: fgcal-dataset/1", "robot: robot.urdf",
              "chain: {" + ", ".join(f"{k}: {v}" for k, v in chain.items()) + "}",
              "tool:", "  radius: 0.0", f"  balls: {ball}", f"noise: {noise}",
              "provenance: {generator: tests/pixel_sim.py}",
              "cameras:", "  left:", f"    mount: {'world' if mode == 'eye-to-hand' else 'tool'}",
              f"    width: {WIDTH}", f"    height: {HEIGHT}",
-             "    intrinsics: {" + ", ".join(f"{n}: {float(v)!r}" for n, v in zip(INTRINSICS, k_file, strict=True)) + "}",
+             "    intrinsics: {" + ", ".join(f"{n}: {float(v)!r}" for n, v in zip(INTRINSICS, k_file, strict=True))
+             + "}",
              f"    estimate: [{', '.join(estimate)}]", f"    pixel_sigma: {pixel_sigma!r}",
              "targets:", "  board:", f"    mount: {'tool' if mode == 'eye-to-hand' else 'world'}",
              f"    grid: {{rows: {rows}, cols: {cols}, square: {square!r}}}"]
@@ -154,7 +154,8 @@ def camera_dataset(out_dir, urdf_path, chain: dict, rng, mode: str = "eye-to-han
     (out_dir / "joints.csv").write_text("\n".join([header] + jrows) + "\n")
     (out_dir / "pixels.csv").write_text("\n".join(["pose,camera,point,u,v"] + rows_px) + "\n")
     if tool_ball is not None and reflector_sigma:
-        pts = true.point(truth.q, np.asarray(tool_ball, float)) + rng.normal(scale=reflector_sigma, size=(len(truth.q), 3))
+        pts = true.point(truth.q, np.asarray(tool_ball, float))
+        pts = pts + rng.normal(scale=reflector_sigma, size=pts.shape)
         crow = [f"{p},B," + ",".join(repr(float(v)) for v in x) for p, x in enumerate(pts, start=1)]
         (out_dir / "centres.csv").write_text("\n".join(["pose,ball,x,y,z"] + crow) + "\n")
     return truth

@@ -161,7 +161,8 @@ def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
 def _measured_points(ds: Dataset, levels) -> np.ndarray | str:
     if "poses" in levels:
         return "pose"
-    balls = sorted(set().union(*(set(getattr(ds, lv).ball.tolist()) for lv in levels if lv != "poses")))
+    with_balls = [getattr(ds, lv) for lv in levels if lv != "poses" and hasattr(getattr(ds, lv), "ball")]
+    balls = sorted(set().union(*(set(obs.ball.tolist()) for obs in with_balls)))  # pixels have none
     return np.array([ds.tooling.balls[b] for b in balls]).reshape(-1, 3)
 
 

@@ -160,7 +160,7 @@ def _block_name(path, section, name):
 
 def read_cameras(path: Path, data: dict, num, default_sigma: float | None) -> dict:
     """``cameras:`` of ``dataset.yaml`` (DESIGN.md 8.4): name -> :class:`~fgcal.measurements.camera.CameraSpec`."""
-    from fgcal.measurements.camera import CameraSpec, INTRINSICS
+    from fgcal.measurements.camera import INTRINSICS, CameraSpec
 
     raw = data.get("cameras") or {}
     if not isinstance(raw, dict):
@@ -218,7 +218,8 @@ def read_targets(path: Path, data: dict, num) -> dict:
     raw = data.get("targets") or {}
     if not isinstance(raw, dict):
         raise DatasetError(f"{path}: targets must be a mapping {{NAME: {{mount: tool|world, points or grid}}}}")
-    out, owner = {}, {}
+    out: dict = {}
+    owner: dict = {}
     for name, t in raw.items():
         where = _block_name(path, "targets", name)
         if not isinstance(t, dict) or set(t) - TARGET_KEYS:
@@ -226,12 +227,14 @@ def read_targets(path: Path, data: dict, num) -> dict:
         if t.get("mount") not in ("tool", "world"):
             raise DatasetError(f"{where}: mount must be tool (eye-to-hand) or world (eye-in-hand)")
         if ("points" in t) == ("grid" in t):
-            raise DatasetError(f"{where}: give points: {{NAME: [x, y, z]}} or grid: {{rows, cols, square}}, one of them")
+            raise DatasetError(f"{where}: give points: {{NAME: [x, y, z]}} or grid: {{rows, cols, square}}, "
+                               "one of them")
         points = {}
         if "grid" in t:
             g = t["grid"]
-            if (not isinstance(g, dict) or set(g) != {"rows", "cols", "square"}
-                    or not all(isinstance(g[k], int) and not isinstance(g[k], bool) and g[k] > 0 for k in ("rows", "cols"))):
+            whole = isinstance(g, dict) and all(isinstance(g.get(k), int) and not isinstance(g.get(k), bool)
+                                                and g[k] > 0 for k in ("rows", "cols"))
+            if not isinstance(g, dict) or set(g) != {"rows", "cols", "square"} or not whole:
                 raise DatasetError(f"{where}: grid must be {{rows: N, cols: M, square: MM}} (whole rows and cols)")
             sq = num(g["square"], f"targets.{name}.grid.square", 0.0)
             points = {f"r{i}c{j}": np.array([j * sq, i * sq, 0.0]) for i in range(g["rows"]) for j in range(g["cols"])}
@@ -276,7 +279,12 @@ def read_pixels(path: Path, known_poses: set, specs: dict, records):
 
     cams = {n for n, f in specs.items() if f.type == "camera"}
     points = {p for f in specs.values() if f.type == "target" for p in f.points}
-    pose, cam, point, uv, lines, seen = [], [], [], [], [], {}
+    pose: list = []
+    cam: list = []
+    point: list = []
+    uv: list = []
+    lines: list = []
+    seen: dict = {}
     for line, pid, record in records:
         where = f"{path}: line {line}"
         c, p = record["camera"], record["point"]
