@@ -77,7 +77,7 @@ def test_pixel_jacobians_match_central_differences(puma, mode):
     spec, layout = _setup(mode, rng, puma.forward(held, q0[None])[0])
     obs = PixelObservations.build(np.repeat([1, 2, 3], 4), ["left"] * 12, [f"c{i}" for i in [0, 3, 5, 11] * 3],
                                   np.zeros((12, 2)), dict(spec.fixtures))
-    data = PIXELS._payload(obs, layout)
+    data = PIXELS._pixel_payload(obs, layout)
     s = layout.start + rng.normal(scale=1e-3, size=layout.size)
     e, J_t, J_q, J_s, cols = PIXELS.setup_error(theta, q, data, s, index, held, puma.chain)
     assert np.all(pixel_model(theta, q, data, s, index, held, puma.chain, need_jac=False)[1][:, 2] > 400)

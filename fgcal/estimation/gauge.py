@@ -9,7 +9,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.setup import BLOCK_KINDS
 from fgcal.measurements.types import BY_LEVEL
 
-__all__ = ["GAUGE_REASON", "TOOL_GAUGE_REASON", "world_is_fixed", "tool_is_free", "used_blocks", "setup_size"]
+__all__ = ["GAUGE_REASON", "TOOL_GAUGE_REASON", "setup_size", "tool_is_free", "used_blocks", "world_is_fixed"]
 
 
 GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "
@@ -33,8 +33,8 @@ TOOL_GAUGE_REASON = ("the tool frame: the cameras see the tool only through an u
 def tool_is_free(ds: Dataset, levels) -> bool:
     """Whether nothing fixes the tool frame: every level is a camera's (a type with ``tool_blocks``)
     and every block mounted on the tool that it uses is unknown (no value, no prior)."""
-    kinds = [BY_LEVEL.get(lv) for lv in levels]
-    if not kinds or not all(hasattr(k, "tool_blocks") for k in kinds):
+    kinds = [BY_LEVEL[lv] for lv in levels if lv in BY_LEVEL]
+    if not kinds or len(kinds) < len(levels) or not all(hasattr(k, "tool_blocks") for k in kinds):
         return False
     on_tool = set()
     for lv, k in zip(levels, kinds, strict=True):
@@ -47,7 +47,7 @@ def used_blocks(ds: Dataset, levels) -> set:
     used = set()
     for lv in levels:
         kind = BY_LEVEL.get(lv)
-        if getattr(kind, "uses_setup", False):
+        if kind is not None and getattr(kind, "uses_setup", False):
             obs = getattr(ds, lv)
             used |= set(kind.all_blocks(obs) if hasattr(kind, "all_blocks") else kind.blocks_of(obs).tolist())
     return used

@@ -186,9 +186,9 @@ class Pixels(SetupMeasurement):
         return [n for n in self.all_blocks(obs) if obs.specs[n].mount == "tool"]
 
     def terms(self, obs: PixelObservations, tooling, row_of_pose, layout=None) -> Terms:
-        return Terms(np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int), self._payload(obs, layout))
+        return Terms(np.array([row_of_pose[p] for p in obs.pose.tolist()], dtype=int), self._pixel_payload(obs, layout))
 
-    def _payload(self, obs, layout) -> tuple:
+    def _pixel_payload(self, obs, layout) -> tuple:
         """``xyz (M, 3), uv (M, 2)``, each corner's camera and target block start in ``s`` (M,), its
         mode (M,) (0 eye-to-hand, 1 eye-in-hand) and weight (M,) (declared sigma over the camera's)."""
         ref = self._reference_sigma(obs)
