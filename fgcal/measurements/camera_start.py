@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.measurements.camera import pose_entries, pose_matrix, project
+from fgcal.measurements.camera import mount_transform, pose_entries, pose_matrix, project
 
 __all__ = ["PNP_MIN_POINTS", "hand_eye", "pnp", "undistort"]
 
@@ -47,7 +47,7 @@ def _pnp_planar(X, n) -> np.ndarray:
     for (x, y, _), (u, v) in zip(X, n, strict=False):
         A.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
         A.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
-    H = np.linalg.svd(np.array(A))[2][-1].reshape(3, 3)
+    H = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 3)
     scale = 2.0 / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
     H = H * scale
     if H[2, 2] < 0:  # the target in front of the camera (its origin at positive depth)
@@ -63,7 +63,7 @@ def _pnp_dlt(X, n) -> np.ndarray:
     for (x, y, z), (u, v) in zip(X, n, strict=False):
         A.append([x, y, z, 1, 0, 0, 0, 0, -u * x, -u * y, -u * z, -u])
         A.append([0, 0, 0, 0, x, y, z, 1, -v * x, -v * y, -v * z, -v])
-    P = np.linalg.svd(np.array(A))[2][-1].reshape(3, 4)
+    P = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 4)
     scale = 1.0 / np.cbrt(np.linalg.det(P[:, :3]))
     P = P * scale
     T = np.eye(4)
@@ -88,16 +88,12 @@ def pnp(X, uv, k, iterations: int = 15) -> tuple[np.ndarray, float]:
     n = undistort(uv, k)
     T = _pnp_planar(X, n) if planar else _pnp_dlt(X, n)
     e = pose_entries(T)
-    for _ in range(iterations):  # Gauss-Newton on the pixels, by central differences of the pose entries
-        r = _reproject(e, X, k) - uv
-        J = np.empty((r.size, 6))
-        for a in range(6):
-            h = 1e-6 * (1.0 if a >= 3 else max(1.0, abs(e[a])))
-            ep, em = e.copy(), e.copy()
-            ep[a] += h
-            em[a] -= h
-            J[:, a] = ((_reproject(ep, X, k) - _reproject(em, X, k)) / (2 * h)).ravel()
-        step = np.linalg.lstsq(J, -r.ravel(), rcond=None)[0]
+    for _ in range(iterations):  # Gauss-Newton on the pixels, analytic Jacobian in the pose entries
+        R, t, dR = mount_transform(e)
+        uv_e, J_X, _ = project(X @ R.T + t, k)
+        D = np.concatenate([np.broadcast_to(np.eye(3), (len(X), 3, 3)), np.einsum("aij,mj->mia", dR, X)], axis=2)
+        J = (J_X @ D).reshape(-1, 6)
+        step = np.linalg.lstsq(J, -(uv_e - uv).ravel(), rcond=None)[0]
         e = e + step
         if np.max(np.abs(step)) < 1e-10:
             break
@@ -120,7 +116,7 @@ def hand_eye(A, B) -> tuple[np.ndarray, np.ndarray]:
     rows = []
     for a, b in zip(A, B, strict=False):  # R_A R_X - R_Y R_B = 0 in vec (column-major) form
         rows.append(np.hstack([np.kron(np.eye(3), a[:3, :3]), -np.kron(b[:3, :3].T, np.eye(3))]))
-    v = np.linalg.svd(np.vstack(rows))[2][-1]
+    v = np.linalg.svd(np.vstack(rows), full_matrices=False)[2][-1]
     Mx, My = v[:9].reshape(3, 3, order="F"), v[9:].reshape(3, 3, order="F")
     if np.linalg.det(Mx) < 0:
         Mx, My = -Mx, -My

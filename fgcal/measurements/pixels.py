@@ -276,16 +276,21 @@ class Pixels(SetupMeasurement):
         reasons[off] = "measured off the image"
         if (~off).any():
             starts, _ = self.start_poses(obs.subset(~off), T[~off])
-            for i in np.nonzero(~off)[0]:
-                cs, ts = specs[obs.camera[i]], specs[obs.target[i]]
-                Tc, Tt = pose_matrix(starts[cs.name][:6]), pose_matrix(starts[ts.name])
-                Tm = T[i] @ Tt if ts.mount == "tool" else np.linalg.inv(T[i]) @ Tt  # target in camera's mount
-                Tct = np.linalg.inv(Tc) @ Tm
-                pc = Tct[:3, :3] @ obs.xyz[i] + Tct[:3, 3]
-                if pc[2] < MIN_DEPTH_MM:
-                    reasons[i] = "behind the camera"
-                elif ts.planar and abs(pc @ Tct[:3, 2]) < np.cos(np.radians(GRAZING_DEG)) * np.linalg.norm(pc):
-                    reasons[i] = f"seen at more than {GRAZING_DEG:g} deg from the target's normal"
+            rows = np.nonzero(~off)[0]
+            Tc = np.array([pose_matrix(starts[c][:6]) for c in obs.camera[rows].tolist()])
+            Tt = np.array([pose_matrix(starts[t]) for t in obs.target[rows].tolist()])
+            on_tool = np.array([specs[t].mount == "tool" for t in obs.target[rows].tolist()])
+            F = T[rows]
+            F_inv = np.linalg.inv(F)
+            Tm = np.where(on_tool[:, None, None], F, F_inv) @ Tt  # the target in the camera's mount frame
+            Tct = np.linalg.inv(Tc) @ Tm
+            pc = np.einsum("mij,mj->mi", Tct[:, :3, :3], obs.xyz[rows]) + Tct[:, :3, 3]
+            planar = np.array([specs[t].planar for t in obs.target[rows].tolist()])
+            cos = np.abs(np.einsum("mi,mi->m", pc, Tct[:, :3, 2])) / np.linalg.norm(pc, axis=1)
+            behind = pc[:, 2] < MIN_DEPTH_MM
+            grazing = ~behind & planar & (cos < np.cos(np.radians(GRAZING_DEG)))
+            reasons[rows[behind]] = "behind the camera"
+            reasons[rows[grazing]] = f"seen at more than {GRAZING_DEG:g} deg from the target's normal"
         keep = reasons == ""
         refused = [{"pose": int(obs.pose[i]), "camera": str(obs.camera[i]), "point": str(obs.point[i]),
                     "reason": str(reasons[i])} for i in np.nonzero(~keep)[0]]
