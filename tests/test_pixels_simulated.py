@@ -246,6 +246,10 @@ def test_calibrate_verify_report_and_refusals_through_the_cli(tmp_path):
     info = yaml.safe_load((tmp_path / "out.urdf.camera_left.yaml").read_text())
     assert info["image_width"] == 1280 and info["distortion_model"] == "plumb_bob"
     assert info["camera_matrix"]["data"][0] == pytest.approx(est["intrinsics"]["fx"])
+    for args, what in ((("online", tmp_path / "cal", "--engine", "ekf"), "the online engines do not take pixels yet"),
+                       (("design", "--dataset", tmp_path / "cal", "--poses", "5"), "design for cameras")):
+        run = _cli(*args, "--out", tmp_path / f"{args[0]}.out")  # not yet: one line, exit 2
+        assert run.returncode == 2 and what in run.stderr and "Traceback" not in run.stderr, run.stderr
     bad = (tmp_path / "cal" / "pixels.csv").read_text().replace(",left,", ",right,", 1)
     (tmp_path / "cal" / "pixels.csv").write_text(bad)
     run = _cli("calibrate", tmp_path / "cal", "--out", tmp_path / "r2.json")
