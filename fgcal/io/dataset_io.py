@@ -395,7 +395,9 @@ def check_joint_count(ds: Dataset, model: RobotModel) -> None:
 
 
 def _fmt(v: float) -> str:
-    return repr(float(v))
+    from fgcal.util.numbers import format_number
+
+    return format_number(v)
 
 
 def write_csv(path, header, rows) -> None:
