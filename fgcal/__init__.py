@@ -20,22 +20,24 @@ import types
 from typing import Any
 
 import fgcal.report as _report_package
-from fgcal._version import __version__
+from fgcal._version import __version__ as __version__
 
 _NAMES = {
     # the commands' functions (fgcal.api)
-    "calibrate": "fgcal.api.calibrate", "calibration_summary": "fgcal.api.calibrate", "check": "fgcal.api.check",
-    "CheckReport": "fgcal.api.check", "verify": "fgcal.api.verify", "verification_summary": "fgcal.api.verify",
-    "load_verification": "fgcal.api.verify", "Report": "fgcal.api.report",
-    "simulate": "fgcal.api.simulate", "design": "fgcal.api.design", "Plan": "fgcal.api.design",
-    "compensate": "fgcal.api.compensate", "Commands": "fgcal.api.compensate", "export": "fgcal.api.export",
-    "export_urdf": "fgcal.api.export", "export_model": "fgcal.api.export", "export_deltas": "fgcal.api.export",
+    "calibrate": "fgcal.api.calibration", "calibration_summary": "fgcal.api.calibration", "check": "fgcal.api.checking",
+    "CheckReport": "fgcal.api.checking", "verify": "fgcal.api.verification",
+    "verification_summary": "fgcal.api.verification",
+    "load_verification": "fgcal.api.verification", "Report": "fgcal.api.reporting",
+    "simulate": "fgcal.api.simulation", "design": "fgcal.api.planning", "Plan": "fgcal.api.planning",
+    "compensate": "fgcal.api.compensation", "Commands": "fgcal.api.compensation", "export": "fgcal.api.exporting",
+    "export_urdf": "fgcal.api.exporting", "export_model": "fgcal.api.exporting", "export_deltas": "fgcal.api.exporting",
     "FgcalWarning": "fgcal.api.notes", "FgcalNote": "fgcal.api.notes",
     # the objects they take and return
     "CalibrationResult": "fgcal.estimation.result", "load_result": "fgcal.estimation.result",
     "save_result": "fgcal.estimation.result", "Verification": "fgcal.estimation.verification",
     "Dataset": "fgcal.measurements.dataset", "Noise": "fgcal.measurements.dataset",
-    "load_dataset": "fgcal.io.dataset_io", "save_dataset": "fgcal.io.dataset_io", "dataset_model": "fgcal.io.dataset_io",
+    "load_dataset": "fgcal.io.dataset_io", "save_dataset": "fgcal.io.dataset_io",
+    "dataset_model": "fgcal.io.dataset_io",
     "FgcalError": "fgcal.errors", "DatasetError": "fgcal.errors", "ModelError": "fgcal.errors",
     "ParameterSet": "fgcal.robots.model", "RobotModel": "fgcal.robots.model", "load_model": "fgcal.robots.robot_file",
     "save_model": "fgcal.robots.robot_file", "Deviations": "fgcal.robots.deviations",
@@ -46,7 +48,7 @@ __all__ = sorted([*_NAMES, "__version__", "report"])
 
 
 class _CallableReport(types.ModuleType):
-    """``fgcal.report`` is the package of the report modules and, called, :func:`fgcal.api.report.report`.
+    """``fgcal.report`` is the package of the report modules and, called, :func:`fgcal.api.reporting.report`.
 
     The name belongs to both: the import system sets ``fgcal.report`` to the package whenever one
     of its modules is imported, so the package itself is made callable rather than shadowed.
@@ -54,8 +56,8 @@ class _CallableReport(types.ModuleType):
 
     def __call__(self, result, out, verification=None, tolerance=None, **kwargs):
         """``fgcal.report(result, out, verification=None, tolerance=None, *, force=False, title=None)``:
-        see :func:`fgcal.api.report.report`."""
-        from fgcal.api.report import report
+        see :func:`fgcal.api.reporting.report`."""
+        from fgcal.api.reporting import report
 
         return report(result, out, verification, tolerance, **kwargs)
 

@@ -47,8 +47,8 @@ def test_compact_jacobian_analyses_like_the_full_one(puma):
 
 
 def test_batch_size_limit_refuses_calibrate_and_bounds_check(puma, tmp_path, capsys, monkeypatch):
-    import fgcal.api.calibrate as calibrate_command
-    import fgcal.api.check as check_command
+    import fgcal.api.calibration as calibrate_command
+    import fgcal.api.checking as check_command
     from hostile_util import call, one_line_error, small_dataset
 
     small_dataset(puma, tmp_path / "ds", n_poses=6)

@@ -8,15 +8,15 @@ command's defaults (the command reads them from the signature).
 """
 from __future__ import annotations
 
-from fgcal.api.calibrate import calibrate, calibration_summary
-from fgcal.api.check import CheckReport, check
-from fgcal.api.compensate import compensate
-from fgcal.api.design import design
-from fgcal.api.export import export, export_deltas, export_model, export_urdf
+from fgcal.api.calibration import calibrate, calibration_summary
+from fgcal.api.checking import CheckReport, check
+from fgcal.api.compensation import compensate
+from fgcal.api.exporting import export, export_deltas, export_model, export_urdf
 from fgcal.api.notes import FgcalNote, FgcalWarning
-from fgcal.api.report import Report, report
-from fgcal.api.simulate import simulate
-from fgcal.api.verify import load_verification, verification_summary, verify
+from fgcal.api.planning import design
+from fgcal.api.reporting import Report, report
+from fgcal.api.simulation import simulate
+from fgcal.api.verification import load_verification, verification_summary, verify
 
 __all__ = ["CheckReport", "FgcalNote", "FgcalWarning", "Report", "calibrate", "calibration_summary", "check",
            "compensate", "design", "export", "export_deltas", "export_model", "export_urdf", "load_verification",

@@ -11,12 +11,12 @@ import sys
 from pathlib import Path
 
 from fgcal._version import __version__
-from fgcal.api.calibrate import KEEP, MODELS, calibrate
-from fgcal.api.compensate import compensate
-from fgcal.api.design import design
-from fgcal.api.report import report
-from fgcal.api.simulate import simulate
-from fgcal.api.verify import verify
+from fgcal.api.calibration import KEEP, MODELS, calibrate
+from fgcal.api.compensation import compensate
+from fgcal.api.planning import design
+from fgcal.api.reporting import report
+from fgcal.api.simulation import simulate
+from fgcal.api.verification import verify
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
 from fgcal.cli.commands.checks import (

@@ -1,9 +1,9 @@
-"""``fgcal calibrate``: :func:`fgcal.api.calibrate.calibrate`, saved and printed (options: ``build_parser``)."""
+"""``fgcal calibrate``: :func:`fgcal.api.calibration.calibrate`, saved and printed (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 
-from fgcal.api.calibrate import calibrate, calibration_summary
+from fgcal.api.calibration import calibrate, calibration_summary
 from fgcal.api.selection import parse_pose_selection
 from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.cli.commands.common import call
@@ -14,7 +14,7 @@ log = logging.getLogger("fgcal")
 
 
 def calibrate_options(args) -> dict:
-    """The keyword arguments of :func:`fgcal.api.calibrate.calibrate` from the parsed options."""
+    """The keyword arguments of :func:`fgcal.api.calibration.calibrate` from the parsed options."""
     return {"poses": args.poses, "levels": args.levels, "robust": args.robust, "engine": args.engine,
             "prior": args.prior, "noise": args.noise, "outliers": args.outliers, "exact_joints": args.exact_joints,
             "extra": args.extra, "exclude": args.exclude, "model": args.model, "keep": args.keep,

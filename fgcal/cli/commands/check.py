@@ -1,9 +1,9 @@
-"""``fgcal check``: call :func:`fgcal.api.check.check` and print (its options are in :func:`fgcal.cli.build_parser`)."""
+"""``fgcal check``: :func:`fgcal.api.checking.check`, printed (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 
-from fgcal.api.check import check
+from fgcal.api.checking import check
 from fgcal.cli.commands.common import call
 
 log = logging.getLogger("fgcal")

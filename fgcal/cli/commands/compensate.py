@@ -1,4 +1,4 @@
-"""``fgcal compensate``: :func:`fgcal.api.compensate.compensate`, written or printed (options: ``build_parser``)."""
+"""``fgcal compensate``: :func:`fgcal.api.compensation.compensate`, written or printed (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from fgcal.api.compensate import compensate
+from fgcal.api.compensation import compensate
 from fgcal.cli.commands.checks import check_output_file
 from fgcal.cli.commands.common import call
 from fgcal.util.numbers import format_number

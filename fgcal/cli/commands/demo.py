@@ -5,10 +5,10 @@ import logging
 import tempfile
 from pathlib import Path
 
-from fgcal.api.calibrate import calibrate, calibration_summary
-from fgcal.api.check import check
-from fgcal.api.report import report
-from fgcal.api.verify import verification_summary, verify
+from fgcal.api.calibration import calibrate, calibration_summary
+from fgcal.api.checking import check
+from fgcal.api.reporting import report
+from fgcal.api.verification import verification_summary, verify
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.common import call
 

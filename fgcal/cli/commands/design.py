@@ -1,10 +1,10 @@
-"""``fgcal design``: :func:`fgcal.api.design.design`, its plan written (options: ``build_parser``)."""
+"""``fgcal design``: :func:`fgcal.api.planning.design`, its plan written (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
-from fgcal.api.design import design, progress_printer
+from fgcal.api.planning import design, progress_printer
 from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.cli.commands.common import call
 

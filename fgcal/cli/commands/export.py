@@ -1,9 +1,9 @@
-"""``fgcal export``: :func:`fgcal.api.export.export` after the output checks (options: ``build_parser``)."""
+"""``fgcal export``: :func:`fgcal.api.exporting.export` after the output checks (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 
-from fgcal.api.export import export
+from fgcal.api.exporting import export
 from fgcal.cli.commands.checks import check_output_file
 from fgcal.cli.commands.common import call
 from fgcal.errors import FgcalError

@@ -1,9 +1,9 @@
-"""``fgcal report``: :func:`fgcal.api.report.report` and its verdict printed (options: ``build_parser``)."""
+"""``fgcal report``: :func:`fgcal.api.reporting.report` and its verdict printed (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 
-from fgcal.api.report import report
+from fgcal.api.reporting import report
 from fgcal.cli.commands.checks import check_output_dir
 
 log = logging.getLogger("fgcal")

@@ -1,11 +1,11 @@
-"""``fgcal simulate``: :func:`fgcal.api.simulate.simulate` writing the dataset (options: ``build_parser``)."""
+"""``fgcal simulate``: :func:`fgcal.api.simulation.simulate` writing the dataset (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 import sys
 from pathlib import Path
 
-from fgcal.api.simulate import simulate
+from fgcal.api.simulation import simulate
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.common import call
 

@@ -1,9 +1,9 @@
-"""``fgcal verify``: call :func:`fgcal.api.verify.verify`, print, write (options in :func:`fgcal.cli.build_parser`)."""
+"""``fgcal verify``: :func:`fgcal.api.verification.verify`, printed and written (options: ``build_parser``)."""
 from __future__ import annotations
 
 import logging
 
-from fgcal.api.verify import verification_summary, verify
+from fgcal.api.verification import verification_summary, verify
 from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.cli.commands.common import call
 

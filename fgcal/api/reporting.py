@@ -59,7 +59,7 @@ def report(result, out, verification=None, tolerance: float | None = None, *, fo
     Report
         ``report.passed`` is the verdict (None without a tolerance).
     """
-    from fgcal.api.verify import verification_dict
+    from fgcal.api.verification import verification_dict
     from fgcal.report.accuracy import tolerance_verdict
     from fgcal.report.document import write_report
 

@@ -130,7 +130,8 @@ def _from_dataset(dataset, poses, candidates, index, seed, noise, per_placement,
 def _from_robot(robot, poses, candidates, index, level, seed, noise_values, progress) -> Plan:
     from fgcal.measurements.dataset import Noise
     from fgcal.robots.robot_file import load_model
-    from fgcal.studies.design import INDICES as ALL, Candidates, candidate_pool, design_plan, random_design_values
+    from fgcal.studies.design import INDICES as ALL
+    from fgcal.studies.design import Candidates, candidate_pool, design_plan, random_design_values
     from fgcal.studies.design_info import layout_from_access
     from fgcal.studies.plans import random_plan
 
