@@ -165,6 +165,7 @@ def calibrate(dataset, *, poses: str | Sequence[int] | None = None, levels: str 
         raise FgcalError(f"--model {model!r}: one of {', '.join(MODELS)}")
     if keep not in KEEP:
         raise FgcalError(f"--keep {keep!r}: one of {', '.join(KEEP)}")
+    payload = parse_payload(payload)
     ds, where = load_datasets(dataset)
     robot = dataset_model(ds)
     for w in unit_warnings(ds, robot):
