@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("result", type=Path, help="result file of fgcal calibrate (fgcal-result/1)")
     r.add_argument("--verify", type=Path, default=None, help="verify.json from fgcal verify")
     r.add_argument("--out", type=Path, required=True, help="output directory")
-    r.add_argument("--tolerance", type=positive_float, default=_d(report, "tolerance"), metavar="MM",
+    r.add_argument("--tolerance", type=float, default=_d(report, "tolerance"), metavar="MM",
                    help="position tolerance (mm): pass or fail at the verification poses, so it needs --verify "
                         "(exit status 1 on fail, the report is written either way)")
     r.add_argument("--force", action="store_true", help="replace a report already in OUT")
