@@ -271,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="trials (per point for fig8-9, experiment, sweeps)")
     st.add_argument("--poses", type=positive_int, default=None, help="observations per calibration (fig13, sweeps)")
     st.add_argument("--seed", type=nonnegative_int, default=0, help="random seed of the trials")
+    st.add_argument("--robot", default="puma560",
+                    help="simulated robot of every trial: built-in name, model file or URDF with tooling balls "
+                         "(experiment: puma560 only)")
     st.add_argument("--workers", type=positive_int, default=None, help="local processes (default: all cores)")
     st.add_argument("--scheduler", default=None, help="Dask distributed scheduler address, e.g. tcp://host:8786")
     st.set_defaults(func=_cmd_study)
