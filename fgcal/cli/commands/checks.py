@@ -34,7 +34,6 @@ __all__ = [
 DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
 
 
-
 def _float(text: str) -> float:
     try:
         value = float(text)
