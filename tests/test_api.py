@@ -174,3 +174,17 @@ def test_bad_options_of_a_function_are_one_line_errors(data):
     for kwargs, words in cases:
         with pytest.raises(fgcal.FgcalError, match=re.escape(words)):
             fgcal.calibrate(data / "ds", **kwargs)
+
+
+def test_simulate_keeps_the_simulators_own_call(puma):
+    """``fgcal.simulate(model, rng, settings, truth=slots)`` (old scripts, the notebooks) is the simulator's call."""
+    from fgcal.studies.simulate import SimulationSettings
+    from fgcal.studies.simulate import simulate as simulator
+
+    settings = SimulationSettings(n_poses=6)
+    ds, notes = fgcal.simulate(puma, np.random.default_rng(3), settings)
+    ref, _ = simulator(puma, np.random.default_rng(3), settings)
+    np.testing.assert_array_equal(ds.joints_deg, ref.joints_deg)
+    truth = puma.slots_from_file_units(np.array([ds.truth[n] for n in puma.slot_names]))
+    again, _ = fgcal.simulate(puma, np.random.default_rng(4), settings, truth=truth)
+    assert again.truth == ds.truth and not np.array_equal(again.joints_deg, ds.joints_deg)

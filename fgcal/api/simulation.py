@@ -22,7 +22,8 @@ def simulate(robot="puma560", rng=None, settings=None, *, poses: int | None = No
              repeatability: float = 0.0, outliers: float = 0.0, outlier_size: float = 0.5, balls: int | None = None,
              probes_per_ball: int = 4, levels: str | tuple | None = None, length_sigma: float = 0.5,
              angle_sigma: float = 0.05, base_length_sigma: float = 5.0, base_angle_sigma: float = 0.5,
-             chain: str | dict | None = None, reflector=None, truth=None, out=None, force: bool = False):
+             chain: str | dict | None = None, reflector=None, truth=None, out=None, force: bool = False,
+             robot_ref: str | None = None):
     """Simulate a robot measured by a CMM (or a tracker): the dataset ``fgcal simulate`` writes.
 
     Parameters
@@ -30,9 +31,10 @@ def simulate(robot="puma560", rng=None, settings=None, *, poses: int | None = No
     robot : str, path or RobotModel
         Built-in model name (``puma560``, ``ur10``, ``ur5``), model file or URDF, or a model.
     rng, settings : numpy.random.Generator, SimulationSettings
-        The simulator itself, for old scripts: ``simulate(model, rng, settings)`` returns
-        ``(dataset, notes)`` as :func:`fgcal.studies.simulate.simulate` does; every other
-        argument is then ignored.
+        The simulator itself, for old scripts: ``simulate(model, rng, settings, robot_ref=None,
+        seed=None, truth=None)`` returns ``(dataset, notes)`` as
+        :func:`fgcal.studies.simulate.simulate` does (``truth`` then is the slot vector, mm and
+        rad); the other arguments are then ignored.
     poses : int, optional
         Number of poses of the random plan (default 21).
     seed : int
@@ -78,7 +80,8 @@ def simulate(robot="puma560", rng=None, settings=None, *, poses: int | None = No
         from fgcal.studies.simulate import SimulationSettings
 
         return simulator(robot, rng if rng is not None else np.random.default_rng(seed),
-                         settings if settings is not None else SimulationSettings())
+                         settings if settings is not None else SimulationSettings(), robot_ref=robot_ref,
+                         seed=seed or None, truth=None if truth is None else np.asarray(truth, dtype=float))
     ds = _simulate(robot, poses, seed, plan, cmm_sigma, joint_resolution, repeatability, outliers, outlier_size,
                    balls, probes_per_ball, levels, (length_sigma, angle_sigma, base_length_sigma, base_angle_sigma),
                    chain, reflector, truth, out, force)
