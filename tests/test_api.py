@@ -113,7 +113,7 @@ def test_option_defaults_are_the_functions():
     for command, (function, argv) in commands.items():
         ns = vars(parser.parse_args([command, *argv]))
         for name, p in inspect.signature(function).parameters.items():
-            if p.kind is not p.KEYWORD_ONLY or name in ("out", "force", "dataset", "progress", "title"):
+            if p.kind is not p.KEYWORD_ONLY or name in ("out", "force", "dataset", "progress", "title", "robot_ref"):
                 continue
             if name == "exact_joints":
                 assert ns[name] is p.default is False
