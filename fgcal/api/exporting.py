@@ -33,13 +33,18 @@ def calibrated_model(result):
 
 
 def export_urdf(result, path=None, *, force: bool = False) -> str:
-    """The calibrated robot as URDF text (a calibrated copy of an imported URDF); written to ``path`` if given."""
+    """The calibrated robot as URDF text (a calibrated copy of an imported URDF); written to ``path`` if given.
+
+    For a contact calibration the link ``tool`` is at the centre of the ball that made the contacts.
+    """
     from fgcal.robots.urdf import export_urdf as to_text
     from fgcal.util.yamlio import atomic_write_text
 
     _refuse_existing(path, force)
+    result = as_result(result)
     model, slots = calibrated_model(result)
-    text = to_text(model, slots)
+    # a contact calibration: the link tool at the contact ball's centre (DESIGN.md 8.2)
+    text = to_text(model, slots, tool_point=result.tool_point())
     if path is not None:
         atomic_write_text(path, text)
     return text
@@ -107,6 +112,10 @@ def export(result, *, model=None, urdf=None, deltas=None, force: bool = False) -
     if urdf is not None:
         export_urdf(result, urdf, force=True)
         kind = "a calibrated copy of the imported URDF" if "urdf" in result.model().extra else "URDF"
+        point = result.tool_point()
+        if point is not None:
+            kind += (f"; link tool at the centre of ball {result.tooling['tool_ball']} "
+                     f"({', '.join(f'{v:g}' for v in point)} mm in the tool frame)")
         written.append((Path(urdf), kind))
     if deltas is not None:
         export_deltas(result, deltas, force=True)
