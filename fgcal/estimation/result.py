@@ -199,6 +199,15 @@ class CalibrationResult:
     at_readings: dict[str, ResidualSummary] = field(default_factory=dict)
     pose_residuals: list[PoseResidual] = field(default_factory=list)
 
+    def save(self, path) -> None:
+        """Write this result as ``fgcal-result/1`` JSON, atomically (:func:`save_result`)."""
+        save_result(self, path)
+
+    @classmethod
+    def load(cls, path) -> CalibrationResult:
+        """Read a result file (:func:`load_result`)."""
+        return load_result(path)
+
     @property
     def names(self) -> list[str]:
         return [p.name for p in self.parameters]

@@ -439,7 +439,9 @@ def check_joint_count(ds: Dataset, model: RobotModel) -> None:
 
 
 def _fmt(v: float | np.floating) -> str:
-    return repr(float(v))
+    from fgcal.util.numbers import format_number
+
+    return format_number(float(v))
 
 
 def write_csv(path, header, rows) -> None:
