@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import secrets
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -244,35 +245,35 @@ class CalibrationResult:
         return d
 
 
-def _json_safe(obj, numeric_lists=None):
+def _json_safe(obj, numeric_lists=None, marker=""):
     """``obj`` with non-finite floats as JSON can hold them (NaN: null, inf: "Infinity") and numpy
     scalars as Python's. With ``numeric_lists`` (a list), each non-empty list of finite Python
-    numbers is appended to it and replaced by a placeholder string (see :func:`_dumps`)."""
+    numbers is appended to it and replaced by the string ``marker`` + its index + NUL (see :func:`_dumps`)."""
     if isinstance(obj, float) and not math.isfinite(obj):
         return None if math.isnan(obj) else ("Infinity" if obj > 0 else "-Infinity")
     if isinstance(obj, dict):
-        return {k: _json_safe(v, numeric_lists) for k, v in obj.items()}
+        return {k: _json_safe(v, numeric_lists, marker) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         if (numeric_lists is not None and obj and set(map(type, obj)) <= {float, int}
                 and all(map(math.isfinite, obj))):
             numeric_lists.append(obj)
-            return f"\0{len(numeric_lists) - 1}\0"
-        return [_json_safe(v, numeric_lists) for v in obj]
+            return f"{marker}{len(numeric_lists) - 1}\0"
+        return [_json_safe(v, numeric_lists, marker) for v in obj]
     if isinstance(obj, (np.floating, np.integer)):
         return _json_safe(obj.item())
     return obj
 
 
-_PLACEHOLDER = re.compile(r'"\\u0000(\d+)\\u0000"')
-
-
 def _dumps(obj) -> str:
     """JSON text of ``obj`` (made safe by :func:`_json_safe`): indented by one space, each list of
     numbers on one line (written by json's C encoder: the residual lists of 10,000 poses would
-    take seconds through the indenting one)."""
+    take seconds through the indenting one). The placeholders carry a random tag: no string of
+    ``obj`` is mistaken for one."""
     lists: list = []
-    text = json.dumps(_json_safe(obj, lists), indent=1)
-    return _PLACEHOLDER.sub(lambda m: json.dumps(lists[int(m.group(1))]), text)
+    tag = secrets.token_hex(8)
+    text = json.dumps(_json_safe(obj, lists, f"\0{tag}:"), indent=1)
+    pattern = re.compile(r'"\\u0000' + tag + r':(\d+)\\u0000"')
+    return pattern.sub(lambda m: json.dumps(lists[int(m.group(1))]), text)
 
 
 def _float(v):
