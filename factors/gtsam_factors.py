@@ -15,6 +15,7 @@ import numpy as np
 from .errors import ball_centre_error, distance_error, pose_ball_centres_error, pose_error, probe_error
 
 __all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "probes_factor", "ball_centre_factor", "ball_centres_factor",
+           "pose_centres_factor",
            "pose_factor", "distance_factor", "joint_prior", "parameter_prior"]
 
 
@@ -138,6 +139,43 @@ def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int
         return e.ravel()
 
     return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)), keys, error)
+
+
+def pose_centres_factor(index, held, offsets, sigma: float, *, t_key: int, c_keys, q_key: int | None = None,
+                        q_fixed=None, chain=None) -> gtsam.CustomFactor:
+    """The B ball-centre variables ``c_keys`` of one pose at FK(theta, q) times their ``offsets``
+    (B, 3), in one factor (3B-dim error, one kinematics call; not robust): the same rows as B
+    :func:`ball_centre_factor`s, a third of the Python callbacks for three balls."""
+    if (q_key is None) == (q_fixed is None):
+        raise ValueError("give exactly one of q_key and q_fixed")
+    offsets = np.array(offsets, dtype=float).reshape(-1, 3)
+    c_keys = [int(k) for k in c_keys]
+    if len(c_keys) != len(offsets):
+        raise ValueError(f"{len(c_keys)} centre keys for {len(offsets)} offsets")
+    index = np.array(index, dtype=int)
+    held = np.array(held, dtype=float)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(-1)
+    keys = [t_key] + ([q_key] if q_key is not None else []) + c_keys
+    B = len(offsets)
+    H_c = [np.zeros((3 * B, 3)) for _ in range(B)]
+    for b, h in enumerate(H_c):
+        h[3 * b:3 * b + 3] = -np.eye(3)
+
+    def error(this, values, H):
+        q = q_const if q_key is None else _vector(values, q_key)
+        centres = np.array([_vector(values, k) for k in c_keys])
+        e, J_t, J_q = pose_ball_centres_error(_vector(values, t_key), q, offsets, centres, index, held, chain)
+        if H is not None:
+            H[0] = J_t.reshape(3 * B, -1)
+            i = 1
+            if q_key is not None:
+                H[1] = J_q.reshape(3 * B, -1)
+                i = 2
+            for b, h in enumerate(H_c):
+                H[i + b] = h
+        return e.ravel()
+
+    return gtsam.CustomFactor(noise_model([sigma] * (3 * B)), keys, error)
 
 
 def kinematic_factor(error_fn, noise, index, held, *, t_key: int, q_key: int | None, q_fixed, chain):
