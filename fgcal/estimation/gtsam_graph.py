@@ -46,22 +46,28 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     g, values = nonlinear_graph(graph, state)
     keys = list(values.keys())
     dims = [values.atVector(k).shape[0] for k in keys]
-    error = g.error(values)
+    # Without a robust loss the error is the linearisation's at zero (0.5 |b|^2): each trial point
+    # is linearised once, and an accepted one's linearisation is the next iteration's.
+    exact = graph.robust is None
+    zero = values.zeroVectors()
+    lin = g.linearize(values)
+    error = lin.error(zero) if exact else g.error(values)
     lam, iterations, converged = 1e-5, 0, False  # GTSAM's lambdaInitial
     while iterations < max_iterations and not converged:
         iterations += 1
-        lin = g.linearize(values)
         while True:
             damped = lin.clone()
             model = {d: gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam)) for d in set(dims)}
             for k, d in zip(keys, dims):
                 damped.add(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), model[d]))
             new = values.retract(damped.optimize())
-            new_error = g.error(new)
+            new_lin = g.linearize(new) if exact else None
+            new_error = new_lin.error(zero) if exact else g.error(new)
             log.debug("LM %d: lambda %.1e error %.12g -> %.12g", iterations, lam, error, new_error)
             if np.isfinite(new_error) and new_error <= error:
                 converged = error - new_error <= tolerance * max(error, 1e-300)
                 values, error, lam = new, new_error, max(lam / 10, 1e-12)
+                lin = new_lin if exact else (None if converged else g.linearize(values))
                 break
             if np.isfinite(new_error) and new_error - error <= COST_ROUNDING * error:
                 converged = True  # the change is rounding: at the minimum (as the batch solve decides)
