@@ -15,7 +15,7 @@ from .errors import (ball_centre_error, distance_error, joint_error, pose_ball_c
                      slots_of)
 
 _GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior", "kinematic_factor", "noise_model",
-                "parameter_prior", "pose_centres_factor", "pose_factor", "probe_factor", "probes_factor", "theta_key")
+                "parameter_prior", "pose_centres_factor", "pose_factor", "pose_probes_factor", "probe_factor", "probes_factor", "theta_key")
 
 
 def __getattr__(name):
@@ -28,5 +28,5 @@ def __getattr__(name):
 
 
 __all__ = ["distance_error", "distance_factor", "ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
-           "centre_key", "joint_key", "joint_prior", "kinematic_factor", "noise_model", "parameter_prior", "pose_centres_factor", "pose_factor",
+           "centre_key", "joint_key", "joint_prior", "kinematic_factor", "noise_model", "parameter_prior", "pose_centres_factor", "pose_factor", "pose_probes_factor",
            "probe_factor", "probes_factor", "theta_key"]

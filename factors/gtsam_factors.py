@@ -15,7 +15,7 @@ import numpy as np
 from .errors import ball_centre_error, distance_error, pose_ball_centres_error, pose_error, probe_error
 
 __all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "probes_factor", "ball_centre_factor", "ball_centres_factor",
-           "pose_centres_factor",
+           "pose_centres_factor", "pose_probes_factor",
            "pose_factor", "distance_factor", "joint_prior", "parameter_prior"]
 
 
@@ -75,6 +75,28 @@ def probes_factor(c_key: int, points, radius: float, sigma: float, robust=None) 
         return e[:, 0]
 
     return gtsam.CustomFactor(noise_model([sigma] * len(points), robust), [c_key], error)
+
+
+def pose_probes_factor(c_keys, owner, points, radius: float, sigma: float) -> gtsam.CustomFactor:
+    """Probe points (n, 3) of several balls (``owner`` (n,): the index in ``c_keys`` of each
+    point's centre variable) in one factor (n-dim error, not robust): the same rows as n
+    :func:`probe_factor`s in one Python callback."""
+    c_keys = [int(k) for k in c_keys]
+    points = np.array(points, dtype=float).reshape(-1, 3)
+    owner = np.asarray(owner, dtype=int)
+    rows = np.arange(len(points))
+
+    def error(this, values, H):
+        centres = np.array([_vector(values, k) for k in c_keys])
+        e, J = probe_error(centres[owner], points, radius)
+        if H is not None:
+            for b in range(len(c_keys)):
+                h = np.zeros((len(points), 3))
+                h[rows[owner == b]] = J[owner == b, 0, :]
+                H[b] = h
+        return e[:, 0]
+
+    return gtsam.CustomFactor(noise_model([sigma] * len(points)), c_keys, error)
 
 
 def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: int | None = None,

@@ -196,7 +196,7 @@ def nonlinear_graph(graph: Graph, state: State):
                 g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
     for j in range(len(graph.ball_pose)):
         values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
-    if robust is None:  # grouped: one factor per pose's centres and per ball's probes (same rows, fewer callbacks)
+    if robust is None:  # grouped: one factor per pose's centres and one per pose's probes (same rows, fewer callbacks)
         _grouped_ball_factors(g, graph, kept, qargs, t_key)
     else:  # a robust loss is per row: one factor each
         for j, keep in enumerate(kept("kinematic", len(graph.ball_pose))):
@@ -231,7 +231,7 @@ def nonlinear_graph(graph: Graph, state: State):
 
 def _grouped_ball_factors(g, graph: Graph, kept, qargs, t_key: int) -> None:
     """The kinematic rows of each pose's ball centres in one factor (one kinematics call for its
-    balls) and each ball's probe points in one factor; excluded rows are left out."""
+    balls) and each pose's probe points in one factor; excluded rows are left out."""
     import factors as fx
 
     sig = graph.sigmas
@@ -245,10 +245,13 @@ def _grouped_ball_factors(g, graph: Graph, kept, qargs, t_key: int) -> None:
         return
     var, xyz = graph.probes[1], graph.probes[2]
     keep_p = np.flatnonzero(kept("probes", len(var)))
-    by_ball = keep_p[np.argsort(var[keep_p], kind="stable")]
-    for rows in np.split(by_ball, _cuts(var[by_ball])):
+    pose_of = graph.ball_pose[var[keep_p]]
+    by_pose = keep_p[np.argsort(pose_of, kind="stable")]
+    for rows in np.split(by_pose, _cuts(graph.ball_pose[var[by_pose]])):
         if len(rows):
-            g.add(fx.probes_factor(fx.centre_key(int(var[rows[0]])), xyz[rows], graph.radius, sig.probe))
+            balls, owner = np.unique(var[rows], return_inverse=True)
+            g.add(fx.pose_probes_factor([fx.centre_key(int(j)) for j in balls], owner.ravel(), xyz[rows], graph.radius,
+                                        sig.probe))
 
 
 def _cuts(sorted_owner) -> np.ndarray:
