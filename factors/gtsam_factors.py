@@ -50,8 +50,9 @@ def _vector(values, key):
     return values.atVector(key)
 
 
-def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None) -> gtsam.CustomFactor:
-    """A probe point (3,) mm on the sphere of ``radius`` around the centre variable ``c_key``."""
+def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None, k: float = 1.345) -> gtsam.CustomFactor:
+    """A probe point (3,) mm on the sphere of ``radius`` around the centre variable ``c_key``
+    (``robust``, ``k``: see :func:`noise_model`)."""
     point = np.array(point, dtype=float).reshape(1, 3)
 
     def error(this, values, H):
@@ -60,7 +61,7 @@ def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None) ->
             H[0] = J[0]
         return e[0]
 
-    return gtsam.CustomFactor(noise_model([sigma], robust), [c_key], error)
+    return gtsam.CustomFactor(noise_model([sigma], robust, k), [c_key], error)
 
 
 def probes_factor(c_key: int, points, radius: float, sigma: float, robust=None) -> gtsam.CustomFactor:

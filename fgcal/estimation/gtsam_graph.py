@@ -206,8 +206,7 @@ def nonlinear_graph(graph: Graph, state: State):
     if graph.probes is not None and robust is not None:
         for j, xyz, keep in zip(graph.probes[1], graph.probes[2], kept("probes", len(graph.probes[1]))):
             if keep:
-                f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, None)
-                g.add(f.cloneWithNewNoiseModel(fx.noise_model([sig.probe], robust, k)))
+                g.add(fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, robust, k))
     # The set-up blocks (fixtures, planes) are the last entries of theta, as in the batch graph: a
     # contact's factor is on (theta, q_i) like any kinematic measurement's, so eliminating the
     # poses stays one small block each and theta's marginal is the batch covariance directly.
