@@ -34,8 +34,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 HERE = Path(__file__).resolve().parent
 REFERENCE = HERE.parent.parent / "shared" / "bench" / "sparse_joint_solve.py"
 SINGLE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
@@ -77,7 +75,7 @@ def own_reference(stdout: bytes, ref: Path) -> float:
     """``max |own - ref| / sigma_ref`` of ``bench/scipy_reference.py``'s printed estimate."""
     d = json.loads(stdout)
     b = estimates(ref)
-    return max(abs(e - b[n][0]) / b[n][1] for n, e in zip(d["names"], d["estimate"]))
+    return max(abs(e - b[n][0]) / b[n][1] for n, e in zip(d["names"], d["estimate"], strict=True))
 
 
 def main() -> int:
@@ -85,7 +83,8 @@ def main() -> int:
     ap.add_argument("--poses", type=int, nargs="+", default=[21, 1000, 10000])
     ap.add_argument("--repeat", type=int, default=3, help="runs per case, interleaved; the least CPU is kept")
     ap.add_argument("--reference", type=Path, default=REFERENCE, help=f"the reference solve (default {REFERENCE})")
-    ap.add_argument("--own", action="store_true", help="also run bench/scipy_reference.py (shown beside, never instead)")
+    ap.add_argument("--own", action="store_true",
+                    help="also run bench/scipy_reference.py (shown beside, never instead)")
     args = ap.parse_args()
     if not args.reference.is_file():
         print(f"bench_batch: the reference {args.reference} is absent: skipped (give its path with --reference)")

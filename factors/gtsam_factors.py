@@ -50,7 +50,8 @@ def _vector(values, key):
     return values.atVector(key)
 
 
-def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None, k: float = 1.345) -> gtsam.CustomFactor:
+def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None,
+                 k: float = 1.345) -> gtsam.CustomFactor:
     """A probe point (3,) mm on the sphere of ``radius`` around the centre variable ``c_key``
     (``robust``, ``k``: see :func:`noise_model`)."""
     point = np.array(point, dtype=float).reshape(1, 3)

@@ -56,9 +56,10 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     while iterations < max_iterations and not converged:
         iterations += 1
         while True:
+            assert lin is not None  # None only once converged
             damped = lin.clone()
             model = {d: gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam)) for d in set(dims)}
-            for k, d in zip(keys, dims):
+            for k, d in zip(keys, dims, strict=True):
                 damped.add(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), model[d]))
             new = values.retract(damped.optimize())
             new_lin = g.linearize(new) if exact else None

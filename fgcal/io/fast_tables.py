@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_columns", "int_column", "float_columns"]
+__all__ = ["float_columns", "int_column", "read_columns"]
 
 
 def read_columns(path: Path, columns, optional=()) -> dict[str, tuple[str, ...]] | None:
