@@ -9,20 +9,20 @@ import logging
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.calibrate import _unidentifiable
 from fgcal.estimation.gauge import world_is_fixed
+from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.solve import COST_ROUNDING
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
-from fgcal.errors import FgcalError
-from fgcal.estimation.graph import Graph, State
 from fgcal.robots.model import RobotModel
 
 log = logging.getLogger(__name__)
 
-__all__ = ["nonlinear_graph", "to_gtsam", "gtsam_levenberg_marquardt", "gtsam_covariance", "distance_constraint_factor"]
+__all__ = ["distance_constraint_factor", "gtsam_covariance", "gtsam_levenberg_marquardt", "nonlinear_graph", "to_gtsam"]
 
 
 def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
@@ -63,7 +63,7 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
                 damped.add(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), model[d]))
             new = values.retract(damped.optimize())
             new_lin = g.linearize(new) if exact else None
-            new_error = new_lin.error(zero) if exact else g.error(new)
+            new_error = new_lin.error(zero) if new_lin is not None else g.error(new)
             log.debug("LM %d: lambda %.1e error %.12g -> %.12g", iterations, lam, error, new_error)
             if np.isfinite(new_error) and new_error <= error:
                 converged = error - new_error <= tolerance * max(error, 1e-300)
@@ -144,7 +144,7 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
         gfg.add(gtsam.JacobianFactor(*args, np.ascontiguousarray(b), unit[len(b)]))
 
     for i in range(graph.n_poses):
-        q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
+        q_block = lambda rows, i=i: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
         for j, rows in graph.ball_rows[i]:
             col = graph.ball_col[j]
             add([(t_key, J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],
