@@ -77,7 +77,7 @@ def test_every_reader_refuses(work, tmp_path, capsys, name):
     bad = _edit(work / "r.json", tmp_path / "bad.json", f)
     targets = tmp_path / "t.csv"
     targets.write_text("pose,x,y,z,qw,qx,qy,qz\n1,500,100,300,1,0,0,0\n")
-    for args in (["verify", bad, work / "ds"], ["report", bad, "--out", tmp_path / "rep", "--tolerance", "1"],
+    for args in (["verify", bad, work / "ds"], ["report", bad, "--out", tmp_path / "rep"],
                  ["export", bad, "--model", tmp_path / "m.yaml"], ["compensate", bad, targets]):
         code, out, err = call(args, capsys)
         one_line_error(code, err, "malformed result", word)

@@ -86,6 +86,14 @@ def export_model(result, path, *, force: bool = False) -> Path:
     return Path(path)
 
 
+def _delta(unit: str, estimate: float, nominal: float) -> float:
+    """``estimate - nominal``; an angle's wrapped to (-180, 180] deg (179.9 and -179.9 differ by 0.2)."""
+    d = float(estimate) - float(nominal)
+    if unit == "deg":
+        d = 180.0 - (180.0 - d) % 360.0
+    return d
+
+
 def export_deltas(result, path, *, force: bool = False) -> Path:
     """Write the CSV ``name,unit,nominal,estimate,delta,sigma,status`` of the identified and the held parameters."""
     from fgcal.io.dataset_io import write_csv
@@ -93,15 +101,15 @@ def export_deltas(result, path, *, force: bool = False) -> Path:
     _refuse_existing(path, force)
     result = as_result(result)
     model = result.model()
-    rows: list[list] = [[p.name, p.unit, p.nominal, p.estimate, p.estimate - p.nominal, p.sigma, "identified"]
-                        for p in result.parameters]
+    rows: list[list] = [[p.name, p.unit, p.nominal, p.estimate, _delta(p.unit, p.estimate, p.nominal), p.sigma,
+                         "identified"] for p in result.parameters]
     nominal = model.slots_to_file_units(model.nominal)
     for h in result.held:
         k = model.slot(h["name"])
         unit = "deg" if model.slot_is_angle[k] else "mm"
         value = float(h["value"])
-        rows.append([h["name"], unit, float(nominal[k]), value, value - float(nominal[k]), "",
-                     "held: " + h["reason"].replace(",", ";")])
+        rows.append([h["name"], unit, float(nominal[k]), value, _delta(unit, value, float(nominal[k])), "",
+                     "held: " + h["reason"]])  # write_csv quotes a reason with a comma
     write_csv(path, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
     return Path(path)
 

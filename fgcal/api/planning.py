@@ -120,6 +120,10 @@ def _from_dataset(dataset, poses, candidates, index, seed, noise, per_placement,
             raise FgcalError("with --dataset, --candidates is a joints.csv-like file (pose,q1..qn deg), "
                              f"not a count: {candidates}")
         pool = load_plan(Path(candidates))
+        n = dataset_model(ds).n_joints
+        if pool[1].shape[1] != n:
+            raise FgcalError(f"--candidates {candidates}: {pool[1].shape[1]} joint columns, but the dataset's "
+                             f"robot has {n} joints")
     plan = design_from_dataset(ds, dataset_model(ds), poses, pool, index=index or DATASET_INDEX,
                                rng=np.random.default_rng(seed), progress=progress, noise=noise,
                                per_placement=per_placement)

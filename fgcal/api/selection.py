@@ -116,6 +116,8 @@ def parameter_names(model, names: str | Sequence[str] | None, option: str) -> tu
                 else "unknown parameter name(s)")
         raise FgcalError(f"{option}: {', '.join(b[:30] for b in bad[:5])}: {what}; "
                          f"{'estimated' if option == '--exclude' else 'known'}: {', '.join(pool)}")
+    if option == "--exclude" and set(pool) <= set(out):
+        raise FgcalError(f"--exclude: all {len(pool)} estimated parameters excluded; nothing is left to calibrate")
     return out
 
 

@@ -144,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--free-radius", action="store_true", help="fit each ball's radius too")
     m.add_argument("--threshold", type=positive_mm, default=None,
                    help="RMS sphere-fit residual (mm) that flags a ball; default from the CMM noise")
-    m.add_argument("--tolerance", type=positive_mm, default=None, help="eqs. 19-21 tolerance for --method paper")
+    m.add_argument("--tolerance", type=positive_mm, default=None, help="eqs. 19-21 tolerance for --method paper, mm")
     m.add_argument("--show", type=count(0), default=10, help="flagged rows to print (default 10)")
     m.add_argument("--force", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_cmd_measure)
@@ -264,7 +264,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--interval", type=positive("s", 3600.0), default=1.0, help="seconds between polls with --follow")
     o.add_argument("--plot", type=Path, default=None, help="convergence plot (PNG) at the end")
     o.add_argument("--drift", type=number(0.0, 1000.0, unit="mm, deg"), nargs=2, metavar=("MM", "DEG"), default=None,
-                   help="random-walk drift of the parameters per pose for ekf/ukf: MM for lengths, DEG for angles "
+                   help="random-walk drift of the parameters per pose for ekf/ukf: MM (mm) for lengths, DEG (deg) for angles "
                         "(default none)")
     o.set_defaults(func=_cmd_online)
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 from fgcal.api.exporting import export
 from fgcal.cli.commands.checks import check_output_file
@@ -22,6 +23,12 @@ def _cmd_export(args) -> int:
             raise FgcalError(f"--model and --urdf: both are {args.urdf}; give two files")
     if args.deltas:
         check_output_file(args.deltas, [args.result, args.model, args.urdf], option="--deltas", force=args.force)
+    from fgcal.estimation.result import load_result
+
+    if load_result(args.result).joint_errors.get("names"):  # the side table is an output too: checked first
+        check_output_file(Path(str(args.urdf or args.model or args.deltas) + ".joint_errors.csv"),
+                          [args.result, args.model, args.urdf, args.deltas], option="joint-error table",
+                          force=args.force)
     for path, what in call(export, args.result, model=args.model, urdf=args.urdf, deltas=args.deltas,
                            force=args.force):
         print(f"wrote {path}{': ' if what.startswith('the ') else ' ('}{what}{'' if what.startswith('the ') else ')'}")
