@@ -12,12 +12,20 @@ reading the file.
 """
 from __future__ import annotations
 
+import os
+import stat
 from itertools import repeat
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["float_columns", "int_column", "read_columns"]
+from fgcal.measurements.cells import MAX_ID
+
+__all__ = ["MAX_FAST_BYTES", "float_columns", "int_column", "read_columns"]
+
+# Whole-file reading holds ~10 objects a row (text, cells): beyond this size the streaming checked
+# reader (memory linear in the rows with a small constant, tests/test_hostile_large.py) is used.
+MAX_FAST_BYTES = 2 << 20
 
 
 def read_columns(path: Path, columns, optional=()) -> dict[str, tuple[str, ...]] | None:
@@ -37,7 +45,10 @@ def read_columns(path: Path, columns, optional=()) -> dict[str, tuple[str, ...]]
         line ``k + 2``), or None when the file needs the checked reader (or is not there: that
         reader says so).
     """
-    try:
+    try:  # a FIFO or device would block open(): only a regular file of bounded size takes this path
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_FAST_BYTES:
+            return None  # the checked reader refuses the first and streams the second in small memory
         with open(path, encoding="utf-8", newline="") as fh:
             text = fh.read()
     except (OSError, UnicodeDecodeError, ValueError):
@@ -63,9 +74,12 @@ def read_columns(path: Path, columns, optional=()) -> dict[str, tuple[str, ...]]
 def int_column(cells) -> np.ndarray | None:
     """Integer ids (N,) of ``cells`` as the checked path's ``int`` reads them, or None if one is not."""
     try:
-        return np.array(list(map(int, cells)), dtype=np.int64)
+        ids = np.array(list(map(int, cells)), dtype=np.int64)
     except (ValueError, TypeError, OverflowError):
         return None
+    if ids.size and not (ids.min() >= 0 and ids.max() <= MAX_ID):  # the checked path names the row
+        return None
+    return ids
 
 
 def float_columns(columns, limit: float) -> np.ndarray | None:
