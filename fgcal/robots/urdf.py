@@ -23,7 +23,7 @@ import numpy as np
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["chain_origins", "to_urdf", "calibrated_urdf", "export_urdf", "rpy"]
+__all__ = ["chain_origins", "to_urdf", "ur_to_urdf", "calibrated_urdf", "export_urdf", "rpy", "origin_element"]
 
 
 def rpy(R) -> tuple[float, float, float]:
@@ -51,8 +51,12 @@ def chain_origins(model: RobotModel, slots) -> list[np.ndarray]:
     return out
 
 
+def _text(v: float) -> str:
+    return repr(float(v) + 0.0)  # no negative zero
+
+
 def _xyz_rpy(T) -> tuple[str, str]:
-    return (" ".join(repr(float(v) / 1000.0) for v in T[:3, 3]), " ".join(repr(v) for v in rpy(T[:3, :3])))
+    return (" ".join(_text(float(v) / 1000.0) for v in T[:3, 3]), " ".join(_text(v) for v in rpy(T[:3, :3])))
 
 
 def _origin(T) -> str:
@@ -60,26 +64,43 @@ def _origin(T) -> str:
     return f'<origin xyz="{xyz}" rpy="{angles}"/>'
 
 
+def origin_element(T) -> str:
+    """``<origin xyz=... rpy=.../>`` of a transform ``T`` (4, 4; mm): metres and URDF rpy, no negative zero."""
+    return _origin(T)
+
+
 def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
     """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad.
 
-    Effort and velocity limits are not part of a model file; they are written as 1e6 (effectively
-    unlimited) rather than 0, which URDF consumers (MoveIt, Gazebo) read as "cannot move".
+    ``base_link`` is the robot's own base frame (:func:`fgcal.robots.compensate.base_transform`: a
+    table's base frame, at the mounting face), placed in the ``world`` (the measuring instrument's
+    frame) by the calibrated base; the first joint's origin is what loading folded into the base.
+    Joints carry the model's names. A UR (:func:`fgcal.robots.ur_kinematics.is_ur`) is written in
+    ur_description's frames and names instead (:func:`ur_to_urdf`). Effort and velocity limits are
+    not part of a model file; they are written as 1e6 (effectively unlimited) rather than 0, which
+    URDF consumers (MoveIt, Gazebo) read as "cannot move".
     """
+    from fgcal.robots.compensate import base_transform, mounting
+    from fgcal.robots.ur_kinematics import is_ur
+
+    if is_ur(model):
+        return ur_to_urdf(model, slots, name)
     name = name or model.name
     origins = chain_origins(model, slots)
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(name)}>",
              "  <!-- written by fgcal: joint origins carry the calibrated geometry; lengths in metres;"
-             " effort and velocity limits unknown to fgcal (1e6) -->",
+             " effort and velocity limits unknown to fgcal (1e6). base_link is the robot's own base frame"
+             " (the model table's base frame, at the mounting face), placed in world (the measuring instrument's"
+             " frame) by the calibrated base; tool is the calibrated tool frame -->",
              '  <link name="world"/>', '  <link name="base_link"/>',
              '  <joint name="base_mount" type="fixed"><parent link="world"/><child link="base_link"/>'
-             f"{_origin(origins[0])}</joint>"]
+             f"{_origin(base_transform(model, slots))}</joint>"]
     parent = "base_link"
     limits = model.joint_limits.copy()
     prismatic = ~model.joint_is_angle
     limits[prismatic] /= 1000.0
     for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
-        M = np.eye(4) if k == 0 else origins[k]
+        M = mounting(model) if k == 0 else origins[k]
         lo, hi = limits[k]
         child = f"link_{jname}"
         lines.append(f"  <link name={quoteattr(child)}/>")
@@ -92,6 +113,25 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
                  f"{_origin(origins[-1] @ model.tool_offset_matrix)}</joint>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
+
+
+def ur_to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
+    """A UR's calibrated chain in ur_description's frames and joint names (:func:`fgcal.robots.ur_kinematics.ur_urdf`),
+    with a ``world`` root (the measuring instrument's frame) placing ``base_link`` (the mounting face)
+    by the calibrated base, and a ``tool`` link on ``tool0`` (the calibrated tool frame)."""
+    from fgcal.robots.compensate import base_transform
+    from fgcal.robots.ur_kinematics import rot_z4, ur_kinematics, ur_urdf
+
+    kin = ur_kinematics(model, slots)
+    text = ur_urdf(kin, name or model.name, model.joint_limits, tool=kin.tcp)
+    # the robot's own base frame is the UR's Base frame (base_link_inertia): base_link is Rz(-pi) of it
+    placement = base_transform(model, slots) @ rot_z4(-np.pi)
+    head, rest = text.split('  <link name="base_link"/>', 1)
+    world = ('  <link name="world"/>\n  <link name="base_link"/>\n  <joint name="world-base_link" type="fixed">'
+             f'<parent link="world"/><child link="base_link"/>{_origin(placement)}</joint>')
+    head = head.replace("lengths in metres -->", "world is the measuring instrument's frame (placed by the calibrated "
+                        "base); tool the calibrated tool frame; lengths in metres -->")
+    return head + world + rest
 
 
 def _joint_frames(model: RobotModel, slots) -> list[np.ndarray]:
