@@ -96,7 +96,7 @@ def is_ur(model: RobotModel) -> bool:
         return _ros_names(model.joint_names)
     alphas = np.array([model.nominal[model.slot(f"{j}.alpha")] for j in model.link_names])
     betas = np.array([model.nominal[model.slot(f"{j}.beta")] for j in model.link_names])
-    return bool(np.allclose(alphas, _UR_TWISTS, atol=1e-9) and np.allclose(betas, 0.0, atol=1e-12))
+    return bool(np.allclose(alphas, _UR_TWISTS, atol=0.05) and np.allclose(betas, 0.0, atol=0.05))
 
 
 def _fixed_path(joints, upper: str, lower: str) -> np.ndarray | None:
@@ -250,17 +250,25 @@ def _num(v: float) -> str:
     return "0" if v == 0.0 else repr(v)  # no negative zero
 
 
+def _entry(T, indent: str) -> list[str]:
+    r, p, y = _rpy(T[:3, :3])
+    lines = [f"{indent}{key}: {_num(round(value, 15))}" for key, value in zip(("x", "y", "z"), T[:3, 3] / 1000.0)]
+    return lines + [f"{indent}{key}: {_num(value)}" for key, value in zip(("roll", "pitch", "yaw"), (r, p, y))]
+
+
 def kinematics_text(kin: UrKinematics, comment: str = "") -> str:
-    """The ``kinematics:`` YAML document (metres, radians as URDF rpy) of ``kin``."""
+    """The ``kinematics:`` YAML document (metres, radians as URDF rpy) of ``kin``.
+
+    Beside it, ``fgcal: tool_in_tool0:`` holds :attr:`UrKinematics.tcp` the same way (the
+    calibrated tool frame in tool0; ur_description reads only ``kinematics``).
+    """
     lines = [f"# {c}" for c in comment.splitlines()] + ["kinematics:"]
     for name, O in zip(UR_LINKS, kin.origins):
-        r, p, y = _rpy(O[:3, :3])
         lines.append(f"  {name}:")
-        for key, value in zip(("x", "y", "z"), O[:3, 3] / 1000.0):
-            lines.append(f"    {key}: {_num(round(value, 15))}")
-        for key, value in zip(("roll", "pitch", "yaw"), (r, p, y)):
-            lines.append(f"    {key}: {_num(value)}")
+        lines += _entry(O, "    ")
     lines.append(f"  hash: {kin.hash}")
+    lines += ["fgcal:", "  # the calibrated tool frame in tool0 (m, URDF rpy): the TCP, which no joint origin holds",
+              "  tool_in_tool0:"] + _entry(kin.tcp, "    ")
     return "\n".join(lines) + "\n"
 
 

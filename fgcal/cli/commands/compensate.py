@@ -35,6 +35,18 @@ def _parse_branch(text):
     raise FgcalError(f"--branch {text!r}: one of {', '.join(map(str, BRANCHES))}")
 
 
+def _parse_start(text, model):
+    """``--seed-joints q1,..,qn`` (deg; mm for prismatic joints) to internal units."""
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != model.n_joints or not np.all(np.isfinite(v)):
+        raise FgcalError(f"--seed-joints {text!r}: give {model.n_joints} joint values "
+                         f"({','.join(model.joint_names)}; {', '.join(sorted(set(model.joint_units)))})")
+    return model.joints_to_internal(np.array(v))
+
+
 def _cmd_compensate(args) -> int:
     from fgcal.robots.compensate import Frame, compensate_targets
     from fgcal.io.dataset_io import joint_columns, write_csv
@@ -47,11 +59,16 @@ def _cmd_compensate(args) -> int:
     branch = _parse_branch(args.branch) if args.branch else None
     result = load_result(args.result)
     model = result.model()
-    ids, T, seeds = read_targets(args.targets, model.n_joints)
+    ids, T, seeds, position_only = read_targets(args.targets, model.n_joints)
     if seeds is not None:
         seeds = model.joints_to_internal(seeds)
+    start = _parse_start(args.seed_joints, model) if getattr(args, "seed_joints", None) else None
+    if position_only and tcp is not None:
+        raise FgcalError(f"{args.targets}: positions only (no qw,qx,qy,qz) with --tcp: a TCP's position is reached "
+                         "through its orientation; give full poses, or the point in the tool frame as the targets' tool")
     c = compensate_targets(model, result.slot_vector(model), T, seeds, frame=Frame(args.frame), tcp=tcp,
-                           branch=branch, max_change_deg=args.max_change)
+                           branch=branch, max_change_deg=args.max_change, start=start,
+                           position_only=np.full(len(ids), position_only))
     for note in c.notes:
         print(f"note: {note}", file=sys.stderr)
     ok = c.reachable
@@ -66,8 +83,10 @@ def _cmd_compensate(args) -> int:
     if args.out:
         write_csv(args.out, joint_columns(model.n_joints), rows)
         if ok.any():
+            angle = ("positions only, the orientation kept at the seed's" if position_only else
+                     f"{np.nanmax(c.orientation_error_deg):.2g} deg")
             print(f"wrote {args.out}: {len(rows)} of {len(ids)} joint commands; the calibrated model reaches them "
-                  f"within {np.nanmax(c.position_error_mm):.2g} mm and {np.nanmax(c.orientation_error_deg):.2g} deg, "
+                  f"within {np.nanmax(c.position_error_mm):.2g} mm and {angle}, "
                   f"every joint within {np.nanmax(c.joint_change_deg):.2g} deg of its seed (same configuration)")
         else:
             print(f"wrote {args.out}: no target was reachable")

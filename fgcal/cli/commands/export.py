@@ -17,8 +17,11 @@ def _cmd_export(args) -> int:
     from fgcal.robots.urdf import export_urdf
     from fgcal.util.yamlio import atomic_write_text
 
-    if args.model is None and args.urdf is None and args.deltas is None:
-        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
+    ur_file = getattr(args, "ur_kinematics", None)
+    if args.model is None and args.urdf is None and args.deltas is None and ur_file is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE, --deltas FILE and/or --ur-kinematics FILE")
+    if ur_file:
+        check_output_file(ur_file, [args.result, args.model, args.urdf, args.deltas], option="--ur-kinematics")
     if args.model:
         check_output_file(args.model, [args.result], option="--model")
     if args.urdf:
@@ -54,10 +57,12 @@ def _cmd_export(args) -> int:
                          value - float(nominal[model.slot(h["name"])]), "", "held: " + h["reason"].replace(",", ";")])
         write_csv(args.deltas, ["name", "unit", "nominal", "estimate", "delta", "sigma", "status"], rows)
         print(f"wrote {args.deltas} ({len(result.parameters)} identified, {len(result.held)} held)")
+    if ur_file:
+        _write_ur_kinematics(ur_file, calibrated, slots, args)
     if result.joint_errors.get("names"):  # what neither format can hold goes beside them as a table
         from fgcal.io.dataset_io import write_csv
 
-        table = Path(str(args.urdf or args.model or args.deltas) + ".joint_errors.csv")
+        table = Path(str(args.urdf or args.model or args.deltas or ur_file) + ".joint_errors.csv")
         write_csv(table, ["name", "unit", "estimate", "sigma"],
                   [[p.name, p.unit, p.estimate, p.sigma] for p in result.parameters
                    if p.name in set(result.joint_errors["names"])])
@@ -66,3 +71,30 @@ def _cmd_export(args) -> int:
         if result.joint_errors.get("validity"):
             print(f"note: {result.joint_errors['validity']}")
     return 0
+
+
+def _write_ur_kinematics(path, model, slots, args) -> None:
+    """``--ur-kinematics FILE``: ur_description's kinematics file (fgcal.robots.ur_kinematics)."""
+    import numpy as np
+
+    from fgcal.robots.transforms import so3_log
+    from fgcal.robots.ur_kinematics import kinematics_text, ur_kinematics
+    from fgcal.util.yamlio import atomic_write_text
+
+    given = getattr(args, "ur_hash", None) or model.extra.get("ur_kinematics", {}).get("hash") or None
+    kin = ur_kinematics(model, slots, hash=given)
+    tcp = kin.tcp
+    xyz = tcp[:3, 3] / 1000.0
+    rv = so3_log(tcp[:3, :3])
+    tcp_text = ", ".join(f"{v:.6f}" for v in (*xyz, *rv))
+    comment = (f"UR kinematics calibrated by fgcal ({args.result}), for ur_description's kinematics_params_file:\n"
+               "joint origins in metres and URDF rpy (R = Rz(yaw) Ry(pitch) Rx(roll)); base_link is the mounting "
+               "face,\nbase_link_inertia = Rz(pi) the controller's Base frame; the chain ends at tool0 (the flange).\n"
+               f"hash: {'as given' if given else 'fgcal_ + a digest of these values: not the controller calibration checksum, so the driver warns'}.\n"
+               f"calibrated tool frame in tool0 (the TCP to set: x, y, z m, rx, ry, rz rotation vector rad): [{tcp_text}]")
+    atomic_write_text(path, kinematics_text(kin, comment))
+    off = np.linalg.norm(tcp[:3, 3])
+    print(f"wrote {path} (UR kinematics, hash {kin.hash})")
+    if off > 1e-9 or np.linalg.norm(rv) > 1e-12:
+        print(f"note: the calibrated tool frame is {off:.3g} mm and {np.degrees(np.linalg.norm(rv)):.3g} deg from "
+              f"tool0, which no joint origin can hold: set it as the controller's TCP [{tcp_text}] (in the file's comment)")
