@@ -33,7 +33,7 @@ def description_urdf(kinematics: dict) -> str:
            '<joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>'
            f'<child link="base_link_inertia"/><origin xyz="0 0 0" rpy="0 0 {PI}"/></joint>']
     parent = "base_link_inertia"
-    for name, joint in zip(NAMES, JOINTS):
+    for name, joint in zip(NAMES, JOINTS, strict=True):
         child = f"{name}_link"
         out += [f'<link name="{child}"/>', f'<joint name="{joint}" type="revolute"><parent link="{parent}"/>'
                 f'<child link="{child}"/>{_origin(k[name])}<axis xyz="0 0 1"/>'
@@ -67,7 +67,7 @@ def description_forward(text: str, q, tmp_path) -> np.ndarray:
     u = yourdfpy.URDF.load(str(path), load_meshes=False, load_collision_meshes=False)
     out = []
     for qi in q:
-        u.update_cfg(dict(zip(JOINTS, qi)))
+        u.update_cfg(dict(zip(JOINTS, qi, strict=True)))
         T = u.get_transform("tool0", "base_link").copy()
         T[:3, 3] *= 1000.0
         out.append(T)
@@ -151,7 +151,7 @@ def test_import_round_trip_and_cli(ur10, tmp_path):
     u = yourdfpy.URDF.load(str(tmp_path / "r.urdf"), load_meshes=False, load_collision_meshes=False)
     assert tuple(u.actuated_joint_names) == JOINTS and "base_link_inertia" in u.link_map
     for qi in q[:3]:
-        u.update_cfg(dict(zip(JOINTS, qi)))
+        u.update_cfg(dict(zip(JOINTS, qi, strict=True)))
         T = u.get_transform("tool", "world").copy()
         T[:3, 3] *= 1000
         np.testing.assert_allclose(T, ur10.forward(x, qi)[0], atol=1e-9)

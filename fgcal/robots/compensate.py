@@ -21,8 +21,8 @@ from fgcal.robots.ik import BRANCHES, Branch, IKError, _check_puma_structure, so
 from fgcal.robots.model import EULER_FIELDS, SLOT_NAMES, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, pose_difference, rot
 
-__all__ = ["Frame", "Compensation", "compensate_targets", "compensate", "tcp_matrix", "base_transform", "mounting",
-           "MAX_CHANGE_DEG", "solve_from_start"]
+__all__ = ["MAX_CHANGE_DEG", "Compensation", "Frame", "base_transform", "compensate", "compensate_targets", "mounting",
+           "solve_from_start", "tcp_matrix"]
 
 MAX_CHANGE_DEG = 10.0  # a calibration moves joints by a degree or two; more is another configuration
 
@@ -122,7 +122,7 @@ def _closed_form(model: RobotModel):
 
 def _choose_branch(model: RobotModel, solver, x_seed, targets) -> tuple[Branch | None, np.ndarray | None]:
     """The branch whose nominal solutions are within the limits for the most targets."""
-    best = (None, None, -1)
+    best: tuple[Branch | None, np.ndarray | None, int] = (None, None, -1)
     for branch in BRANCHES:
         q, ok = solver(model, targets, branch, slots=x_seed)
         ok = ok & np.all(np.isfinite(q), axis=1) & model.in_limits(np.nan_to_num(q))
@@ -185,8 +185,9 @@ def _nominal_seeds(model, x, T, seed, missing, position_only, start, branch, not
 def solve_from_start(model: RobotModel, T, start, slots, position_only: bool = False, steps: int = 12):
     """Numerical IK from one start ``start`` (n,) rad for a target that may be far from it: directly,
     else by continuation (the target moved in ``steps`` steps from the start's pose)."""
-    from fgcal.robots.transforms import so3_log
     from scipy.spatial.transform import Rotation
+
+    from fgcal.robots.transforms import so3_log
 
     x = np.asarray(slots, dtype=float)
     try:

@@ -129,4 +129,4 @@ def ur_branch_of(model: RobotModel, q, slots=None) -> list[Branch]:
     p = W[:, :3, 3]
     psi = np.arctan2(p[:, 1], p[:, 0])
     return [Branch(righty=bool(np.cos(f1 - ps) >= 0), elbow_up=bool(np.sin(f3) < 0), flip=bool(np.sin(f5) < 0))
-            for f1, ps, f3, f5 in zip(f[:, 0], psi, f[:, 2], f[:, 4])]
+            for f1, ps, f3, f5 in zip(f[:, 0], psi, f[:, 2], f[:, 4], strict=True)]

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,8 +39,8 @@ from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["UR_LINKS", "ROS_JOINTS", "UrKinematics", "is_ur", "ur_kinematics", "ur_forward", "kinematics_text",
-           "parse_kinematics", "ur_urdf", "model_from_kinematics", "rotation_from_angles"]
+__all__ = ["ROS_JOINTS", "UR_LINKS", "UrKinematics", "is_ur", "kinematics_text", "model_from_kinematics",
+           "parse_kinematics", "rotation_from_angles", "ur_forward", "ur_kinematics", "ur_urdf"]
 
 UR_LINKS = ("shoulder", "upper_arm", "forearm", "wrist_1", "wrist_2", "wrist_3")
 ROS_JOINTS = ("shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint",
@@ -63,18 +63,23 @@ class UrKinematics:
     tcp : ndarray, shape (4, 4)
         The calibrated tool frame in ``tool0`` (mm): what no joint origin can hold (identity for a
         flange tool).
+    own_base : ndarray, shape (4, 4)
+        The model's own base frame (:func:`fgcal.robots.compensate.base_transform`) in base_link
+        (mm): ``Rz(pi)`` for a table (the UR's Base frame), identity for a URDF based at base_link.
     """
 
     origins: np.ndarray
     hash: str = ""
-    tcp: np.ndarray | None = None
+    tcp: np.ndarray = field(default_factory=lambda: np.eye(4))
+    own_base: np.ndarray = field(default_factory=lambda: np.eye(4))
 
     def __post_init__(self):
         o = np.asarray(self.origins, dtype=float)
         if o.shape != (6, 4, 4):
             raise ValueError(f"origins must have shape (6, 4, 4), got {o.shape}")
         object.__setattr__(self, "origins", o)
-        object.__setattr__(self, "tcp", np.eye(4) if self.tcp is None else np.asarray(self.tcp, dtype=float))
+        object.__setattr__(self, "tcp", np.asarray(self.tcp, dtype=float))
+        object.__setattr__(self, "own_base", np.asarray(self.own_base, dtype=float))
 
 
 def _ros_names(names) -> bool:
@@ -192,7 +197,7 @@ def ur_kinematics(model: RobotModel, slots, hash: str | None = None) -> UrKinema
     if hash is None:
         digest = hashlib.sha256(np.round(origins_arr, 9).tobytes()).hexdigest()[:16]
         hash = f"fgcal_{digest}"
-    return UrKinematics(origins_arr, hash, tcp)
+    return UrKinematics(origins_arr, hash, tcp, U)
 
 
 def _ur_gauge(origins) -> np.ndarray:
@@ -233,8 +238,8 @@ def ur_forward(kin: UrKinematics, q) -> np.ndarray:
     out = np.empty((len(q), 4, 4))
     for i, qi in enumerate(q):
         T = rot_z4(np.pi)
-        for O, qk in zip(kin.origins, qi):
-            T = T @ O @ rot_z4(qk)
+        for origin, qk in zip(kin.origins, qi, strict=True):
+            T = T @ origin @ rot_z4(qk)
         out[i] = T
     return out
 
@@ -252,8 +257,10 @@ def _num(v: float) -> str:
 
 def _entry(T, indent: str) -> list[str]:
     r, p, y = _rpy(T[:3, :3])
-    lines = [f"{indent}{key}: {_num(round(value, 15))}" for key, value in zip(("x", "y", "z"), T[:3, 3] / 1000.0)]
-    return lines + [f"{indent}{key}: {_num(value)}" for key, value in zip(("roll", "pitch", "yaw"), (r, p, y))]
+    lines = [f"{indent}{key}: {_num(round(value, 15))}"
+             for key, value in zip(("x", "y", "z"), T[:3, 3] / 1000.0, strict=True)]
+    angles = zip(("roll", "pitch", "yaw"), (r, p, y), strict=True)
+    return lines + [f"{indent}{key}: {_num(value)}" for key, value in angles]
 
 
 def kinematics_text(kin: UrKinematics, comment: str = "") -> str:
@@ -263,9 +270,9 @@ def kinematics_text(kin: UrKinematics, comment: str = "") -> str:
     calibrated tool frame in tool0; ur_description reads only ``kinematics``).
     """
     lines = [f"# {c}" for c in comment.splitlines()] + ["kinematics:"]
-    for name, O in zip(UR_LINKS, kin.origins):
+    for name, origin in zip(UR_LINKS, kin.origins, strict=True):
         lines.append(f"  {name}:")
-        lines += _entry(O, "    ")
+        lines += _entry(origin, "    ")
     lines.append(f"  hash: {kin.hash}")
     lines += ["fgcal:", "  # the calibrated tool frame in tool0 (m, URDF rpy): the TCP, which no joint origin holds",
               "  tool_in_tool0:"] + _entry(kin.tcp, "    ")
@@ -290,10 +297,10 @@ def parse_kinematics(data, source: str = "<kinematics>", angles: str = "urdf") -
             values.append(float(v))
         if max(abs(v) for v in values[:3]) > 10.0:
             raise ModelError(f"{source}: kinematics.{name}: an offset of more than 10 m; the values are metres")
-        O = np.eye(4)
-        O[:3, :3] = rotation_from_angles(*values[3:], angles=angles)
-        O[:3, 3] = 1000.0 * np.array(values[:3])
-        origins.append(O)
+        origin = np.eye(4)
+        origin[:3, :3] = rotation_from_angles(values[3], values[4], values[5], angles=angles)
+        origin[:3, 3] = 1000.0 * np.array(values[:3])
+        origins.append(origin)
     return UrKinematics(np.array(origins), str(k.get("hash", "")))
 
 
@@ -313,10 +320,10 @@ def ur_urdf(kin: UrKinematics, name: str = "ur", joint_limits=None, tool=None) -
              '  <joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>'
              f'<child link="base_link_inertia"/>{origin_element(rot_z4(np.pi))}</joint>']
     parent = "base_link_inertia"
-    for joint, link, O, (lo, hi) in zip(ROS_JOINTS, ROS_LINKS, kin.origins, limits):
+    for joint, link, origin, (lo, hi) in zip(ROS_JOINTS, ROS_LINKS, kin.origins, limits, strict=True):
         lines.append(f'  <link name="{link}"/>')
         lines.append(f'  <joint name="{joint}" type="revolute"><parent link="{parent}"/><child link="{link}"/>'
-                     f'{origin_element(O)}<axis xyz="0 0 1"/>'
+                     f'{origin_element(origin)}<axis xyz="0 0 1"/>'
                      f'<limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/></joint>')
         parent = link
     flange = np.eye(4)

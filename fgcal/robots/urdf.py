@@ -23,7 +23,7 @@ import numpy as np
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["chain_origins", "to_urdf", "ur_to_urdf", "calibrated_urdf", "export_urdf", "rpy", "origin_element"]
+__all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "origin_element", "rpy", "to_urdf", "ur_to_urdf"]
 
 
 def rpy(R) -> tuple[float, float, float]:
@@ -99,7 +99,7 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
     limits = model.joint_limits.copy()
     prismatic = ~model.joint_is_angle
     limits[prismatic] /= 1000.0
-    for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
+    for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types, strict=True)):
         M = mounting(model) if k == 0 else origins[k]
         lo, hi = limits[k]
         child = f"link_{jname}"
@@ -120,12 +120,12 @@ def ur_to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
     with a ``world`` root (the measuring instrument's frame) placing ``base_link`` (the mounting face)
     by the calibrated base, and a ``tool`` link on ``tool0`` (the calibrated tool frame)."""
     from fgcal.robots.compensate import base_transform
-    from fgcal.robots.ur_kinematics import rot_z4, ur_kinematics, ur_urdf
+    from fgcal.robots.ur_kinematics import ur_kinematics, ur_urdf
 
     kin = ur_kinematics(model, slots)
     text = ur_urdf(kin, name or model.name, model.joint_limits, tool=kin.tcp)
-    # the robot's own base frame is the UR's Base frame (base_link_inertia): base_link is Rz(-pi) of it
-    placement = base_transform(model, slots) @ rot_z4(-np.pi)
+    # base_link in the instrument frame: the robot's own base frame (the UR's Base for a table) is kin.own_base in it
+    placement = base_transform(model, slots) @ np.linalg.inv(kin.own_base)
     head, rest = text.split('  <link name="base_link"/>', 1)
     world = ('  <link name="world"/>\n  <link name="base_link"/>\n  <joint name="world-base_link" type="fixed">'
              f'<parent link="world"/><child link="base_link"/>{_origin(placement)}</joint>')

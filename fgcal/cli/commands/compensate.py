@@ -64,8 +64,8 @@ def _cmd_compensate(args) -> int:
         seeds = model.joints_to_internal(seeds)
     start = _parse_start(args.seed_joints, model) if getattr(args, "seed_joints", None) else None
     if position_only and tcp is not None:
-        raise FgcalError(f"{args.targets}: positions only (no qw,qx,qy,qz) with --tcp: a TCP's position is reached "
-                         "through its orientation; give full poses, or the point in the tool frame as the targets' tool")
+        raise FgcalError(f"{args.targets}: positions only (no qw,qx,qy,qz) with --tcp: a TCP's position is "
+                         "reached through its orientation; give full poses")
     c = compensate_targets(model, result.slot_vector(model), T, seeds, frame=Frame(args.frame), tcp=tcp,
                            branch=branch, max_change_deg=args.max_change, start=start,
                            position_only=np.full(len(ids), position_only))

@@ -87,14 +87,18 @@ def _write_ur_kinematics(path, model, slots, args) -> None:
     xyz = tcp[:3, 3] / 1000.0
     rv = so3_log(tcp[:3, :3])
     tcp_text = ", ".join(f"{v:.6f}" for v in (*xyz, *rv))
+    why = ("as given" if given else
+           "fgcal_ and a digest of these values, not the controller's calibration checksum: the driver warns")
     comment = (f"UR kinematics calibrated by fgcal ({args.result}), for ur_description's kinematics_params_file:\n"
                "joint origins in metres and URDF rpy (R = Rz(yaw) Ry(pitch) Rx(roll)); base_link is the mounting "
                "face,\nbase_link_inertia = Rz(pi) the controller's Base frame; the chain ends at tool0 (the flange).\n"
-               f"hash: {'as given' if given else 'fgcal_ + a digest of these values: not the controller calibration checksum, so the driver warns'}.\n"
-               f"calibrated tool frame in tool0 (the TCP to set: x, y, z m, rx, ry, rz rotation vector rad): [{tcp_text}]")
+               f"hash: {why}.\n"
+               f"calibrated tool frame in tool0 (the TCP to set: x, y, z m, rx, ry, rz rotation vector rad): "
+               f"[{tcp_text}]")
     atomic_write_text(path, kinematics_text(kin, comment))
     off = np.linalg.norm(tcp[:3, 3])
     print(f"wrote {path} (UR kinematics, hash {kin.hash})")
     if off > 1e-9 or np.linalg.norm(rv) > 1e-12:
         print(f"note: the calibrated tool frame is {off:.3g} mm and {np.degrees(np.linalg.norm(rv)):.3g} deg from "
-              f"tool0, which no joint origin can hold: set it as the controller's TCP [{tcp_text}] (in the file's comment)")
+              f"tool0, which no joint origin can hold: set it as the controller's TCP [{tcp_text}] "
+              "(x, y, z m, rotation vector rad; in the file as fgcal.tool_in_tool0)")
