@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 
 
@@ -30,8 +31,17 @@ def _cmd_export(args) -> int:
             raise FgcalError(f"--model and --urdf: both are {args.urdf}; give two files")
     if args.deltas:
         check_output_file(args.deltas, [args.result, args.model, args.urdf], option="--deltas")
+    if getattr(args, "ur_hash", None) is not None and not re.fullmatch(r"[A-Za-z0-9_.-]{1,80}", args.ur_hash):
+        raise FgcalError(f"--ur-hash {args.ur_hash[:40]!r}: letters, digits, '_', '-' and '.' only (e.g. calib_123)")
     result = load_result(args.result)
     model = result.model()
+    if ur_file:
+        from fgcal.robots.ur_kinematics import is_ur
+
+        if not is_ur(model):
+            raise FgcalError(f"--ur-kinematics: {args.result}: robot {model.name} is not a Universal Robots arm (the "
+                             "built-in ur10/ur5, a table with the UR's structure, or a URDF with ur_description's "
+                             "joint names)")
     from dataclasses import replace
 
     calibrated = replace(model, name=f"{model.name}-calibrated",
