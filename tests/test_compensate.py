@@ -5,16 +5,15 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import random_joints
 
 from fgcal.estimation.calibrate import calibrate
-from fgcal.robots.compensate import Frame, base_transform, compensate_targets, tcp_matrix
-from fgcal.io.dataset_io import write_csv
-from fgcal.robots.kinematics import forward, jacobians
 from fgcal.estimation.result import save_result
-from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.io.dataset_io import write_csv
+from fgcal.robots.compensate import Frame, base_transform, compensate_targets, tcp_matrix
+from fgcal.robots.kinematics import forward, jacobians
 from fgcal.robots.transforms import matrix_to_quaternion
-
-from conftest import random_joints
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @pytest.fixture(scope="module")
@@ -61,6 +60,7 @@ def test_refuses_a_solution_off_the_commanded_branch(ur10, ur10_result):
     assert np.isnan(c.q).all()
     # no commanded joints and no closed form for this arm (a 7-joint Panda): named, not guessed
     from pathlib import Path
+
     from fgcal.robots.robot_file import load_model
 
     panda = load_model(Path(__file__).parent / "data" / "urdf" / "panda.urdf", chain={"tip": "panda_link8"})

@@ -6,12 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import DatasetError
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.verification import verify
+from fgcal.io.dataset_io import load_dataset
 from fgcal.io.landgraf import read_series, series_to_datasets
 from fgcal.robots.robot_file import model_from_dict
-from fgcal.estimation.verification import verify
 
 # shared/ sits beside the checkout (or beside the worktrees' directory)
 SERIES = next((p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"

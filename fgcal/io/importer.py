@@ -22,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.errors import DatasetError, FgcalError
+from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
+from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.measurements.handeye import fit_base_and_point, fit_base_and_tool
 from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
-from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
 from fgcal.robots.transforms import matrix_to_quaternion
 from fgcal.util.yamlio import dump_yaml
 
-__all__ = ["DEFAULT_POSITION_SIGMA", "DEFAULT_ORIENTATION_SIGMA", "ImportResult", "to_datasets", "import_table"]
+__all__ = ["DEFAULT_ORIENTATION_SIGMA", "DEFAULT_POSITION_SIGMA", "ImportResult", "import_table", "to_datasets"]
 
 log = logging.getLogger(__name__)
 

@@ -21,8 +21,17 @@ from fgcal.robots.ik import BRANCHES, Branch, IKError, _check_puma_structure, so
 from fgcal.robots.model import EULER_FIELDS, SLOT_NAMES, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, pose_difference, rot
 
-__all__ = ["MAX_CHANGE_DEG", "Compensation", "Frame", "base_transform", "compensate", "compensate_targets", "mounting",
-           "solve_from_start", "tcp_matrix"]
+__all__ = [
+    "MAX_CHANGE_DEG",
+    "Compensation",
+    "Frame",
+    "base_transform",
+    "compensate",
+    "compensate_targets",
+    "mounting",
+    "solve_from_start",
+    "tcp_matrix",
+]
 
 MAX_CHANGE_DEG = 10.0  # a calibration moves joints by a degree or two; more is another configuration
 

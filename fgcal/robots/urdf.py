@@ -177,6 +177,7 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
             continue
         k = index[j.name]
         if k > 0:
+            assert T_parent is not None  # set by joint k - 1
             origin = np.linalg.inv(T_parent) @ Jw[k]
             _set_origin(elements[j.name], origin)
         T_parent = Jw[k]

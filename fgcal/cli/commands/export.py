@@ -5,7 +5,6 @@ import logging
 import re
 from pathlib import Path
 
-
 from fgcal.cli.commands.checks import check_output_file
 from fgcal.errors import FgcalError
 

@@ -72,7 +72,7 @@ def _cmd_import(args) -> int:
     kind = "positions" if result.calibration.centres is not None else "full poses"
     print(f"wrote {written[0]}: {result.calibration.n_poses} poses ({kind}); {len(m.skipped)} row(s) skipped; "
           f"base and tool fitted to the data (RMS {result.rms:.3g} mm) in {written[0] / 'robot.yaml'}")
-    if len(written) > 1:
+    if len(written) > 1 and result.holdout is not None:
         print(f"wrote {written[1]}: {result.holdout.n_poses} held-out poses (repeated measurements kept on one side)")
     return 0
 
@@ -197,9 +197,9 @@ def _cmd_import_mukca(args) -> int:
     """``fgcal import mukca``: the two-socket tool's placements as contacts at unknown fixture points."""
     from fgcal.io.dataset_io import save_dataset
     from fgcal.io.mukca import read_mukca
-    from fgcal.util.yamlio import read_text_file
     from fgcal.robots.robot_file import load_model
     from fgcal.util.resources import builtin_robot_names, builtin_robot_path
+    from fgcal.util.yamlio import read_text_file
 
     chain = None
     if args.chain is not None:
