@@ -124,3 +124,30 @@ def test_seed_joints_on_a_7_joint_arm(tmp_path):
     assert c.reachable.all(), c.reasons
     np.testing.assert_allclose(panda.forward(panda.nominal, c.q), T, atol=1e-6)
     assert panda.in_limits(c.q).all()
+
+
+def test_ur_urdf_and_imported_factory_file_without_seed_joints(ur10):
+    """A UR URDF (its rebuilt frames have other twist signs) and a model imported from a calibrated
+    kinematics file (off the UR structure): the closed form through a UR table (ideal, then refined)."""
+    from fgcal.robots.ik_ur import ur_proxy
+    from fgcal.robots.robot_file import load_model
+    from fgcal.robots.ur_kinematics import model_from_kinematics, ur_kinematics
+
+    urdf = load_model(Path(__file__).parent / "data" / "urdf" / "ur10_robot.urdf", chain={"tip": "tool0"})
+    rng = np.random.default_rng(287)
+    x = ur10.nominal.copy()
+    for n in ur10.identifiable_names():
+        if not n.startswith(("base.", "tool.")):
+            x[ur10.slot(n)] += rng.normal(0.0, np.radians(0.1) if ur10.slot_is_angle[ur10.slot(n)] else 1.0)
+    factory = model_from_kinematics(ur_kinematics(ur10, x), name="ur10-factory")
+    assert ur_proxy(factory) is None and ur_proxy(factory, ideal=True) is not None  # off the structure
+    for model in (urdf, factory):
+        proxy, px = ur_proxy(model, ideal=True)
+        q = _commands(80, 288)
+        branch = BRANCHES[6]
+        q = q[[b == branch for b in ur_branch_of(proxy, q, slots=px)]][:6]
+        T = model.forward(model.nominal, q)
+        c = compensate_targets(model, model.nominal, T, branch=branch)
+        assert c.reachable.all(), c.reasons
+        np.testing.assert_allclose(model.forward(model.nominal, c.q), T, atol=1e-6)
+        np.testing.assert_allclose(np.angle(np.exp(1j * (c.q - q))), 0.0, atol=1e-7)  # the commanded joints

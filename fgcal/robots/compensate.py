@@ -116,10 +116,12 @@ class Compensation:
 
 def _closed_form(model: RobotModel):
     """The nominal model's closed-form batch solver (PUMA or UR structure), or None."""
-    from fgcal.robots.ik_ur import is_ur_structure, solve_ur_batch
+    from fgcal.robots.ik_ur import is_ur_structure, solve_ur_any, solve_ur_batch, ur_proxy
 
     if is_ur_structure(model):
         return solve_ur_batch
+    if ur_proxy(model, ideal=True) is not None:  # a UR URDF or kinematics file: through a UR table
+        return solve_ur_any
     if tuple(model.slot_names) == tuple(SLOT_NAMES) and model.n_joints == 6:
         try:
             _check_puma_structure(model.nominal)

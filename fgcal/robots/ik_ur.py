@@ -28,7 +28,7 @@ from fgcal.robots.ik import Branch, IKError, wrap_into_limits
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import check_transform, euler_zyx_trans, rot
 
-__all__ = ["is_ur_structure", "solve_ur_batch", "ur_branch_of"]
+__all__ = ["is_ur_structure", "solve_ur_any", "solve_ur_batch", "ur_branch_of", "ur_proxy"]
 
 _UR_ALPHA = np.radians([90.0, 0.0, 0.0, 90.0, -90.0])
 
@@ -43,8 +43,9 @@ def is_ur_structure(model: RobotModel, x=None) -> bool:
         return False
     x = model.nominal if x is None else np.asarray(x, dtype=float)
     a, d = _values(model, x, "a"), _values(model, x, "d")
-    zero = [a[0], a[3], a[4], d[1], d[2], *_values(model, x, "beta")]
-    return bool(np.allclose(_values(model, x, "alpha"), _UR_ALPHA, atol=1e-12) and np.allclose(zero, 0.0, atol=1e-12))
+    # a URDF's rounded pi/2 (1.57079632679) is 5e-12 off: within the tolerances (rad, mm)
+    angles_ok = np.allclose([*_values(model, x, "alpha") - _UR_ALPHA, *_values(model, x, "beta")], 0.0, atol=1e-9)
+    return bool(angles_ok and np.allclose([a[0], a[3], a[4], d[1], d[2]], 0.0, atol=1e-6))
 
 
 def _wrist_frame(model: RobotModel, x, T_target) -> np.ndarray:
@@ -130,3 +131,81 @@ def ur_branch_of(model: RobotModel, q, slots=None) -> list[Branch]:
     psi = np.arctan2(p[:, 1], p[:, 0])
     return [Branch(righty=bool(np.cos(f1 - ps) >= 0), elbow_up=bool(np.sin(f3) < 0), flip=bool(np.sin(f5) < 0))
             for f1, ps, f3, f5 in zip(f[:, 0], psi, f[:, 2], f[:, 4], strict=True)]
+
+
+def _dh_of(origin) -> tuple[float, float, float, float, float]:
+    """``(a, alpha, theta, d, residual)`` of ``origin = Tx(a) Rx(alpha) Rz(theta) Tz(d)`` (mm, rad);
+    the residual (mm or rad) is how far ``origin`` is from that form."""
+    R, t = origin[:3, :3], origin[:3, 3]
+    alpha = float(np.arctan2(-R[1, 2], R[2, 2]))
+    M = rot(0, -alpha) @ R
+    theta = float(np.arctan2(M[1, 0], M[0, 0]))
+    d = float(t @ R[:, 2])
+    rebuilt = rot(0, alpha) @ rot(2, theta)
+    residual = max(float(np.abs(rebuilt - R).max()), float(np.abs(t - [t[0], 0.0, 0.0] - d * R[:, 2]).max()))
+    return float(t[0]), alpha, theta, d, residual
+
+
+def ur_proxy(model: RobotModel, slots=None, ideal: bool = False) -> tuple[RobotModel, np.ndarray] | None:
+    """A table model of the UR structure with the same forward kinematics as ``model`` at ``slots``
+    (a UR URDF or an imported kinematics file, whose rebuilt frames have other twist signs), and its
+    slots; ``None`` when the chain is not of the UR structure (a calibrated one) or not a UR.
+    ``ideal``: the nearest chain of the UR structure instead (twists exact, off-structure parts
+    dropped) where the chain is a UR's calibrated one, for starting numerical IK."""
+    from fgcal.robots.compensate import base_transform
+    from fgcal.robots.ur_kinematics import is_ur, rot_z4, ur_kinematics
+
+    if not is_ur(model):
+        return None
+    x = model.nominal if slots is None else np.asarray(slots, dtype=float)
+    kin = ur_kinematics(model, x, hash="")
+    dh = [_dh_of(o) for o in kin.origins]
+    if ideal:  # a, alpha, theta, d of the UR structure: twists exact, a_0 = a_1 = a_4 = a_5 = d_2 = d_3 = 0
+        alphas = [0.0, *_UR_ALPHA]
+        dh = [(a if k in (2, 3) else 0.0, alphas[k], t, 0.0 if k in (1, 2) else dd, 0.0)
+              for k, (a, _, t, dd, _) in enumerate(dh)]
+    if max(r for *_, r in dh) > 1e-6:
+        return None
+    first = np.eye(4)
+    first[:3, :3] = rot(0, dh[0][1])
+    first[0, 3] = dh[0][0]
+    base = base_transform(model, x) @ np.linalg.inv(kin.own_base) @ rot_z4(np.pi) @ first @ rot_z4(dh[0][2])
+    base[:3, 3] += base[:3, 2] * dh[0][3]
+    tool = rot_z4(dh[5][2])
+    tool[2, 3] = dh[5][3]
+    tool = tool @ kin.tcp
+    from fgcal.robots.transforms import to_euler_zyx_trans
+
+    links = []
+    for k in range(5):  # theta, d, beta, a, alpha of link k + 1; link 1's theta and d are in the base
+        theta, d = (0.0, 0.0) if k == 0 else (dh[k][2], dh[k][3])
+        links += [theta, d, 0.0, dh[k + 1][0], dh[k + 1][1]]
+    try:
+        nominal = np.concatenate([to_euler_zyx_trans(base), links, to_euler_zyx_trans(tool)])
+    except ValueError:  # a tool turned by 90 deg about y: no closed form through this proxy
+        return None
+    proxy = RobotModel(name=f"{model.name} (UR table)", nominal=nominal, joint_limits=model.joint_limits)
+    return (proxy, proxy.nominal) if is_ur_structure(proxy) else None
+
+
+def solve_ur_any(model: RobotModel, T_target, branch: Branch, slots=None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`solve_ur_batch` for any UR model: through :func:`ur_proxy` when its frames are not the table's."""
+    if is_ur_structure(model, slots):
+        return solve_ur_batch(model, T_target, branch, slots)
+    found = ur_proxy(model, slots)
+    if found is not None:
+        return solve_ur_batch(found[0], T_target, branch, found[1])
+    found = ur_proxy(model, slots, ideal=True)  # a UR's calibrated chain: the ideal one's solution, refined
+    if found is None:
+        raise IKError(f"{model.name}: closed-form IK needs the UR structure (a UR's nominal geometry)")
+    from fgcal.robots.ik import solve_numeric
+
+    T_target = check_transform(T_target, "T_target").reshape(-1, 4, 4)
+    q, reachable = solve_ur_batch(found[0], T_target, branch, found[1])
+    x = model.nominal if slots is None else np.asarray(slots, dtype=float)
+    for i in np.nonzero(reachable)[0]:
+        try:
+            q[i] = solve_numeric(model, T_target[i], q[i], slots=x)
+        except IKError:
+            q[i], reachable[i] = np.nan, False
+    return q, reachable
