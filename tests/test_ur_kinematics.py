@@ -191,3 +191,27 @@ def test_urdf_export_of_a_table_says_which_frame_base_link_is(puma):
 
     text = to_urdf(puma, puma.nominal)
     assert "base_link is the robot's own base frame" in text and 'rpy="-0.0' not in text and '"-0.0 ' not in text
+
+
+def test_urdf_export_names_joints_as_the_data_were_imported(puma, tmp_path):
+    """A robot without joint names of its own exports the joint columns of ``import csv --joints``."""
+    import xml.etree.ElementTree as ET
+
+    from conftest import random_joints
+    from fgcal.io.dataset_io import write_csv
+
+    rng = np.random.default_rng(276)
+    q = random_joints(puma, 40, 277)
+    p = puma.forward(puma.nominal, q)[:, :3, :] @ np.array([0.0, 0.0, 60.0, 1.0]) + rng.normal(0, 0.01, (40, 3))
+    names = ["waist", "shoulder", "elbow", "wrist_roll", "wrist_bend", "flange_roll"]
+    write_csv(tmp_path / "m.csv", [*names, "X", "Y", "Z"], [[*np.degrees(qi), *pi] for qi, pi in zip(q, p, strict=True)])
+    cli = [sys.executable, "-m", "fgcal.cli"]
+    for args in (["import", "csv", str(tmp_path / "m.csv"), str(tmp_path / "ds"), "--robot", "puma560",
+                  "--joints", ",".join(names), "--joint-unit", "deg", "--point", "X,Y,Z"],
+                 ["calibrate", str(tmp_path / "ds"), "--out", str(tmp_path / "r.json")],
+                 ["export", str(tmp_path / "r.json"), "--urdf", str(tmp_path / "r.urdf")]):
+        run = subprocess.run(cli + args, capture_output=True, text=True, cwd=tmp_path)
+        assert run.returncode == 0, run.stderr
+    root = ET.parse(tmp_path / "r.urdf").getroot()
+    moving = [j.get("name") for j in root.findall("joint") if j.get("type") != "fixed"]
+    assert moving == names

@@ -50,6 +50,9 @@ def _cmd_export(args) -> int:
         save_model(calibrated, args.model, slots=slots)
         print(f"wrote {args.model} (fgcal-robot/1)")
     if args.urdf:
+        names = _dataset_joint_names(result, model)
+        if names:  # the joint names the data were imported with, for a model without its own
+            calibrated = replace(calibrated, joint_names=names)
         atomic_write_text(args.urdf, export_urdf(calibrated, slots))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
         print(f"wrote {args.urdf} ({kind})")
@@ -111,3 +114,25 @@ def _write_ur_kinematics(path, model, slots, args) -> None:
         print(f"note: the calibrated tool frame is {off:.3g} mm and {np.degrees(np.linalg.norm(rv)):.3g} deg from "
               f"tool0, which no joint origin can hold: set it as the controller's TCP [{tcp_text}] "
               "(x, y, z m, rotation vector rad; in the file as fgcal.tool_in_tool0)")
+
+
+def _dataset_joint_names(result, model) -> tuple[str, ...] | None:
+    """The joint columns the result's dataset was imported with (``import csv --joints``, ``import tum``),
+    for a model whose joints have only the default names ``q1..qn``; None when unknown."""
+    if "urdf" in model.extra or model.joint_names != tuple(f"q{k}" for k in range(1, model.n_joints + 1)):
+        return None
+    if not isinstance(result.dataset, str):
+        return None
+    from fgcal.util.yamlio import read_yaml
+
+    try:
+        provenance = read_yaml(Path(result.dataset) / "dataset.yaml").get("provenance") or {}
+    except (FgcalError, OSError, AttributeError):
+        return None
+    columns = provenance.get("columns") if isinstance(provenance.get("columns"), dict) else provenance
+    names = columns.get("joints") if isinstance(columns, dict) else None
+    if (not isinstance(names, list) or len(names) != model.n_joints or len(set(map(str, names))) != len(names)
+            or not all(re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}", str(n)) for n in names)
+            or {"base", "tool"} & set(map(str, names))):
+        return None
+    return tuple(str(n) for n in names)
