@@ -198,6 +198,7 @@ def test_urdf_export_names_joints_as_the_data_were_imported(puma, tmp_path):
     import xml.etree.ElementTree as ET
 
     from conftest import random_joints
+
     from fgcal.io.dataset_io import write_csv
 
     rng = np.random.default_rng(276)
