@@ -151,3 +151,21 @@ def test_ur_urdf_and_imported_factory_file_without_seed_joints(ur10):
         assert c.reachable.all(), c.reasons
         np.testing.assert_allclose(model.forward(model.nominal, c.q), T, atol=1e-6)
         np.testing.assert_allclose(np.angle(np.exp(1j * (c.q - q))), 0.0, atol=1e-7)  # the commanded joints
+
+
+def test_cli_position_only_targets_and_a_bad_start(ur10, ur10_result, tmp_path):
+    save_result(ur10_result, tmp_path / "r.json")
+    x = ur10_result.slot_vector()
+    q = _commands(4, 289)
+    p = ur10.forward(_nominal_with(ur10, x), q)[:, :3, 3]
+    write_csv(tmp_path / "t.csv", ["pose", "x", "y", "z", "q1", "q2", "q3", "q4", "q5", "q6"],
+              [[i + 1, *p[i], *np.degrees(q[i])] for i in range(4)])
+    cli = [sys.executable, "-m", "fgcal.cli", "compensate", str(tmp_path / "r.json"), str(tmp_path / "t.csv")]
+    run = subprocess.run(cli + ["--out", str(tmp_path / "c.csv")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert "4 of 4" in run.stdout and "positions only" in run.stdout
+    cmd = np.radians(np.loadtxt(tmp_path / "c.csv", delimiter=",", skiprows=1)[:, 1:])
+    assert np.abs(ur10.forward(x, cmd)[:, :3, 3] - p).max() < 1e-6
+    run = subprocess.run(cli + ["--seed-joints", "1,2,3"], capture_output=True, text=True)
+    assert run.returncode == 2 and "--seed-joints" in run.stderr and "6 joint values" in run.stderr
+    assert "Traceback" not in run.stderr
