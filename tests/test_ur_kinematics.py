@@ -147,6 +147,9 @@ def test_import_round_trip_and_cli(ur10, tmp_path):
     tcp = _matrix(yaml.safe_load(text)["fgcal"]["tool_in_tool0"])
     assert np.abs(description_forward(text, q, tmp_path) @ tcp - fgcal_forward(ur10, x, q, False)).max() < 1e-6
     assert yaml.safe_load(text)["kinematics"]["hash"].startswith("fgcal_")
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "export", str(tmp_path / "r.json"), "--ur-kinematics",
+                          str(tmp_path / "k2.yaml"), "--ur-hash", "calib_42"], capture_output=True, text=True)
+    assert run.returncode == 0 and yaml.safe_load((tmp_path / "k2.yaml").read_text())["kinematics"]["hash"] == "calib_42"
     # the URDF of the UR10: ur_description's names, base_link at the mounting face
     u = yourdfpy.URDF.load(str(tmp_path / "r.urdf"), load_meshes=False, load_collision_meshes=False)
     assert tuple(u.actuated_joint_names) == JOINTS and "base_link_inertia" in u.link_map
@@ -216,3 +219,21 @@ def test_urdf_export_names_joints_as_the_data_were_imported(puma, tmp_path):
     root = ET.parse(tmp_path / "r.urdf").getroot()
     moving = [j.get("name") for j in root.findall("joint") if j.get("type") != "fixed"]
     assert moving == names
+
+
+def test_eigen_angles_read_as_ur_calibration_computed_them(ur10):
+    """ur_calibration's writer gives Eigen's eulerAngles(0, 1, 2): R = Rx(roll) Ry(pitch) Rz(yaw)."""
+    from scipy.spatial.transform import Rotation
+
+    from fgcal.robots.ur_kinematics import parse_kinematics
+
+    kin = ur_kinematics(ur10, _perturbed(ur10, 278))
+    entries = {}
+    for name, origin in zip(NAMES, kin.origins, strict=True):
+        roll, pitch, yaw = Rotation.from_matrix(origin[:3, :3]).as_euler("XYZ")  # intrinsic: Rx Ry Rz
+        entries[name] = dict(zip("xyz", (origin[:3, 3] / 1000).tolist(), strict=True)) | {
+            "roll": float(roll), "pitch": float(pitch), "yaw": float(yaw)}
+    eigen = parse_kinematics({"kinematics": entries}, angles="eigen")
+    np.testing.assert_allclose(eigen.origins, kin.origins, atol=1e-9)
+    urdf = parse_kinematics({"kinematics": entries}, angles="urdf")
+    assert np.abs(urdf.origins[:, :3, :3] - kin.origins[:, :3, :3]).max() > 1e-6  # the conventions differ

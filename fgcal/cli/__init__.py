@@ -200,7 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(the mounting face) to tool0 reproduce the calibrated chain")
     e.add_argument("--ur-hash", default=None,
                    help="the kinematics file's hash (the driver compares it with the controller's calibration "
-                        "checksum, calib_...); default: the imported factory file's, else fgcal_ and a digest")
+                        "checksum, calib_..., and warns when they differ); default fgcal_ and a digest of the values")
     e.set_defaults(func=_cmd_export)
 
     o = sub.add_parser("online", help="incremental calibration as poses arrive (iSAM2, iterated EKF, UKF)")

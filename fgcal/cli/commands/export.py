@@ -93,7 +93,8 @@ def _write_ur_kinematics(path, model, slots, args) -> None:
     from fgcal.robots.ur_kinematics import kinematics_text, ur_kinematics
     from fgcal.util.yamlio import atomic_write_text
 
-    given = getattr(args, "ur_hash", None) or model.extra.get("ur_kinematics", {}).get("hash") or None
+    given = getattr(args, "ur_hash", None) or None
+    factory = model.extra.get("ur_kinematics", {}).get("hash")
     kin = ur_kinematics(model, slots, hash=given)
     tcp = kin.tcp
     xyz = tcp[:3, 3] / 1000.0
@@ -110,6 +111,9 @@ def _write_ur_kinematics(path, model, slots, args) -> None:
     atomic_write_text(path, kinematics_text(kin, comment))
     off = np.linalg.norm(tcp[:3, 3])
     print(f"wrote {path} (UR kinematics, hash {kin.hash})")
+    if factory and not given:
+        print(f"note: the factory file's hash was {factory}; --ur-hash {factory} silences the driver's check, but "
+              "the controller still computes its own poses with its factory calibration")
     if off > 1e-9 or np.linalg.norm(rv) > 1e-12:
         print(f"note: the calibrated tool frame is {off:.3g} mm and {np.degrees(np.linalg.norm(rv)):.3g} deg from "
               f"tool0, which no joint origin can hold: set it as the controller's TCP [{tcp_text}] "
