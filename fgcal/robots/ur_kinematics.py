@@ -158,7 +158,8 @@ def ur_kinematics(model: RobotModel, slots, hash: str | None = None) -> UrKinema
     Parameters
     ----------
     model : RobotModel
-        A UR (:func:`is_ur`): a built-in UR or DH table (its base frame is the UR's Base frame), or
+        A UR (:func:`is_ur`): a built-in UR or DH table (its base frame is the UR's Base frame, its
+        tool frame the flange, as the built-in models define them), or
         a URDF with ur_description's joint names and its ``base_link`` and ``tool0`` links.
     slots : array_like, shape (37,)
         Geometry (mm, rad). The base slots (the instrument placement) do not enter: base_link is
