@@ -170,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                "(positions only: the orientation is kept at the seed's), with "
                                                "optional seed joints q1..qn (the commanded joints, deg)")
     c2.add_argument("--out", type=Path, default=None,
-                    help="CSV of pose,q1..q6 (deg) of the reachable targets; standard output if omitted. The "
+                    help="CSV of pose,q1..qn (deg; mm for prismatic joints) of the reachable targets; standard output if omitted. The "
                          "unreachable ones are named on standard error and the exit status is 3")
     c2.add_argument("--frame", choices=("instrument", "base"), default="instrument",
                     help="frame of the targets: the measuring instrument's (default) or the robot's own base frame "
