@@ -410,6 +410,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]
     read_raw = raw_at_readings(graph, state.theta) if graph.joint_vars else None  # once, for both summaries
+    from fgcal.estimation.result_tooling import tooling_record
     from fgcal.robots.robot_file import model_to_dict
 
     return CalibrationResult(
@@ -427,7 +428,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         at_readings=at_readings(graph, state, read_raw),
         pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
-        setup=_setup_info(graph, state, held_info))
+        setup=_setup_info(graph, state, held_info), tooling=tooling_record(ds, levels))
 
 
 def _setup_info(graph: Graph, state: State, held_info) -> dict:

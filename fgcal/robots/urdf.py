@@ -11,6 +11,9 @@ Two forms:
   origins of the actuated joints 2..n, a ``world`` root (the measuring instrument's frame) placed
   by the calibrated base, and a ``tool`` link on the tip link (the calibrated tool frame).
 
+Both take a ``tool_point``: the centre of the ball that made a contact calibration's contacts
+(mm, tool frame); the ``tool`` link is then there (the tool frame moved by it, DESIGN.md 8.2).
+
 Lengths are written in metres, as URDF requires, with round-trip precision. No I/O here.
 """
 from __future__ import annotations
@@ -69,8 +72,17 @@ def origin_element(T) -> str:
     return _origin(T)
 
 
-def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
-    """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad.
+def _at_point(tool_point) -> np.ndarray:
+    """Trans(tool_point) (4, 4): the tool link moved from the tool frame to a ball centre (mm)."""
+    T = np.eye(4)
+    if tool_point is not None:
+        T[:3, 3] = np.asarray(tool_point, dtype=float)
+    return T
+
+
+def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) -> str:
+    """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad; its ``tool`` link at
+    ``tool_point`` (3,) mm in the tool frame (the tool frame itself by default).
 
     ``base_link`` is the robot's own base frame (:func:`fgcal.robots.compensate.base_transform`: a
     table's base frame, at the mounting face), placed in the ``world`` (the measuring instrument's
@@ -84,7 +96,7 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
     from fgcal.robots.ur_kinematics import is_ur
 
     if is_ur(model):
-        return ur_to_urdf(model, slots, name)
+        return ur_to_urdf(model, slots, name, tool_point)
     name = name or model.name
     origins = chain_origins(model, slots)
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(name)}>",
@@ -110,20 +122,21 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
         parent = child
     lines.append('  <link name="tool"/>')
     lines.append(f'  <joint name="tool_mount" type="fixed"><parent link={quoteattr(parent)}/><child link="tool"/>'
-                 f"{_origin(origins[-1] @ model.tool_offset_matrix)}</joint>")
+                 f"{_origin(origins[-1] @ model.tool_offset_matrix @ _at_point(tool_point))}</joint>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
 
 
-def ur_to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
+def ur_to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) -> str:
     """A UR's calibrated chain in ur_description's frames and joint names (:func:`fgcal.robots.ur_kinematics.ur_urdf`),
     with a ``world`` root (the measuring instrument's frame) placing ``base_link`` (the mounting face)
-    by the calibrated base, and a ``tool`` link on ``tool0`` (the calibrated tool frame)."""
+    by the calibrated base, and a ``tool`` link on ``tool0`` (the calibrated tool frame, or the ball
+    centre ``tool_point`` (3,) mm in it)."""
     from fgcal.robots.compensate import base_transform
     from fgcal.robots.ur_kinematics import ur_kinematics, ur_urdf
 
     kin = ur_kinematics(model, slots)
-    text = ur_urdf(kin, name or model.name, model.joint_limits, tool=kin.tcp)
+    text = ur_urdf(kin, name or model.name, model.joint_limits, tool=kin.tcp @ _at_point(tool_point))
     # base_link in the instrument frame: the robot's own base frame (the UR's Base for a table) is kin.own_base in it
     placement = base_transform(model, slots) @ np.linalg.inv(kin.own_base)
     head, rest = text.split('  <link name="base_link"/>', 1)
@@ -152,8 +165,9 @@ def _joint_frames(model: RobotModel, slots) -> list[np.ndarray]:
     return out
 
 
-def calibrated_urdf(model: RobotModel, slots) -> str:
-    """A calibrated copy of the URDF ``model`` was imported from (see the module docstring)."""
+def calibrated_urdf(model: RobotModel, slots, tool_point=None) -> str:
+    """A calibrated copy of the URDF ``model`` was imported from (see the module docstring); its
+    ``tool`` link at ``tool_point`` (3,) mm in the tool frame (the tool frame by default)."""
     from fgcal.robots.urdf_import import parse_urdf, urdf_chain
 
     info = model.extra["urdf"]
@@ -204,7 +218,7 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
         T_world_tip = T_world_tip @ j.origin
     x = np.asarray(slots, dtype=float)
     A_t = euler_zyx_trans(*[x[model.slot(f"tool.{f}")] for f in EULER_FIELDS])
-    tool = np.linalg.inv(T_world_tip) @ F[-1] @ A_t @ model.tool_offset_matrix
+    tool = np.linalg.inv(T_world_tip) @ F[-1] @ A_t @ model.tool_offset_matrix @ _at_point(tool_point)
     tool_name = "tool" if "tool" not in links else "fgcal_tool"
     _add_link(root, tool_name)
     _add_fixed(root, f"{tool_name}_mount", info["tip"], tool_name, tool)
@@ -247,6 +261,9 @@ def _add_fixed(root, name, parent, child, T) -> None:
     ET.SubElement(e, "origin", {"xyz": xyz, "rpy": angles})
 
 
-def export_urdf(model: RobotModel, slots) -> str:
-    """The calibrated URDF: a copy of the user's URDF when the model came from one, else :func:`to_urdf`."""
-    return calibrated_urdf(model, slots) if "urdf" in model.extra else to_urdf(model, slots)
+def export_urdf(model: RobotModel, slots, tool_point=None) -> str:
+    """The calibrated URDF: a copy of the user's URDF when the model came from one, else :func:`to_urdf`;
+    the ``tool`` link at ``tool_point`` (3,) mm in the tool frame when given (a contact calibration's ball)."""
+    if "urdf" in model.extra:
+        return calibrated_urdf(model, slots, tool_point)
+    return to_urdf(model, slots, tool_point=tool_point)

@@ -53,9 +53,12 @@ def _cmd_export(args) -> int:
         names = _dataset_joint_names(result, model)
         if names:  # the joint names the data were imported with, for a model without its own
             calibrated = replace(calibrated, joint_names=names)
-        atomic_write_text(args.urdf, export_urdf(calibrated, slots))
+        point = result.tool_point()  # a contact calibration: the link tool at the ball's centre (DESIGN.md 8.2)
+        atomic_write_text(args.urdf, export_urdf(calibrated, slots, tool_point=point))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
-        print(f"wrote {args.urdf} ({kind})")
+        at = "" if point is None else (f"; link tool at the centre of ball {result.tooling['tool_ball']} "
+                                       f"({', '.join(f'{v:g}' for v in point)} mm in the tool frame)")
+        print(f"wrote {args.urdf} ({kind}{at})")
     if args.deltas:
         from fgcal.io.dataset_io import write_csv
 
