@@ -286,7 +286,7 @@ def _pose_residual(d: dict) -> PoseResidual:
     return p
 
 
-SETUP_KEYS = ("fixtures", "constraints", "estimated", "gauge")
+SETUP_KEYS = ("fixtures", "constraints", "estimated", "gauge", "start", "refused")
 def _setup_prefixes() -> dict:
     """A parameter's first name part -> its block's type (``fixture`` -> ``point``, ``station`` -> ``station``),
     over the registered block kinds (:data:`fgcal.measurements.setup.BLOCK_KINDS`)."""
