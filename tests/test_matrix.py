@@ -38,7 +38,7 @@ N_POSES = 30
 TYPES = ["centres", "reflector", "poses", "distances", "contacts", "stations"]
 ONLINE = ["ekf", "ukf", "isam2"]
 ENGINES = ["batch", "gtsam", *ONLINE]
-DESIGN_REFUSED = {"stations"}  # nor does the design
+DESIGN_REFUSED: set = set()  # every type is designed for (stations: each pose from its station)
 HAS_TRUTH = {"centres", "reflector", "poses", "distances"}  # simulated by fgcal: a truth.yaml
 
 # Cells that fail, measured on these seeded datasets (2026-12-01); strict: a fix makes them pass.
@@ -296,6 +296,11 @@ def test_command(paths, cli_tmp, kind, command, tmp_path):
         ids = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1, ndmin=2)[:, 0].astype(int).tolist()
         ds = load_dataset(ds_path)
         assert len(ids) == n and len(set(ids)) == n and set(ids) <= set(ds.pose_ids.tolist()), ids
+        if ds.stations is not None:  # which station each pose is to be measured from: the dataset's
+            from fgcal.io.dataset_io import read_joints_and_stations
+
+            of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist()))
+            assert read_joints_and_stations(tmp_path / "p.csv")[2].tolist() == [of[i] for i in ids]
         return
     out, r = _cli_result(paths, kind, cli_tmp)
     if command == "calibrate":

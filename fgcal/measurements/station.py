@@ -97,7 +97,8 @@ class StationPoint(SetupMeasurement):
         for k in np.unique(start):
             rows = np.nonzero(start == k)[0]
             R, p, dR = station_transform(s[k:k + 6])
-            local = xyz[rows] + p
+            # a design's noiseless centre (xyz None) is where the station sees the predicted one
+            local = xyz[rows] + p if xyz is not None else p_fk[rows] @ R
             e[rows] = p_fk[rows] - local @ R.T
             J_s[rows, :, :3] = -np.einsum("aij,nj->nia", dR, local)
             J_s[rows, :, 3:] = -R
@@ -107,14 +108,19 @@ class StationPoint(SetupMeasurement):
     def design_data(self, forward, offsets, fixture=None, setup=None, radius: float = 0.0) -> tuple:
         """The payload of M noiseless centres from the stations ``fixture`` (M,), with the set-up
         vector: ``(offsets, xyz in each station's frame, block starts, s)``; ``forward`` (M, 4, 4)
-        the tool poses, ``setup`` the layout (its start: the stations at the geometry designed for)."""
-        if fixture is None or setup is None or forward is None:
-            raise FgcalError("design for centres from several stations is not available yet: design on a "
-                             "dataset of one station")
+        the tool poses, ``setup`` the layout (its start: the stations at the geometry designed for).
+        Without ``forward`` (the design's information, :mod:`fgcal.studies.design_info`) xyz is None:
+        :meth:`setup_error` takes each centre where its station sees the predicted one (error zero,
+        the Jacobians of a noiseless measurement there)."""
+        if fixture is None or setup is None:
+            raise FgcalError("design for centres from several stations needs each pose's station "
+                             "(design on the dataset's own poses)")
         fixture = np.asarray(fixture, dtype=str).reshape(-1)
         offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
-        world = tool_points(forward, offsets[:, None, :])[:, 0]
         start = np.array([setup.offset[f] for f in fixture.tolist()], dtype=int)
+        if forward is None:
+            return offsets, None, start, setup.start
+        world = tool_points(forward, offsets[:, None, :])[:, 0]
         local = np.empty_like(world)
         for k in np.unique(start):
             rows = start == k
