@@ -293,7 +293,7 @@ def test_command(paths, cli_tmp, kind, command, tmp_path):
             assert not (tmp_path / "p.csv").exists()
             out = _cli("design", "--dataset", ds_path, "--poses", n, "--out", tmp_path / "p.csv")
         assert out.returncode == 0, out.stderr[-3000:]
-        ids = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1, ndmin=2)[:, 0].astype(int).tolist()
+        ids = np.loadtxt(tmp_path / "p.csv", delimiter=",", skiprows=1, usecols=0, ndmin=1).astype(int).tolist()
         ds = load_dataset(ds_path)
         assert len(ids) == n and len(set(ids)) == n and set(ids) <= set(ds.pose_ids.tolist()), ids
         if ds.stations is not None:  # which station each pose is to be measured from: the dataset's
