@@ -20,7 +20,10 @@ import pytest
 
 from contact_sim import plane_dataset, two_socket_dataset
 from test_contacts_simulated import _merge
+from test_stations import CHAIN as STATION_CHAIN
 from test_stations import _simulate as _stations_simulate
+from contact_sim import UrdfChain, rigid_align
+from plain_dh import fk_from_truth
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.estimation.holding import unseen_parameters
@@ -40,6 +43,7 @@ ONLINE = ["ekf", "ukf", "isam2"]
 ENGINES = ["batch", "gtsam", *ONLINE]
 DESIGN_REFUSED: set = set()  # every type is designed for (stations: each pose from its station)
 HAS_TRUTH = {"centres", "reflector", "poses", "distances"}  # simulated by fgcal: a truth.yaml
+TRUE_URDF: dict = {}  # kind -> (the true robot's URDF text, chain): the URDF-generated datasets
 
 # Cells that fail, measured on these seeded datasets (2026-12-01); strict: a fix makes them pass.
 # (iSAM2 on centres, a reflector and poses was 0.23-0.35 sigma off: its result was the running
@@ -87,6 +91,7 @@ def _contacts(tmp: Path):
                   patch_radius_mm=200.0, max_tries=5)
     save_dataset(_merge(load_dataset(tmp / "sockets"), load_dataset(tmp / "plane")), tmp / "contacts")
     shutil.copy(tmp / "sockets" / "robot.urdf", tmp / "contacts" / "robot.urdf")
+    TRUE_URDF["contacts"] = (sockets.urdf, {"tip": "j2s6s200_end_effector"})
     return tmp / "contacts"
 
 
@@ -104,7 +109,7 @@ def paths(puma, ur10, tmp_path_factory):
         _simulated(model, levels, balls, seed, tmp / name)
         out[name] = tmp / name
     out["contacts"] = _contacts(tmp / "c")
-    _stations_simulate(tmp / "s", 0, n=N_POSES)
+    TRUE_URDF["stations"] = (_stations_simulate(tmp / "s", 0, n=N_POSES), STATION_CHAIN)
     out["stations"] = tmp / "s" / "all"
     return out
 
@@ -348,3 +353,83 @@ def test_command(paths, cli_tmp, kind, command, tmp_path):
         np.testing.assert_allclose(got[:, :3, :3], want[:, :3, :3], rtol=0, atol=1e-12)
         return
     raise AssertionError(command)
+
+
+# --- compensate -------------------------------------------------------------------------------------
+
+# Measured on these datasets (2026-12-02): the true robot's TCP at the commanded joints, from the
+# targets (max over 12, mm); the seeds' are ~3 mm.
+# Limits twice those measured: centres 0.045, reflector 0.062, poses 0.041, distances 0.30 (30 lengths, one
+# equation a pose, determine the geometry least), contacts 0.056, stations 0.016 mm.
+COMPENSATE_LIMIT_MM = {"centres": 0.1, "reflector": 0.12, "poses": 0.08, "distances": 0.6, "contacts": 0.11,
+                       "stations": 0.03}
+FREE_WORLD = {"contacts", "distances"}  # nothing fixes the world frame (a ballbar: its turn about the pivot)
+
+
+def _true_points(paths, kind, q_file, tcp):
+    """Where the simulated true robot puts the tool point ``tcp`` (3,) at joints ``q_file`` (N, n)
+    in file units, by a forward kinematics independent of fgcal's (tests/plain_dh.py for the
+    fgcal-simulated Puma, tests/contact_sim.py's URDF chain for the URDF-generated datasets)."""
+    if kind in HAS_TRUTH:
+        from fgcal.io.dataset_io import load_truth
+
+        truth, _ = load_truth(paths[kind] / "truth.yaml")
+        return np.array([(fk_from_truth(truth, q) @ np.append(tcp, 1.0))[:3] for q in q_file])
+    text, chain = TRUE_URDF[kind]
+    true = UrdfChain(text, chain.get("base"), chain["tip"])
+    return true.point(true.from_readings(q_file), tcp)
+
+
+def _well_conditioned(model, slots, q_file, n):
+    """The ``n`` joint sets of ``q_file`` (file units) farthest from a singularity (the smallest singular
+    value of the pose Jacobian, rows in mm and 100 mm x rad) among those 10 deg or more inside the limits."""
+    from fgcal.robots.kinematics import jacobians
+
+    q = model.joints_to_internal(q_file)
+    lim = model.joint_limits
+    margin = np.minimum(q - lim[:, 0], lim[:, 1] - q).min(axis=1)
+    J = jacobians(slots, q, chain=model.chain).pose_joints * np.array([1, 1, 1, 100, 100, 100.0])[None, :, None]
+    smallest = np.linalg.svd(J, compute_uv=False)[:, -1]
+    smallest[margin < np.radians(10.0)] = -1.0
+    return q_file[np.sort(np.argsort(-smallest)[:n])]
+
+
+@pytest.mark.parametrize("kind", TYPES)
+def test_compensate(paths, cli_tmp, kind, tmp_path):
+    """``compensate`` on each type's result: targets 3 mm (random directions) from where the calibrated
+    robot puts the TCP (a ball; the reflector, a position-only instrument, whose orientation is the
+    held tool angles') at 12 of the dataset's joint sets, those as seeds; the true robot at the
+    commanded joints puts the TCP on the targets within the calibration's accuracy (contacts and a
+    ballbar: after aligning the free world frame), against ~3 mm at the seeds."""
+    from fgcal.io.dataset_io import write_csv
+    from fgcal.robots.compensate import tcp_matrix
+    from fgcal.robots.transforms import matrix_to_quaternion
+
+    out, r = _cli_result(paths, kind, cli_tmp)
+    assert out.returncode == 0, out.stderr[-3000:]
+    result = load_result(r)
+    ds = load_dataset(paths[kind])
+    model = result.model()
+    tcp = np.zeros(3) if kind == "poses" else np.asarray(next(iter(ds.tooling.balls.values())), dtype=float)
+    seeds = _well_conditioned(model, result.slot_vector(model), ds.joints_deg, 12)
+    T = model.forward(result.slot_vector(model), model.joints_to_internal(seeds)) @ tcp_matrix(tcp, (0.0, 0.0, 0.0))
+    step = np.random.default_rng(11).normal(size=(len(T), 3))
+    T[:, :3, 3] += 3.0 * step / np.linalg.norm(step, axis=1, keepdims=True)  # 3 mm from where the seeds go
+    write_csv(tmp_path / "t.csv", ["pose", "x", "y", "z", "qw", "qx", "qy", "qz",
+                                   *[f"q{i}" for i in range(1, model.n_joints + 1)]],
+              [[i + 1, *T[i, :3, 3], *matrix_to_quaternion(T[i, :3, :3]), *seeds[i]] for i in range(len(T))])
+    run = _cli("compensate", r, tmp_path / "t.csv", "--tcp", ",".join(map(repr, tcp.tolist())),
+               "--out", tmp_path / "cmd.csv")
+    assert run.returncode == 0, run.stderr[-3000:]
+    cmd = np.loadtxt(tmp_path / "cmd.csv", delimiter=",", skiprows=1, ndmin=2)
+    assert cmd[:, 0].astype(int).tolist() == list(range(1, len(T) + 1))
+    reached, before = _true_points(paths, kind, cmd[:, 1:], tcp), _true_points(paths, kind, seeds, tcp)
+    target = T[:, :3, 3]
+    if kind in FREE_WORLD:  # the true points aligned onto the targets
+        R, t = rigid_align(reached, target)
+        reached = reached @ R.T + t
+        R, t = rigid_align(before, target)
+        before = before @ R.T + t
+    err, err0 = np.linalg.norm(reached - target, axis=1), np.linalg.norm(before - target, axis=1)
+    assert err.max() < COMPENSATE_LIMIT_MM[kind], (err.max(), err0.max())
+    assert err.max() < 0.1 * err0.max(), (err.max(), err0.max())
