@@ -108,9 +108,42 @@ def paths(puma, ur10, tmp_path_factory):
                                              ("ur10-reflector", _reflector(ur10), ("centres",), 1, 6)]:
         _simulated(model, levels, balls, seed, tmp / name)
         out[name] = tmp / name
+    out["ur10-stations"] = _on_stations(out["ur10-reflector"], tmp / "ur10-stations")
     out["contacts"] = _contacts(tmp / "c")
     TRUE_URDF["stations"] = (_stations_simulate(tmp / "s", 0, n=N_POSES), STATION_CHAIN)
     out["stations"] = tmp / "s" / "all"
+    return out
+
+
+UR10_STATIONS = {"B": [25.0, 1.0, -2.0, 600.0, -250.0, 40.0], "C": [-50.0, -1.0, 2.5, -150.0, 700.0, -30.0]}
+
+
+def _on_stations(src: Path, out: Path) -> Path:
+    """The dataset ``src`` (fgcal-simulated reflector centres) as measured from three stations: every
+    third pose from A (the world), B and C; B's and C's centres moved into their frames
+    (:data:`UR10_STATIONS`, deg and mm) by the test's own transform."""
+    import yaml
+
+    from fgcal.robots.transforms import euler_zyx_trans
+
+    shutil.copytree(src, out)
+    meta = yaml.safe_load((out / "dataset.yaml").read_text())
+    meta["stations"] = ["A", "B", "C"]
+    (out / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    head, *rows = (out / "joints.csv").read_text().splitlines()
+    station = {int(r.split(",")[0]): "ABC"[k % 3] for k, r in enumerate(rows)}
+    (out / "joints.csv").write_text("\n".join([head + ",station"] + [f"{r},{station[int(r.split(',')[0])]}"
+                                                                      for r in rows]) + "\n")
+    head, *rows = (out / "centres.csv").read_text().splitlines()
+    lines = [head]
+    for r in rows:
+        pose, ball, *xyz = r.split(",")
+        x = np.array(xyz, dtype=float)
+        if station[int(pose)] != "A":
+            T = euler_zyx_trans(*np.radians(UR10_STATIONS[station[int(pose)]][:3]), *UR10_STATIONS[station[int(pose)]][3:])
+            x = (x - T[:3, 3]) @ T[:3, :3]
+        lines.append(f"{pose},{ball}," + ",".join(repr(float(v)) for v in x))
+    (out / "centres.csv").write_text("\n".join(lines) + "\n")
     return out
 
 
@@ -217,8 +250,11 @@ def test_held_poses_nothing(paths):
 
 # --- the compliance model --------------------------------------------------------------------------
 
-@pytest.mark.parametrize("kind", ["ur10-centres", "ur10-reflector"])
+@pytest.mark.parametrize("kind", ["ur10-centres", "ur10-reflector", "ur10-stations"])
 def test_compliance_model(paths, kind, tmp_path):
+    """The compliance model on the UR10 (whose model has inertials): centres (nothing held), a
+    reflector (tool angles held), a reflector from three stations; the simulated arm has no
+    compliance (within 4 sigma of zero), and its geometry is the simulated truth within 5 sigma."""
     out = _cli("calibrate", paths[kind], "--model", "compliance", "--folds", "3", "--out", tmp_path / "r.json")
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Traceback" not in out.stderr
@@ -228,8 +264,23 @@ def test_compliance_model(paths, kind, tmp_path):
     for p in comp:
         assert np.isfinite(p.estimate) and np.isfinite(p.sigma) and p.sigma > 0, (p.name, p.estimate, p.sigma)
         assert abs(p.estimate) < 4 * p.sigma, (p.name, p.estimate, p.sigma)  # the simulated arm has none
-    if kind == "ur10-reflector":
+    if kind != "ur10-centres":
         assert {"tool.phi", "tool.theta", "tool.psi"} <= _held(r)
+    else:
+        assert not _held(r)
+    from fgcal.io.dataset_io import load_truth
+
+    truth, _ = load_truth(paths[kind] / "truth.yaml")
+    geometry = [p for p in r.parameters if p.name in truth and not p.name.endswith(".compliance")
+                and p.name.split(".")[0] not in {h.split(".")[0] for h in _held(r)}]
+    z = np.array([(p.estimate - truth[p.name]) / p.sigma for p in geometry])
+    assert len(geometry) > 20 and np.abs(z).max() < 5.0, (geometry[int(np.argmax(np.abs(z)))].name, np.abs(z).max())
+    if kind == "ur10-stations":  # and the stations' frames are the simulated ones
+        for name, pose in UR10_STATIONS.items():
+            got = {p.name: p for p in r.parameters if p.name.startswith(f"station.{name}.")}
+            for c, v in zip(("phi", "theta", "psi", "px", "py", "pz"), pose):
+                p = got[f"station.{name}.{c}"]
+                assert abs(p.estimate - v) < 5 * p.sigma, (p.name, p.estimate, v, p.sigma)
 
 
 # --- the commands ------------------------------------------------------------------------------------
