@@ -109,6 +109,7 @@ def paths(puma, ur10, tmp_path_factory):
         _simulated(model, levels, balls, seed, tmp / name)
         out[name] = tmp / name
     out["ur10-stations"] = _on_stations(out["ur10-reflector"], tmp / "ur10-stations")
+    out["ur10-contacts"] = _dh_contacts(out["ur10-centres"], tmp / "ur10-contacts")
     out["contacts"] = _contacts(tmp / "c")
     TRUE_URDF["stations"] = (_stations_simulate(tmp / "s", 0, n=N_POSES), STATION_CHAIN)
     out["stations"] = tmp / "s" / "all"
@@ -144,6 +145,18 @@ def _on_stations(src: Path, out: Path) -> Path:
             x = (x - T[:3, 3]) @ T[:3, :3]
         lines.append(f"{pose},{ball}," + ",".join(repr(float(v)) for v in x))
     (out / "centres.csv").write_text("\n".join(lines) + "\n")
+    return out
+
+
+def _dh_contacts(src: Path, out: Path) -> Path:
+    """Two-socket contacts (three plates, eight seatings a socket) of the true UR10 of ``src``'s
+    truth.yaml, by tests/dh_contacts.py (an independent DH forward kinematics); truth.yaml copied."""
+    from dh_contacts import dh_two_socket_dataset
+    from fgcal.io.dataset_io import load_truth
+
+    truth, _ = load_truth(src / "truth.yaml")
+    dh_two_socket_dataset(out, "ur10", truth, load_model("ur10").joint_limits, np.random.default_rng(0))
+    shutil.copy(src / "truth.yaml", out / "truth.yaml")
     return out
 
 
@@ -250,11 +263,13 @@ def test_held_poses_nothing(paths):
 
 # --- the compliance model --------------------------------------------------------------------------
 
-@pytest.mark.parametrize("kind", ["ur10-centres", "ur10-reflector", "ur10-stations"])
+@pytest.mark.parametrize("kind", ["ur10-centres", "ur10-reflector", "ur10-stations", "ur10-contacts"])
 def test_compliance_model(paths, kind, tmp_path):
     """The compliance model on the UR10 (whose model has inertials): centres (nothing held), a
-    reflector (tool angles held), a reflector from three stations; the simulated arm has no
-    compliance (within 4 sigma of zero), and its geometry is the simulated truth within 5 sigma."""
+    reflector (tool angles held), a reflector from three stations, two-socket contacts (the base
+    held: nothing fixes the world frame); the simulated arm has no compliance (within 4 sigma of
+    zero), and its geometry is the simulated truth within 5 sigma (contacts: the ball at 30 new
+    joint sets, after aligning the free world frame, 5 times closer than the nominal's)."""
     out = _cli("calibrate", paths[kind], "--model", "compliance", "--folds", "3", "--out", tmp_path / "r.json")
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Traceback" not in out.stderr
@@ -271,6 +286,21 @@ def test_compliance_model(paths, kind, tmp_path):
     from fgcal.io.dataset_io import load_truth
 
     truth, _ = load_truth(paths[kind] / "truth.yaml")
+    if kind == "ur10-contacts":
+        from contact_sim import aligned_rms
+
+        assert {f"base.{c}" for c in ("phi", "theta", "psi", "px", "py", "pz")} <= _held(r)
+        model = r.model()
+        rng = np.random.default_rng(8)
+        q = rng.uniform(np.maximum(model.joint_limits[:, 0], -np.pi), np.minimum(model.joint_limits[:, 1], np.pi),
+                        size=(30, 6))
+        ball = np.array([0.0, 0.0, 30.0])
+        true = np.array([(fk_from_truth(truth, np.degrees(qi)) @ np.append(ball, 1.0))[:3] for qi in q])
+        got = model.forward(r.slot_vector(model), q)[:, :3, :3] @ ball + model.forward(r.slot_vector(model), q)[:, :3, 3]
+        nominal = model.forward(model.nominal, q)[:, :3, :3] @ ball + model.forward(model.nominal, q)[:, :3, 3]
+        assert aligned_rms(got, true) < 0.2 * aligned_rms(nominal, true), (aligned_rms(got, true),
+                                                                         aligned_rms(nominal, true))
+        return
     geometry = [p for p in r.parameters if p.name in truth and not p.name.endswith(".compliance")
                 and p.name.split(".")[0] not in {h.split(".")[0] for h in _held(r)}]
     z = np.array([(p.estimate - truth[p.name]) / p.sigma for p in geometry])
