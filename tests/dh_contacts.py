@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-
 from contact_sim import _sample_joints, varied_solutions
 from plain_dh import fk_from_truth
 

@@ -8,13 +8,13 @@ import sys
 
 import numpy as np
 import pytest
+from test_stations import _simulate
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.estimation.noise import NoiseMode
 from fgcal.io.dataset_io import dataset_model, load_dataset, read_joints_and_stations
 from fgcal.studies.design import Candidates, marginal
 from fgcal.studies.design_dataset import dataset_layout, design_from_dataset, with_dataset_tooling
-from test_stations import _simulate
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +31,7 @@ def test_design_chooses_poses_from_each_station(stations_ds, tmp_path):
     assert "poses from each station: A " in out.stdout
     ids, _, stations = read_joints_and_stations(tmp_path / "p.csv")
     ds = load_dataset(stations_ds)
-    of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist()))
+    of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist(), strict=True))
     assert len(ids) == 20 and [of[int(i)] for i in ids] == stations.tolist()
     # a station's frame needs three centres across a line: a plan gives a station none (its poses
     # only tell the robot through the others') or at least three; the world's are always worth it

@@ -17,13 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from contact_sim import plane_dataset, two_socket_dataset
+from contact_sim import UrdfChain, plane_dataset, rigid_align, two_socket_dataset
+from plain_dh import fk_from_truth
 from test_contacts_simulated import _merge
 from test_stations import CHAIN as STATION_CHAIN
 from test_stations import _simulate as _stations_simulate
-from contact_sim import UrdfChain, rigid_align
-from plain_dh import fk_from_truth
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.estimation.holding import unseen_parameters
@@ -141,7 +139,8 @@ def _on_stations(src: Path, out: Path) -> Path:
         pose, ball, *xyz = r.split(",")
         x = np.array(xyz, dtype=float)
         if station[int(pose)] != "A":
-            T = euler_zyx_trans(*np.radians(UR10_STATIONS[station[int(pose)]][:3]), *UR10_STATIONS[station[int(pose)]][3:])
+            frame = UR10_STATIONS[station[int(pose)]]
+            T = euler_zyx_trans(*np.radians(frame[:3]), *frame[3:])
             x = (x - T[:3, 3]) @ T[:3, :3]
         lines.append(f"{pose},{ball}," + ",".join(repr(float(v)) for v in x))
     (out / "centres.csv").write_text("\n".join(lines) + "\n")
@@ -152,6 +151,7 @@ def _dh_contacts(src: Path, out: Path) -> Path:
     """Two-socket contacts (three plates, eight seatings a socket) of the true UR10 of ``src``'s
     truth.yaml, by tests/dh_contacts.py (an independent DH forward kinematics); truth.yaml copied."""
     from dh_contacts import dh_two_socket_dataset
+
     from fgcal.io.dataset_io import load_truth
 
     truth, _ = load_truth(src / "truth.yaml")
@@ -296,8 +296,8 @@ def test_compliance_model(paths, kind, tmp_path):
                         size=(30, 6))
         ball = np.array([0.0, 0.0, 30.0])
         true = np.array([(fk_from_truth(truth, np.degrees(qi)) @ np.append(ball, 1.0))[:3] for qi in q])
-        got = model.forward(r.slot_vector(model), q)[:, :3, :3] @ ball + model.forward(r.slot_vector(model), q)[:, :3, 3]
-        nominal = model.forward(model.nominal, q)[:, :3, :3] @ ball + model.forward(model.nominal, q)[:, :3, 3]
+        T, T0 = model.forward(r.slot_vector(model), q), model.forward(model.nominal, q)
+        got, nominal = T[:, :3, :3] @ ball + T[:, :3, 3], T0[:, :3, :3] @ ball + T0[:, :3, 3]
         assert aligned_rms(got, true) < 0.2 * aligned_rms(nominal, true), (aligned_rms(got, true),
                                                                          aligned_rms(nominal, true))
         return
@@ -308,7 +308,7 @@ def test_compliance_model(paths, kind, tmp_path):
     if kind == "ur10-stations":  # and the stations' frames are the simulated ones
         for name, pose in UR10_STATIONS.items():
             got = {p.name: p for p in r.parameters if p.name.startswith(f"station.{name}.")}
-            for c, v in zip(("phi", "theta", "psi", "px", "py", "pz"), pose):
+            for c, v in zip(("phi", "theta", "psi", "px", "py", "pz"), pose, strict=True):
                 p = got[f"station.{name}.{c}"]
                 assert abs(p.estimate - v) < 5 * p.sigma, (p.name, p.estimate, v, p.sigma)
 
@@ -385,7 +385,7 @@ def test_command(paths, cli_tmp, kind, command, tmp_path):
         if ds.stations is not None:  # which station each pose is to be measured from: the dataset's
             from fgcal.io.dataset_io import read_joints_and_stations
 
-            of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist()))
+            of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist(), strict=True))
             assert read_joints_and_stations(tmp_path / "p.csv")[2].tolist() == [of[i] for i in ids]
         return
     out, r = _cli_result(paths, kind, cli_tmp)

@@ -11,13 +11,13 @@ import sys
 
 import numpy as np
 import pytest
+from test_stations import STATIONS, _simulate
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset
 from fgcal.online.engines import make_engine, pose_records
 from fgcal.online.run import OnlineRun
 from fgcal.robots.kinematics import jacobians
-from test_stations import STATIONS, _simulate
 
 ENGINES = ("ekf", "ukf", "isam2")
 
@@ -135,15 +135,15 @@ def test_resume_of_stations_is_identical(case, engine, tmp_path, monkeypatch):
 @pytest.mark.parametrize("engine", ["ekf", "isam2"])
 def test_stdin_stations_as_the_files(case, engine, tmp_path):
     ds, model, _ = case
-    station_of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist()))
+    station_of = dict(zip(ds.pose_ids.tolist(), ds.stations.tolist(), strict=True))
     lines = []
-    for pid, q in zip(ds.pose_ids, ds.joints_deg):
-        lines.append("joints,%d,%s" % (pid, ",".join(repr(float(v)) for v in q)))
+    for pid, q in zip(ds.pose_ids, ds.joints_deg, strict=True):
+        lines.append(f"joints,{pid},{','.join(repr(float(v)) for v in q)}")
         for obs in (ds.centres, ds.station_centres):
             sel = obs.pose == pid
             tail = "" if station_of[int(pid)] == "A" else "," + station_of[int(pid)]
-            lines += ["centre,%d,%s,%s%s" % (pid, b, ",".join(repr(float(v)) for v in x), tail)
-                      for b, x in zip(obs.ball[sel], obs.xyz[sel])]
+            lines += [f"centre,{pid},{b},{','.join(repr(float(v)) for v in x)}{tail}"
+                      for b, x in zip(obs.ball[sel], obs.xyz[sel], strict=True)]
     lines.insert(2, "centre,1,R,1,2,3,Z")  # an unknown station: reported, skipped, the session goes on
     run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(ds.path), "--stdin", "--engine", engine,
                           "--checkpoint", str(tmp_path / "s.ck"), "--out", str(tmp_path / "s.json")],

@@ -134,7 +134,8 @@ class StationPoint(SetupMeasurement):
     def block_observations(self, pose, ball, block, values) -> StationPointObservations:
         """Centres from the stations ``block`` (M,): pose ids (M,), balls (M,), ``values`` (M, 3) mm in
         each station's frame (as the online engines hold them, :attr:`fgcal.online.records.PoseData.block_rows`)."""
-        return StationPointObservations(np.asarray(pose, dtype=int).reshape(-1), np.asarray(ball, dtype=str).reshape(-1),
+        return StationPointObservations(np.asarray(pose, dtype=int).reshape(-1),
+                                        np.asarray(ball, dtype=str).reshape(-1),
                                         np.asarray(values, dtype=float).reshape(-1, 3), block)
 
     def rows(self, obs: StationPointObservations):

@@ -2,8 +2,8 @@
 ``setup_error``, with its analytic Jacobians in the parameters, the joints and the block), a known
 distance between two fixture points, and a Gaussian over several vector variables (the marginal
 that starts a new tree). One vector variable per free block (a point's x, y, z; a plane's tilts
-and offset; a station's three angles and position); a fixed block is a constant. Keep a reference to every factor: the closures capture
-their arguments."""
+and offset; a station's three angles and position); a fixed block is a constant. Keep a
+reference to every factor: the closures capture their arguments."""
 from __future__ import annotations
 
 import numpy as np

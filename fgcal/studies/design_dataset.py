@@ -109,7 +109,7 @@ class DatasetDesign:
             lines.append(f"  not identifiable from these candidates, not designed for: {', '.join(self.dropped)}")
         if self.stations is not None:
             names, counts = np.unique(self.stations, return_counts=True)
-            lines.append("  poses from each station: " + ", ".join(f"{n} {c}" for n, c in zip(names, counts)))
+            lines.append("  poses from each station: " + ", ".join(f"{n} {c}" for n, c in zip(names, counts, strict=True)))
         return lines
 
 
@@ -349,10 +349,11 @@ def save_plan(plan: DatasetDesign, path) -> None:
     ``station`` each pose is to be measured from when the dataset has several."""
     if plan.stations is None:
         write_csv(path, joint_columns(plan.joints_deg.shape[1]),
-                  [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg)])
+                  [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg, strict=True)])
         return
     write_csv(path, [*joint_columns(plan.joints_deg.shape[1]), "station"],
-              [[int(i), *map(float, q), str(st)] for i, q, st in zip(plan.pose_ids, plan.joints_deg, plan.stations)])
+              [[int(i), *map(float, q), str(st)]
+               for i, q, st in zip(plan.pose_ids, plan.joints_deg, plan.stations, strict=True)])
 
 
 def load_plan(path) -> tuple[np.ndarray, np.ndarray]:
