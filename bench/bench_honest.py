@@ -62,8 +62,8 @@ def online_table(model, seeds):
 
 
 if __name__ == "__main__":
-    from fgcal.studies.honesty import SCENARIOS
     from fgcal.robots.robot_file import load_model
+    from fgcal.studies.honesty import SCENARIOS
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=25)

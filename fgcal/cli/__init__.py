@@ -11,10 +11,16 @@ import sys
 from pathlib import Path
 
 from fgcal._version import __version__
-from fgcal.cli.commands.checks import (finite_float, nonnegative_float, nonnegative_int, os_error_message,
-                                       positive_float, positive_int)
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
+from fgcal.cli.commands.checks import (
+    finite_float,
+    nonnegative_float,
+    nonnegative_int,
+    os_error_message,
+    positive_float,
+    positive_int,
+)
 from fgcal.cli.commands.compensate import _cmd_compensate
 from fgcal.cli.commands.demo import _cmd_demo
 from fgcal.cli.commands.design import _cmd_design

@@ -17,24 +17,42 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from fgcal._version import __version__
-from fgcal.measurements.dataset import Dataset
-from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed  # noqa: F401 (also reached here)
+from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed
 from fgcal.estimation.graph import Graph, Sigmas, State
-from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
-from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost, typical_geometry
-from fgcal.robots.identifiability import analyse_information
-from fgcal.robots.model import RobotModel
-from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
-                    scaled_inverse, update_sigmas)
+from fgcal.estimation.noise import (
+    NoiseMode,
+    OutlierMode,
+    components,
+    find_outliers,
+    fit_test,
+    level_noise,
+    name_outliers,
+    scaled_inverse,
+    update_sigmas,
+)
+from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
+from fgcal.estimation.solve import _solve, levenberg_marquardt
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import BY_LEVEL
+from fgcal.robots.identifiability import analyse_information
+from fgcal.robots.model import RobotModel
 
-__all__ = ["CalibrationOptions", "calibrate", "solve_calibration", "Solution", "solution_covariance", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
-           "identifiability_of"]
+__all__ = [
+    "WEAK_PRIOR",
+    "CalibrationOptions",
+    "Solution",
+    "build_graph",
+    "calibrate",
+    "identifiability_of",
+    "levenberg_marquardt",
+    "solution_covariance",
+    "solve_calibration",
+]
 
 # The GTSAM forms of the problem live in fgcal.estimation.gtsam_graph (which imports gtsam); reached through
 # this module too, loaded only when first asked for.
@@ -264,7 +282,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         noise_mode = NoiseMode.DECLARED
     state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
                                                                    outlier_mode)
-    return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
+    return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
                     outlier_mode, held_info, theta_start, priors)
 
 
@@ -275,7 +293,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
     state, iterations, converged = _solve(graph, state, options, damping=damping)
     declared = graph.sigmas
     rounds = 0
-    for rounds in range(1, MAX_NOISE_ROUNDS + 1):
+    for rounds in range(1, MAX_NOISE_ROUNDS + 1):  # noqa: B007 (the count is returned)
         lin = graph.linearise(state)
         h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
         changed = False
@@ -427,6 +445,7 @@ def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
     if getattr(params, "block", None) is None:  # BlockParameters, or set-up parameters around them
         return {}
     names = list(params.block.names)
+    assert options.joint_errors is not None  # a block is built only from a spec
     return {"spec": options.joint_errors.to_dict(), "names": names,
             "map_terms": sum(n.startswith("map.") for n in names),
             "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],

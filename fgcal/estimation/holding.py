@@ -17,11 +17,11 @@ import logging
 
 import numpy as np
 
+from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
-from fgcal.robots.deviations import Deviations
 
-__all__ = ["held_parameters", "holding_cost", "unseen_parameters", "typical_geometry"]
+__all__ = ["held_parameters", "holding_cost", "typical_geometry", "unseen_parameters"]
 
 log = logging.getLogger(__name__)
 

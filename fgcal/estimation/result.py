@@ -9,12 +9,20 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import FgcalError
-from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.estimation.noise import LevelNoise, Outlier
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.util.yamlio import atomic_write_text
 
-__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "PoseResidual", "CalibrationResult",
-           "save_result", "load_result"]
+__all__ = [
+    "FORMAT",
+    "CalibrationResult",
+    "LevelSummary",
+    "ParameterEstimate",
+    "PoseResidual",
+    "ResidualSummary",
+    "load_result",
+    "save_result",
+]
 
 FORMAT = "fgcal-result/1"
 MAX_RESULT_BYTES = 1 << 30

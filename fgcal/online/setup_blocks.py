@@ -40,8 +40,8 @@ from fgcal.errors import FgcalError
 from fgcal.measurements.setup import BLOCK_KINDS, SetupLayout, SetupSpec, distance_error
 from fgcal.online.records import PoseData, setup_types
 
-__all__ = ["OnlineSetup", "SetupProposal", "WIDE_PRIOR_MM", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM",
-           "FIT_MIN_ROWS"]
+__all__ = ["FIT_MIN_ROWS", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup",
+           "SetupProposal"]
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ class Pending:
         return out if self.values is None else out + [np.asarray(self.values, dtype=float).tolist()]
 
     @classmethod
-    def from_json(cls, d) -> "Pending":
+    def from_json(cls, d) -> Pending:
         values = np.array(d[5], dtype=float) if len(d) > 5 else None
         return cls(int(d[0]), np.array(d[1], dtype=float), str(d[2]), str(d[3]), str(d[4]), values)
 
@@ -321,7 +321,7 @@ def _fitted_start(engine, theta, kind, name, rows):
         return None
 
 
-def _centres(engine, theta, touches):
+def _centres(engine, theta, touches) -> tuple[np.ndarray, np.ndarray]:
     """Predicted ball centres (k, 3) and tool origins (k, 3) of ``touches`` ((q, ball), ...) at ``theta``."""
     balls = engine.ds.tooling.balls
     centres, origins = [], []

@@ -23,7 +23,7 @@ import numpy as np
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["chain_origins", "to_urdf", "calibrated_urdf", "export_urdf", "rpy"]
+__all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "rpy", "to_urdf"]
 
 
 def rpy(R) -> tuple[float, float, float]:
@@ -137,6 +137,7 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
             continue
         k = index[j.name]
         if k > 0:
+            assert T_parent is not None  # set by joint k - 1
             origin = np.linalg.inv(T_parent) @ Jw[k]
             _set_origin(elements[j.name], origin)
         T_parent = Jw[k]

@@ -18,15 +18,15 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.measurements.dataset import Dataset, Noise, PointObservations
 from fgcal.measurements.types import all_levels, kinematic_levels
-from fgcal.errors import FgcalError
-from fgcal.robots.kinematics import tool_points
 from fgcal.robots.deviations import Deviations
+from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import RobotModel, Tooling
 from fgcal.studies.plans import UP, ball_access, paper_plan, random_plan
 
-__all__ = ["draw_truth", "measure", "simulate", "SimulationSettings"]
+__all__ = ["SimulationSettings", "draw_truth", "measure", "simulate"]
 
 log = logging.getLogger(__name__)
 
@@ -104,8 +104,11 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
     ok, upness, centres = ball_access(T, tooling, volume)
     names = np.array(tooling.names)
     kinds = kinematic_levels(levels)
-    keep, probe_rows, outliers, skipped = [], [], [], []
-    rows = {kind.level: [] for kind in kinds}  # (pose id, ball, values) per measurement
+    keep: list[int] = []
+    probe_rows: list = []
+    outliers: list = []
+    skipped: list = []
+    rows: dict[str, list] = {kind.level: [] for kind in kinds}  # (pose id, ball, values) per measurement
     for i in range(n):
         visible = np.nonzero(ok[i])[0]
         if len(visible) < n_balls:
@@ -135,14 +138,15 @@ def measure(model: RobotModel, slots, q_commanded, rng: np.random.Generator, too
 
     probes = None
     if "probes" in levels and probe_rows:
-        probes = PointObservations([r[0] for r in probe_rows], [r[1] for r in probe_rows],
+        probes = PointObservations(np.array([r[0] for r in probe_rows], dtype=int),
+                                   np.array([r[1] for r in probe_rows], dtype=str),
                                    np.array([r[2] for r in probe_rows]))
     observed = {kind.level: kind.observations(np.array([r[0] for r in rows[kind.level]], dtype=int),
                                               np.array([r[1] for r in rows[kind.level]], dtype=str),
                                               np.array([r[2] for r in rows[kind.level]]))
                 for kind in kinds if rows[kind.level]}
-    keep = np.array(keep, dtype=int)
-    return ids[keep], reading[keep], probes, observed, outliers, skipped
+    kept = np.array(keep, dtype=int)
+    return ids[kept], reading[kept], probes, observed, outliers, skipped
 
 
 def _pivot_at_origin(model: RobotModel, slots, q, tooling: Tooling) -> np.ndarray:

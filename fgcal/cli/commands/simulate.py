@@ -15,10 +15,10 @@ log = logging.getLogger("fgcal")
 
 
 def _cmd_simulate(args) -> int:
-    from fgcal.measurements.dataset import Noise
     from fgcal.io.dataset_io import save_dataset
-    from fgcal.robots.robot_file import load_model
+    from fgcal.measurements.dataset import Noise
     from fgcal.robots.deviations import Deviations
+    from fgcal.robots.robot_file import load_model
     from fgcal.studies.simulate import SimulationSettings, simulate
 
     if args.cmm_sigma < 0 or args.joint_resolution < 0 or args.repeatability < 0:
