@@ -28,7 +28,7 @@ from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
 from fgcal.cli.commands.report import _cmd_report
-from fgcal.cli.commands.simulate import _cmd_simulate
+from fgcal.cli.commands.simulate import _cmd_simulate, add_setup_options
 from fgcal.cli.commands.study import _cmd_study
 from fgcal.cli.commands.verify import _cmd_verify
 from fgcal.errors import FgcalError
@@ -86,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth", type=Path, default=None,
                    help="truth.yaml of another simulated dataset: the same actual robot (a verification set)")
     s.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    add_setup_options(s)
     s.set_defaults(func=_cmd_simulate)
 
     c = sub.add_parser("check", help="validate a dataset and report what its poses can identify")

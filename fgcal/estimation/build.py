@@ -113,7 +113,8 @@ def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> Setup
     for kind in kinds:
         obs = getattr(ds, kind.level)
         i = np.array([row[p] for p in obs.pose.tolist()], dtype=int)
-        used.update(dict.fromkeys(kind.blocks_of(obs).tolist()))
+        blocks = kind.all_blocks(obs) if hasattr(kind, "all_blocks") else kind.blocks_of(obs).tolist()
+        used.update(dict.fromkeys(blocks))  # a camera's corners use its camera and their target
         unknown = {n for n in used if n in ds.setup.fixtures and ds.setup.fixtures[n].value is None}
         starts.update(kind.block_starts(obs, T[i], ds.tooling, unknown, ds.path or "dataset"))
     return SetupLayout.build(ds.setup.subset(used), starts)

@@ -284,6 +284,10 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         ds = _stations_to_world(result, ds)
     if ds.levels() and set(ds.levels()) <= {"contacts", "plane_contacts"}:
         return _verify_contacts(result, ds, model, slots)
+    if ds.levels() == ["pixels"]:  # camera data: the reprojection error of held-out images (px)
+        from fgcal.estimation.verify_pixels import verify_pixels
+
+        return verify_pixels(result, ds, model, slots)
     if not ({"probes", "centres", "poses"} & set(ds.levels())):  # another type: verified by its own metric
         kinds = kinematic_levels(ds.levels())
         if kinds:

@@ -37,9 +37,28 @@ def _cmd_export(args) -> int:
         save_model(calibrated, args.model, slots=slots)
         print(f"wrote {args.model} (fgcal-robot/1)")
     if args.urdf:
-        atomic_write_text(args.urdf, export_urdf(calibrated, slots))
+        point = result.tool_point()  # a contact calibration: the link tool at the ball's centre (DESIGN.md 8.2)
+        text = export_urdf(calibrated, slots, tool_point=point)
+        cameras = _cameras(result)
+        if cameras:  # each camera's mount as a link, its intrinsics beside the URDF (DESIGN.md 8.4)
+            import numpy as np
+
+            from fgcal.robots.camera_links import add_camera_links, camera_info_yaml
+
+            shift = np.eye(4)  # a camera on the tool, seen from a tool link moved to the ball's centre
+            if point is not None:
+                shift[:3, 3] = -np.asarray(point, dtype=float)
+            text = add_camera_links(text, [(n, c["mount"], c["T"] if c["mount"] == "world" else shift @ c["T"])
+                                           for n, c in cameras.items()])
+        atomic_write_text(args.urdf, text)
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
-        print(f"wrote {args.urdf} ({kind})")
+        at = "" if point is None else (f"; link tool at the centre of ball {result.tooling['tool_ball']} "
+                                       f"({', '.join(f'{v:g}' for v in point)} mm in the tool frame)")
+        print(f"wrote {args.urdf} ({kind}{at})")
+        for n, c in cameras.items():
+            info = Path(f"{args.urdf}.camera_{n}.yaml")
+            atomic_write_text(info, camera_info_yaml(n, c["width"], c["height"], c["k"]))
+            print(f"wrote {info} (camera {n}'s intrinsics, ROS camera_info; its frame: link camera_{n}_optical)")
     if args.deltas:
         from fgcal.io.dataset_io import write_csv
 
@@ -65,3 +84,21 @@ def _cmd_export(args) -> int:
         if result.joint_errors.get("validity"):
             print(f"note: {result.joint_errors['validity']}")
     return 0
+
+
+def _cameras(result) -> dict:
+    """The cameras a result found: name -> ``mount``, ``T`` (4, 4, mm), ``width``, ``height``, ``k`` (9,)."""
+    import numpy as np
+
+    from fgcal.measurements.camera import INTRINSICS, pose_matrix
+
+    setup = result.setup or {}
+    out = {}
+    for n, f in setup.get("fixtures", {}).items():
+        if f.get("type") != "camera":
+            continue
+        e = setup["estimated"][n]
+        pose = np.concatenate([np.asarray(e["pose"][:3], float), np.radians(e["pose"][3:6])])
+        out[n] = {"mount": f["mount"], "T": pose_matrix(pose), "width": f["width"], "height": f["height"],
+                  "k": [e["intrinsics"][c] for c in INTRINSICS]}
+    return out
