@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
 from fgcal.measurements.types import BY_LEVEL, kinematic_types
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
@@ -87,11 +88,19 @@ def carries_values(kind) -> bool:
     return hasattr(kind, "block_observations")
 
 
+def online_setup(kind) -> bool:
+    """Whether the online engines take a set-up type: contacts to fixture points or planes (the
+    block alone), or a type whose rows carry values and whose blocks start from a fit of them
+    (:func:`carries_values`: a station's centres); not yet a camera's pixels."""
+    return getattr(kind, "fixture_type", None) in ("point", "plane") or carries_values(kind)
+
+
 def read_levels() -> tuple:
-    """What :func:`pose_records` reads: the built-in levels, the registered types on set-up blocks
-    (fixture points, planes, stations) and every other registered type (taken through the
-    measurement protocol, :func:`generic_types`)."""
-    return READ_LEVELS + tuple(k.level for k in setup_types()) + tuple(k.level for k in generic_types())
+    """What :func:`pose_records` reads: the built-in levels, the registered set-up types the online
+    engines take (:func:`online_setup`: fixture points, planes, stations) and every other
+    registered type (taken through the measurement protocol, :func:`generic_types`)."""
+    return (READ_LEVELS + tuple(k.level for k in setup_types() if online_setup(k))
+            + tuple(k.level for k in generic_types()))
 
 
 def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseData]:
@@ -101,6 +110,11 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     ``model`` converts the readings (prismatic joints are mm); all revolute without it.
     """
     levels = ds.levels() if levels is None else list(levels)
+    unsupported = [lv for lv in levels if lv in BY_LEVEL and getattr(BY_LEVEL[lv], "uses_setup", False)
+                   and not online_setup(BY_LEVEL[lv])]
+    if unsupported:
+        raise FgcalError(f"{ds.path or 'dataset'}: the online engines do not take {', '.join(unsupported)} yet: "
+                         "use fgcal calibrate")
     ids = np.asarray(ds.pose_ids, dtype=int)
     keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
     ids = ids[keep]
