@@ -317,7 +317,8 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
             changed |= moved
         if not changed:
             break
-        state, it2, converged = _solve(graph, state, options, damping=damping)
+        # From the last optimum: lightly damped (a full damping here took 6 steps for what 2-3 do)
+        state, it2, converged = _solve(graph, state, options, damping=min(damping, WARM_DAMPING))
         iterations += it2
     else:
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)

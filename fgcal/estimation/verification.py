@@ -92,6 +92,14 @@ class Verification:
     joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
     contacts: dict | None = None  # contacts: {"after": ..., "before": ...} of ContactConsistency.summary()
 
+    def save(self, path) -> None:
+        """Write :meth:`to_dict` as ``verify.json`` (``fgcal-verify/1``), atomically."""
+        import json
+
+        from fgcal.util.yamlio import atomic_write_text
+
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
+
     def to_dict(self) -> dict:
         d: dict[str, Any] = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
         if self.robot is not None:

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from fgcal.errors import DatasetError, FgcalError
+from fgcal.io.fast_tables import float_columns, int_column, read_columns
 from fgcal.io.setup_io import (
     cameras_dict,
     read_cameras,
@@ -29,7 +30,7 @@ from fgcal.io.setup_io import (
     read_targets,
     stations_dict,
 )
-from fgcal.measurements.cells import MAX_DEG, ball_name, pose_id
+from fgcal.measurements.cells import MAX_DEG, MAX_MM, ball_name, pose_id
 from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
 from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
@@ -111,6 +112,9 @@ def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations
     rows, small constant): probe files are the largest a dataset has."""
     names = list(balls)
     ball_index = {b: i for i, b in enumerate(names)}
+    fast = _fast_point_table(path, known_poses, ball_index)
+    if fast is not None:
+        return fast
     pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
     cols = None
     for line, header, cells in _table_records(path, POINT_COLUMNS):
@@ -132,6 +136,22 @@ def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations
     return PointObservations(np.frombuffer(pose, dtype=np.int64).astype(int), ball_names,
                              np.frombuffer(xyz, dtype=float).reshape(-1, 3).copy(),
                              np.frombuffer(lines, dtype=np.int64).astype(int))
+
+
+def _fast_point_table(path: Path, known_poses: set, ball_index: dict) -> PointObservations | None:
+    """:func:`_point_table` of a plain file whose every cell is valid, whole columns at once
+    (:mod:`fgcal.io.fast_tables`); None sends the file to the checked reader."""
+    cols = read_columns(path, POINT_COLUMNS)
+    if cols is None:
+        return None
+    pose = int_column(cols["pose"])
+    xyz = float_columns([cols[c] for c in POINT_COLUMNS[2:]], MAX_MM)
+    ball = [ball_index.get(b.strip()) for b in cols["ball"]]
+    if pose is None or xyz is None or None in ball or not np.isin(pose, list(known_poses)).all():
+        return None
+    names = np.array(list(ball_index), dtype=str)
+    return PointObservations(pose.astype(int), names[np.array(ball, dtype=int)], xyz,
+                             np.arange(2, len(pose) + 2))
 
 
 def _measurement_table(path: Path, kind, known_poses: set, balls: dict):
@@ -327,6 +347,9 @@ def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
 def read_joints_and_stations(path):
     """:func:`read_joints` and the ``station`` column ``(N,)`` of str, or None without one."""
     joints_path = Path(path)
+    fast = _fast_joints(joints_path)
+    if fast is not None:
+        return fast
     rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)] + ["station"])
     if not rows:
         raise DatasetError(f"{joints_path}: no poses")
@@ -351,6 +374,28 @@ def read_joints_and_stations(path):
             stations.append(r["station"])
     return (np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints),
             np.array(stations, dtype=str) if has_station else None)
+
+
+def _fast_joints(path: Path):
+    """:func:`read_joints_and_stations` of a plain file whose every cell is valid, whole columns at
+    once (:mod:`fgcal.io.fast_tables`); None sends the file to the checked reader."""
+    cols = read_columns(path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)] + ["station"])
+    if cols is None:
+        return None
+    columns = joint_columns(sum(1 for c in cols if c not in ("pose", "station")))
+    if set(cols) - {"station"} != set(columns):
+        return None
+    ids = int_column(cols["pose"])
+    q = float_columns([cols[c] for c in columns[1:]], MAX_DEG)
+    if ids is None or q is None or len(np.unique(ids)) != len(ids):
+        return None
+    stations = None
+    if "station" in cols:
+        names = [c.strip() for c in cols["station"]]
+        if not all(names):
+            return None
+        stations = np.array(names, dtype=str)
+    return ids.astype(int), q, stations
 
 
 def load_dataset(directory) -> Dataset:
@@ -439,7 +484,9 @@ def check_joint_count(ds: Dataset, model: RobotModel) -> None:
 
 
 def _fmt(v: float | np.floating) -> str:
-    return repr(float(v))
+    from fgcal.util.numbers import format_number
+
+    return format_number(float(v))
 
 
 def write_csv(path, header, rows) -> None:

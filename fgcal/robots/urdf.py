@@ -55,7 +55,10 @@ def chain_origins(model: RobotModel, slots) -> list[np.ndarray]:
 
 
 def _xyz_rpy(T) -> tuple[str, str]:
-    return (" ".join(repr(float(v) / 1000.0) for v in T[:3, 3]), " ".join(repr(v) for v in rpy(T[:3, :3])))
+    from fgcal.util.numbers import format_number
+
+    return (" ".join(format_number(float(v) / 1000.0) for v in T[:3, 3]),
+            " ".join(format_number(v) for v in rpy(T[:3, :3])))
 
 
 def _origin(T) -> str:

@@ -100,7 +100,8 @@ def _cmd_import(args) -> int:
 
 
 def _common(p: argparse.ArgumentParser, robot: bool = True) -> None:
-    p.add_argument("file", type=Path)
+    p.add_argument("file", type=Path, help="the file to import (delimited text with one header line; "
+                                           "the landgraf series: its measurements CSV)")
     p.add_argument("out", type=Path, help="dataset directory to write (OUT-holdout too with --holdout)")
     if robot:
         p.add_argument("--robot", required=True, help="built-in model name, model file or URDF of the measured robot")
@@ -136,7 +137,8 @@ def add_import_parser(sub) -> None:
     c = formats.add_parser("csv", help="any table of joints plus a measured point or pose per row")
     _common(c)
     c.add_argument("--joints", required=True, help="joint columns in chain order, comma-separated")
-    c.add_argument("--joint-unit", choices=("deg", "rad"), required=True)
+    c.add_argument("--joint-unit", choices=("deg", "rad"), required=True,
+                   help="unit of the joint columns (required: ROS logs radians, controllers often degrees)")
     what = c.add_mutually_exclusive_group(required=True)
     what.add_argument("--point", help="X,Y,Z columns of a measured point (a tracker reflector)")
     what.add_argument("--pose", help="X,Y,Z,R1,R2,R3[,R4] columns: position and Euler angles or a quaternion")
