@@ -46,6 +46,11 @@ class Plan:
         """Write the plan as a ``joints.csv``-like file ``pose,q1..qn`` (deg), atomically."""
         from fgcal.io.dataset_io import joint_columns, write_csv
 
+        if getattr(self.design, "stations", None) is not None:  # each pose's station too (DESIGN.md 8.3)
+            from fgcal.studies.design_dataset import save_plan
+
+            save_plan(self.design, path)
+            return
         write_csv(path, joint_columns(self.joints_deg.shape[1]),
                   [[int(i), *map(float, q)] for i, q in zip(self.pose_ids, self.joints_deg, strict=True)])
 
