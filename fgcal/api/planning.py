@@ -5,6 +5,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,7 @@ class Plan:
     joints_deg: np.ndarray
     values: dict
     lines: list[str] = field(default_factory=list)
-    design: object = None
+    design: Any = None  # a DatasetDesign or the random-candidates design
 
     def save(self, path) -> None:
         """Write the plan as a ``joints.csv``-like file ``pose,q1..qn`` (deg), atomically."""
