@@ -28,8 +28,8 @@ from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost, typical_geometry
 from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
-from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, level_noise, name_outliers,
-                    scaled_inverse, update_sigmas)
+from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, included_leverage,
+                                    level_noise, name_outliers, readmissible, scaled_inverse, update_sigmas)
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 
@@ -51,6 +51,7 @@ def __getattr__(name):
 log = logging.getLogger(__name__)
 
 MAX_NOISE_ROUNDS = 40
+MAX_READMISSIONS = 3  # passes re-admitting exclusions that pass at the final noise (a fixed point, bounded)
 WARM_DAMPING = 1e-9  # Levenberg-Marquardt's first damping from a start near the optimum (see levenberg_marquardt)
 
 
@@ -271,10 +272,11 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
                   outlier_mode: OutlierMode):
     """The solve, then noise estimation and outlier exclusion alternated with re-solves until neither
-    changes: ``(state, iterations, converged, rounds, declared sigmas)``."""
+    changes, then the exclusions retested at the final noise (:func:`~fgcal.estimation.noise.readmissible`;
+    at most :data:`MAX_READMISSIONS` times): ``(state, iterations, converged, rounds, declared sigmas)``."""
     state, iterations, converged = _solve(graph, state, options, damping=damping)
     declared = graph.sigmas
-    rounds = 0
+    rounds = readmitted = 0
     for rounds in range(1, MAX_NOISE_ROUNDS + 1):
         lin = graph.linearise(state)
         h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
@@ -287,6 +289,16 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
         if noise_mode is NoiseMode.ESTIMATED:
             graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared)
             changed |= moved
+        if not changed and outlier_mode is OutlierMode.EXCLUDE and readmitted < MAX_READMISSIONS:
+            # Settled: every exclusion is tested again at this (final) noise and solution; those
+            # within the limit come back, and the rounds go on to a fixed point.
+            h_in = included_leverage(graph, state) if graph.excluded else None
+            for level, ks in readmissible(graph, lin, h, h_in).items():
+                graph.excluded[level][ks] = False
+                log.info("%s: %d measurement(s) excluded at an earlier round's noise pass the test at the "
+                         "final noise: re-admitted", level, len(ks))
+                changed = True
+            readmitted += changed
         if not changed:
             break
         state, it2, converged = _solve(graph, state, options, damping=damping)
@@ -368,7 +380,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     noise_table = level_noise(components(graph, lin, h), graph.sigmas, declared, noise_mode)
     ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())
     red_total = sum(n.redundancy for n in noise_table.values())
-    outliers = name_outliers(graph, lin, h, ds, pose_ids)
+    outliers = name_outliers(graph, lin, h, ds, pose_ids,
+                             included_leverage(graph, state) if any(m.any() for m in graph.excluded.values()) else None)
     costly = [h_ for h_ in held_info if h_["reason"] != GAUGE_REASON]  # the gauge is a choice of frame: no cost
     if costly:
         cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in costly], graph.readings,
