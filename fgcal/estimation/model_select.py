@@ -24,7 +24,7 @@ from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
-from fgcal.estimation.noise import NoiseMode, fit_test
+from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.robots.model import RobotModel
 
 __all__ = ["FoldOrder", "ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_validate", "compare_models",
@@ -35,8 +35,6 @@ log = logging.getLogger(__name__)
 HARMONICS_GRID = (1, 2, 3, 4, 6, 8, 10, 12, 15, 18, 22, 26, 30)
 CORRELATION_LIMIT = 0.9
 COMPLIANCE_RESOLUTION = 1.0  # urad/Nm: a compliance known no better than this is not identified (arms: ~5-20)
-REUSED = "reused"  # a compared model's noise mode: the geometric fit's noise, not re-estimated
-REUSED_NOTE = "estimated by the geometric fit and reused"
 SIGMA_GRID = tuple(float(s) for s in np.geomspace(1e-6, 3e-4, 8))  # rad
 
 
@@ -265,34 +263,6 @@ def _identifiability(result, torques, q_deg) -> tuple[dict, list]:
     return out, warnings
 
 
-def _reused_noise(result, geometric):
-    """``result`` (a model calibrated at ``geometric``'s noise) saying where its noise came from.
-
-    The calibration itself sees only fixed factors on the declared noise and would call them
-    ``declared``; what they are is the geometric fit's noise (estimated where its redundancy
-    allowed), reused. Nothing is re-estimated: each component's ``used`` sigma is the geometric
-    fit's.
-    """
-    if geometric.noise_mode != NoiseMode.ESTIMATED.value:
-        return result  # the geometric fit had the declared noise: so has this one, truly
-    result.noise_mode = REUSED
-    result.options["noise"] = REUSED
-    result.options["noise_scale"] = dict(geometric.options.get("noise_scale") or {})
-    for name, n in result.noise.items():
-        g = geometric.noise.get(name)
-        if g is None:
-            continue
-        n.note = REUSED_NOTE if g.note == "estimated" else f"as in the geometric fit ({g.note})"
-        if g.declared > 0 and n.declared > 0:  # the calibration saw the reused sigma as declared: undo
-            n.variance_factor *= (n.declared / g.declared) ** 2
-            n.declared = g.declared
-            n.p_value = fit_test(n.variance_factor * n.redundancy, n.redundancy)
-    statistic = sum(n.variance_factor * n.redundancy for n in result.noise.values())
-    result.fit_test = {**result.fit_test, "statistic": float(statistic),
-                       "p_value": fit_test(statistic, result.fit_test.get("redundancy", 0.0))}
-    return result
-
-
 def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
                    up_to: ModelKind = ModelKind.COMPLIANCE_MAP, verification: Dataset | None = None,
                    folds: int = 5, rng=None, payload: Payload = Payload(), harmonics_grid=HARMONICS_GRID,
@@ -366,13 +336,11 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         prob = cv_problem(ds, model, geo, JointErrorSpec(), options) if geo_names else None
         cv = cross_validate(prob, folds, rng, (), sigma_grid, fold_order)
         unit = prob.unit
-    # The added models are weighted as the cross-validation weighted them: with the geometric
-    # model's noise estimate (re-estimating it would change the map's prior strength relative to the data).
-    fixed = replace(options, estimate_noise=False, noise=NoiseMode.DECLARED,
-                    noise_scale=geo.options.get("noise_scale") or options.noise_scale)
+    # The added models: fitted as the cross-validation weighted them (the geometric fit's noise),
+    # then each at its own noise with the map prior scaled alike (fgcal.estimation.model_noise).
     for kind, spec in specs.items():
         if spec is not None:
-            results[kind] = _reused_noise(calibrate(ds, model, replace(fixed, joint_errors=spec)), geo)
+            results[kind] = fit_model(ds, model, options, spec, geo)
             log.info("calibrated %s (%d parameters)", kind, len(results[kind].parameters))
     errors = {k: v[0] for k, v in cv.items() if k in specs}
     recommended, reason = _recommend(errors)
