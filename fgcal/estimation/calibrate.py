@@ -25,7 +25,7 @@ from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed  # n
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
 from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
-from fgcal.estimation.holding import held_parameters, holding_cost, typical_geometry
+from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
 from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import RobotModel
 from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, included_leverage,
@@ -183,6 +183,7 @@ class Solution:
     held: list = field(default_factory=list)  # {"name", "value" (file units), "reason"} per held parameter
     theta_start: np.ndarray | None = None  # the start (nominal chain, base fitted) in internal units
     priors: dict = field(default_factory=dict)  # weakly identifiable parameters: their prior sigma (internal)
+    data_decided: dict = field(default_factory=dict)  # prior dropped at the solution: the data's sigma (internal)
 
 
 def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None):
@@ -242,13 +243,16 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     _check_equations(ds, levels, len(names) + setup_size(ds, levels))
 
     priors = dict(priors or {})
+    new_priors: set = set()
     graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
     redundant = held_parameters(graph, state, _unidentifiable) if decide_held else {}
     if redundant:
         # What these poses cannot separate at the nominal geometry: held where it is redundant at any
         # geometry, else estimated with a prior of its typical deviation (the data decide where
         # they can; holding it at a guess would leave its deviation in every prediction).
+        given = set(priors)
         redundant, priors = split_held(model, names, redundant, ds, options, priors)
+        new_priors = set(priors) - given  # typical-deviation priors (not the caller's)
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
             held_info.append({"name": n, "value": float(model.slots_to_file_units(graph.held)[model.slot(n)]),
@@ -265,8 +269,23 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         noise_mode = NoiseMode.DECLARED
     state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
                                                                    outlier_mode)
+    dropped = priors_the_data_decide(graph, state, {n: priors[n] for n in priors if n in new_priors}) \
+        if decide_held else {}
+    if dropped:
+        # Identifiability at the solution: where the data determine a parameter better than its
+        # typical-deviation prior, the prior goes (it pulled toward the nominal guess) and the
+        # solve goes on from here without it.
+        for n, s in dropped.items():
+            log.info("%s: the data determine it at the solution (sigma %.3g) better than its typical-deviation "
+                     "prior (%.3g): estimated without the prior", n, s, priors[n])
+        priors = {n: s for n, s in priors.items() if n not in dropped}
+        warm = graph.params.full(state.theta, graph.held)
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=warm, priors=priors)
+        state, it2, converged, rounds2, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
+                                                                 outlier_mode)
+        iterations, rounds = iterations + it2, rounds + rounds2
     return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start, priors)
+                    outlier_mode, held_info, theta_start, priors, dropped)
 
 
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
@@ -395,6 +414,9 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if sol.priors:  # weakly identifiable: estimated with a prior of their typical deviation (file units)
         opts["typical_deviation_priors"] = {n: float(np.degrees(s) if model.slot_is_angle[model.slot(n)] else s)
                                        for n, s in sol.priors.items()}
+    if sol.data_decided:  # weak at the nominal geometry, determined by the data at the solution (file units)
+        opts["priors_dropped_at_solution"] = {n: float(np.degrees(s) if model.slot_is_angle[model.slot(n)] else s)
+                                              for n, s in sol.data_decided.items()}
     raw = lin.raw
     residuals = {}
     if "probes" in raw:
