@@ -295,3 +295,22 @@ def test_added_models_report_sigmas_at_their_own_noise():
     mean = {n: float(np.mean(v)) for n, v in chi2.items()}
     assert 0.8 <= mean["own"] / mean["true"] <= 1.25 and 0.4 <= mean["own"] <= 1.5, mean
     assert mean["reused"] < 0.1, mean
+
+
+def test_the_map_grid_grows_until_its_optimum_is_inside_or_says_it_stopped_at_the_edge():
+    """Issue 24: on every real series the map took the largest prior of its grid, with no warning.
+    Map coefficients of ~30 urad and a prior grid of 1 and 3 urad only: the grid grows (x3 a step)
+    to an optimum inside it; the harmonics cannot grow (the linearisation holds the largest) and
+    the selection says its size stopped at the edge."""
+    rng = np.random.default_rng(11)
+    spec = JointErrorSpec(compliance=(2, 3), harmonics=3, map_sigma=50e-6)
+    phi = np.concatenate([[10.5e-6, 11.7e-6], rng.normal(0, 30e-6, 36)])
+    ds, _ = _simulate(rng, 200, phi, spec)
+    _, sel = compare_models(ds, UR10, CalibrationOptions(), up_to=ModelKind.COMPLIANCE_MAP,
+                            rng=np.random.default_rng(0), harmonics_grid=(1, 3), sigma_grid=(1e-6, 3e-6))
+    cm = sel.score("compliance+map")
+    grid = [1e-6 * 3.0**k for k in range(8)]
+    chosen = cm.spec["map_sigma_urad"] * 1e-6
+    assert 3e-6 * 2 < chosen < grid[-1] / 2, chosen  # grown, and inside the grown grid
+    assert any("largest number of harmonics tried (3)" in w for w in cm.warnings), cm.warnings
+    assert not any("prior at the edge" in w for w in cm.warnings), cm.warnings

@@ -33,6 +33,7 @@ __all__ = ["FoldOrder", "ModelScore", "ModelSelection", "CVProblem", "cv_problem
 log = logging.getLogger(__name__)
 
 HARMONICS_GRID = (1, 2, 3, 4, 6, 8, 10, 12, 15, 18, 22, 26, 30)
+MAX_GRID_GROWTH = 6  # steps the map prior's grid grows by while the optimum is on its edge
 CORRELATION_LIMIT = 0.9
 COMPLIANCE_RESOLUTION = 1.0  # urad/Nm: a compliance known no better than this is not identified (arms: ~5-20)
 SIGMA_GRID = tuple(float(s) for s in np.geomspace(1e-6, 3e-4, 8))  # rad
@@ -201,7 +202,10 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
     -------
     dict
         ``{"geometric": (err (N,), spec_kw), "compliance": ..., "compliance+map": ...}``; ``spec_kw``
-        holds the chosen ``harmonics`` and ``map_sigma`` for the map.
+        holds the chosen ``harmonics`` and ``map_sigma`` for the map, and ``at_edge``: sentences
+        naming where the optimum stopped at the edge of the grid. The prior's grid grows (x3 a step,
+        at most :data:`MAX_GRID_GROWTH` steps) while its optimum is on the upper edge; the harmonics'
+        cannot (the linearisation holds the largest only) and ``at_edge`` says so.
     """
     fold = _folds(prob.groups, folds, rng, order)
     sums = _FoldSums(prob, fold, folds)
@@ -212,16 +216,36 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
     out = {ModelKind.GEOMETRIC.value: (sums.held_out_errors(geo, inf), {}),
            ModelKind.COMPLIANCE.value: (sums.held_out_errors(geo + comp, inf + comp_sigma), {})}
     best = None
+    maps = {}
     for h in harmonics_grid:
         mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and int(re.search(r"(\d+)$", n).group(1)) <= h]
-        if not mp:
-            continue
-        for s in sigma_grid:
-            e = sums.held_out_errors(geo + comp + mp, inf + comp_sigma + [s] * len(mp))
-            if best is None or e.mean() < best[0].mean():
-                best = (e, {"harmonics": int(h), "map_sigma": float(s)})
+        if mp:
+            maps[int(h)] = mp
+    sigmas = sorted(float(s) for s in sigma_grid)
+    tried: set = set()
+    for _ in range(MAX_GRID_GROWTH + 1):
+        for h, mp in maps.items():
+            for s in sigmas:
+                if (h, s) in tried:
+                    continue
+                tried.add((h, s))
+                e = sums.held_out_errors(geo + comp + mp, inf + comp_sigma + [s] * len(mp))
+                if best is None or e.mean() < best[0].mean():
+                    best = (e, {"harmonics": h, "map_sigma": s})
+        # The prior's grid grows (x3 a step) while the optimum sits on its upper edge (on the lower
+        # one the map is shrunk away: the compliance model, an optimum inside what the grid means).
+        if best is None or len(sigmas) < 2 or best[1]["map_sigma"] != sigmas[-1]:
+            break
+        sigmas.append(sigmas[-1] * 3.0)
     if best is not None:
-        out[ModelKind.COMPLIANCE_MAP.value] = best
+        edge = []
+        if len(sigmas) > 1 and best[1]["map_sigma"] == sigmas[-1]:
+            edge.append(f"the map's prior at the edge of its grid ({best[1]['map_sigma'] * 1e6:.3g} urad after "
+                        f"{MAX_GRID_GROWTH} steps of growth)")
+        if len(maps) > 1 and best[1]["harmonics"] == max(maps):
+            edge.append(f"the map's size at the largest number of harmonics tried ({max(maps)}): the optimum may "
+                        "lie beyond it")
+        out[ModelKind.COMPLIANCE_MAP.value] = (best[0], {**best[1], "at_edge": edge})
     return out
 
 
@@ -297,6 +321,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     from fgcal.estimation.verification import verify
 
     up_to = ModelKind(up_to)
+    at_edge: list = []
     rng = np.random.default_rng(0) if rng is None else rng
     if folds < 2 or folds > ds.n_poses:
         from fgcal.errors import FgcalError
@@ -327,9 +352,10 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         log.info("cross-validation: %s", {k: round(float(v[0].mean()), 4) for k, v in cv.items()})
         specs[ModelKind.COMPLIANCE.value] = JointErrorSpec(compliance=joints, payload=payload)
         if ModelKind.COMPLIANCE_MAP.value in cv:
+            kw = dict(cv[ModelKind.COMPLIANCE_MAP.value][1])
+            at_edge = kw.pop("at_edge", [])
             specs[ModelKind.COMPLIANCE_MAP.value] = JointErrorSpec(compliance=joints, payload=payload,
-                                                                   map_joints=map_joints,
-                                                                   **cv[ModelKind.COMPLIANCE_MAP.value][1])
+                                                                   map_joints=map_joints, **kw)
         unit = prob.unit
     else:
         geo_names = list(geo.names)
@@ -352,6 +378,8 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
                            condition_number=float(res.condition_number))
         if specs[kind] is not None:
             score.correlations, score.warnings = _identifiability(res, torques, np.degrees(q))
+            if kind == ModelKind.COMPLIANCE_MAP.value:
+                score.warnings += [f"cross-validation: {w}" for w in at_edge]
             for w in score.warnings:
                 log.warning("%s", w)
         if verification is not None:
