@@ -48,10 +48,10 @@ def main():
         raise SystemExit(f"the Landgraf series is not at {args.series}; pass --series")
     from fgcal.estimation.calibrate import calibrate
     from fgcal.estimation.verification import verify
-    from fgcal.studies.design_dataset import dataset_noise, design_from_dataset
-    from fgcal.studies.design_validate import compare_on_held_out
     from fgcal.io.landgraf import read_series, series_to_datasets
     from fgcal.robots.robot_file import model_from_dict
+    from fgcal.studies.design_dataset import dataset_noise, design_from_dataset
+    from fgcal.studies.design_validate import compare_on_held_out
 
     series = read_series(args.series)
     print(f"{'split':>5} {'train':>6} {'held':>5} {'plan mm':>8} {'rand q25':>9} {'median':>8} {'q75':>8} "

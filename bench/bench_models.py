@@ -21,7 +21,7 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense solves: threads only contend
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 
 def default_series() -> Path | None:
@@ -35,8 +35,8 @@ def default_series() -> Path | None:
 def run_split(calib, held, model_dict, label, fold_order="random"):
     from fgcal.estimation.calibrate import CalibrationOptions
     from fgcal.estimation.model_select import compare_models
-    from fgcal.robots.robot_file import model_from_dict
     from fgcal.estimation.verification import verify
+    from fgcal.robots.robot_file import model_from_dict
 
     model = model_from_dict(model_dict)
     t0 = time.perf_counter()

@@ -67,7 +67,6 @@ def solve(path):
         count[i] += 1
     bi = np.array([slot_of[(i, b)] for i, b in zip(pi.tolist(), p_ball.tolist())])
     M = len(pi)
-    rows = np.arange(M)
 
     def unpack(x):
         return x[:P], x[P:].reshape(N, 6)

@@ -11,11 +11,18 @@ directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as 
 * :func:`~factors.gtsam_factors.kinematic_factor`: any error of (theta, q) with its Jacobians as a factor
   (fgcal's measurement types build theirs with it).
 """
-from .errors import (ball_centre_error, distance_error, joint_error, pose_ball_centres_error, pose_error, probe_error,
-                     slots_of)
+from .errors import (
+    ball_centre_error,
+    distance_error,
+    joint_error,
+    pose_ball_centres_error,
+    pose_error,
+    probe_error,
+    slots_of,
+)
 
-_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior", "kinematic_factor", "noise_model",
-                "parameter_prior", "pose_factor", "probe_factor", "probes_factor", "theta_key")
+_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior",
+                "kinematic_factor", "noise_model", "parameter_prior", "pose_factor", "probe_factor", "probes_factor", "theta_key")
 
 
 def __getattr__(name):
@@ -27,6 +34,25 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["distance_error", "distance_factor", "ball_centre_error", "pose_ball_centres_error", "joint_error", "pose_error", "probe_error", "slots_of", "ball_centre_factor", "ball_centres_factor",
-           "centre_key", "joint_key", "joint_prior", "kinematic_factor", "noise_model", "parameter_prior", "pose_factor",
-           "probe_factor", "probes_factor", "theta_key"]
+__all__ = [
+    "ball_centre_error",
+    "ball_centre_factor",
+    "ball_centres_factor",
+    "centre_key",
+    "distance_error",
+    "distance_factor",
+    "joint_error",
+    "joint_key",
+    "joint_prior",
+    "kinematic_factor",
+    "noise_model",
+    "parameter_prior",
+    "pose_ball_centres_error",
+    "pose_error",
+    "pose_factor",
+    "probe_error",
+    "probe_factor",
+    "probes_factor",
+    "slots_of",
+    "theta_key",
+]

@@ -14,8 +14,15 @@ import numpy as np
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.transforms import so3_left_jacobian_inverse, so3_log
 
-__all__ = ["slots_of", "probe_error", "ball_centre_error", "pose_ball_centres_error", "pose_error", "distance_error",
-           "joint_error"]
+__all__ = [
+    "ball_centre_error",
+    "distance_error",
+    "joint_error",
+    "pose_ball_centres_error",
+    "pose_error",
+    "probe_error",
+    "slots_of",
+]
 
 
 def slots_of(theta, index, held) -> np.ndarray:

@@ -14,8 +14,20 @@ import numpy as np
 
 from .errors import ball_centre_error, distance_error, pose_ball_centres_error, pose_error, probe_error
 
-__all__ = ["theta_key", "joint_key", "centre_key", "noise_model", "probe_factor", "probes_factor", "ball_centre_factor", "ball_centres_factor",
-           "pose_factor", "distance_factor", "joint_prior", "parameter_prior"]
+__all__ = [
+    "ball_centre_factor",
+    "ball_centres_factor",
+    "centre_key",
+    "distance_factor",
+    "joint_key",
+    "joint_prior",
+    "noise_model",
+    "parameter_prior",
+    "pose_factor",
+    "probe_factor",
+    "probes_factor",
+    "theta_key",
+]
 
 
 def theta_key() -> int:
@@ -175,8 +187,8 @@ def distance_factor(index, held, offset, length: float, sigma: float, *, t_key: 
                     q_fixed=None, robust=None, chain=None) -> gtsam.CustomFactor:
     """A ballbar length (mm) from the world origin (the pivot) to the tool ball at ``offset`` (3,)."""
     offset = np.array(offset, dtype=float).reshape(1, 3)
-    length = np.array([float(length)])
-    return kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, length, i, h, c),
+    lengths = np.array([float(length)])
+    return kinematic_factor(lambda theta, q, i, h, c: distance_error(theta, q, offset, lengths, i, h, c),
                              noise_model([sigma], robust), index, held, t_key=t_key, q_key=q_key, q_fixed=q_fixed,
                              chain=chain)
 

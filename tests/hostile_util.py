@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.cli import main
-from fgcal.measurements.dataset import Noise
 from fgcal.io.dataset_io import save_dataset
+from fgcal.measurements.dataset import Noise
 from fgcal.studies.simulate import SimulationSettings, simulate
 
 REPO = Path(__file__).resolve().parent.parent

@@ -5,13 +5,20 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from fgcal.report.accuracy import (accuracy_stats, flag_poses, held_parameter_cost, predicted_position_sigma,
-                            round_to_sigma, tolerance_verdict, verification_joints)
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.verification import verify
+from fgcal.report.accuracy import (
+    accuracy_stats,
+    flag_poses,
+    held_parameter_cost,
+    predicted_position_sigma,
+    round_to_sigma,
+    tolerance_verdict,
+    verification_joints,
+)
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.studies.simulate import SimulationSettings, simulate
-from fgcal.estimation.verification import verify
 
 
 @pytest.fixture(scope="module")

@@ -7,16 +7,22 @@ import numpy as np
 import pytest
 
 import factors as fx
-from fgcal.estimation.baseline import two_stage
-from fgcal.estimation.calibrate import (CalibrationOptions, build_graph, calibrate, gtsam_covariance, levenberg_marquardt,
-                             nonlinear_graph)
-from fgcal.measurements.dataset import Noise
 from fgcal.errors import FgcalError
+from fgcal.estimation.baseline import two_stage
+from fgcal.estimation.calibrate import (
+    CalibrationOptions,
+    build_graph,
+    calibrate,
+    gtsam_covariance,
+    levenberg_marquardt,
+    nonlinear_graph,
+)
+from fgcal.estimation.result import load_result, save_result
+from fgcal.measurements.dataset import Noise
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
-from fgcal.estimation.result import load_result, save_result
-from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.robots.transforms import pose_difference
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 EXACT = Noise(cmm_sigma=0.0, joint_resolution=0.0)
 

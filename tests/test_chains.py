@@ -5,13 +5,13 @@ import math
 
 import numpy as np
 import pytest
+from plain_dh import Rx, Rz, Trans, euler
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.measurements.dataset import Noise
 from fgcal.robots.model import ParameterSet
 from fgcal.robots.robot_file import model_from_dict
 from fgcal.studies.simulate import SimulationSettings, simulate
-from fgcal.measurements.dataset import Noise
-from plain_dh import Rx, Rz, Trans, euler
 
 TOOLING = {"radius": 6.35, "balls": {"A": [60, 0, 30], "B": [0, 60, 30], "C": [-60, 0, 30], "D": [0, -90, 30]}}
 
@@ -144,9 +144,9 @@ def test_verify_position_only_reports_point_errors():
     """A single tracker reflector: verify reports point errors and no orientation (DESIGN.md 6)."""
     from dataclasses import replace
 
+    from fgcal.estimation.verification import verify
     from fgcal.robots.model import Tooling
     from fgcal.robots.robot_file import load_model
-    from fgcal.estimation.verification import verify
 
     model = replace(load_model("ur10"), tooling=Tooling(0.0, {"R": np.array([10.0, 20.0, 80.0])}))
     settings = SimulationSettings(n_poses=40, n_balls=1, levels=("centres",), noise=Noise(0.01, 0.0))
@@ -189,8 +189,8 @@ def test_ballbar_only_dataset_calibrates_with_its_pivot(puma, tmp_path):
     """A telescoping ballbar from an unknown pivot to one tool ball: the world origin is the pivot, so
     the base's translation is the pivot (estimated); what distances cannot see (the base's rotation about
     the pivot, the tool's orientation) is held and named."""
-    from fgcal.io.dataset_io import load_dataset, save_dataset
     from fgcal.estimation.verification import verify
+    from fgcal.io.dataset_io import load_dataset, save_dataset
 
     settings = SimulationSettings(n_poses=60, n_balls=1, levels=("distances",), noise=Noise(0.005, 0.0))
     train, _ = simulate(puma, np.random.default_rng(21), settings)

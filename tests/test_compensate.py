@@ -5,16 +5,15 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import random_joints
 
 from fgcal.estimation.calibrate import calibrate
-from fgcal.robots.compensate import Frame, base_transform, compensate_targets, tcp_matrix
-from fgcal.io.dataset_io import write_csv
-from fgcal.robots.kinematics import forward, jacobians
 from fgcal.estimation.result import save_result
-from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.io.dataset_io import write_csv
+from fgcal.robots.compensate import Frame, base_transform, compensate_targets, tcp_matrix
+from fgcal.robots.kinematics import forward, jacobians
 from fgcal.robots.transforms import matrix_to_quaternion
-
-from conftest import random_joints
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @pytest.fixture(scope="module")

@@ -4,19 +4,18 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
+from conftest import random_joints
 
 from fgcal.estimation.calibrate import calibrate
-from fgcal.robots.compensate import compensate
+from fgcal.estimation.result import save_result
 from fgcal.io.dataset_io import write_csv
+from fgcal.robots.compensate import compensate
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
-from fgcal.estimation.result import save_result
 from fgcal.robots.robot_file import load_model
-from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.robots.transforms import matrix_to_quaternion, pose_difference
 from fgcal.robots.urdf import to_urdf
-
-from conftest import random_joints
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @pytest.fixture(scope="module")

@@ -4,14 +4,14 @@ fgcal (yourdfpy on the URDF; plain matrices on the DH table)."""
 from pathlib import Path
 
 import numpy as np
+import plain_dh
 import pytest
 
-import plain_dh
-from fgcal.util.yamlio import read_yaml
-from fgcal.util.resources import builtin_robot_path
 from fgcal.robots.compensate import Frame, base_transform, compensate_targets
 from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
 from fgcal.robots.transforms import euler_zyx_trans, to_euler_zyx_trans
+from fgcal.util.resources import builtin_robot_path
+from fgcal.util.yamlio import read_yaml
 
 DATA = Path(__file__).parent / "data" / "urdf"
 # a tracker 2.5 m away, turned by 120 deg and tilted: the instrument frame of a dataset

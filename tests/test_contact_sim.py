@@ -7,11 +7,10 @@ import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import contact_sim as cs
 import numpy as np
 import pytest
 import yaml
-
-import contact_sim as cs
 
 yourdfpy = pytest.importorskip("yourdfpy", reason="yourdfpy (test extra) checks the FK independently")
 

@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from fgcal.errors import DatasetError
-from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
-from fgcal.estimation.calibrate import GAUGE_REASON
+from fgcal.estimation.calibrate import GAUGE_REASON, CalibrationOptions, build_graph, calibrate
 from fgcal.estimation.result import load_result, save_result
+from fgcal.estimation.verification import verify
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec, plane_normal
-from fgcal.estimation.verification import verify
 from fgcal.robots.model import Tooling
 
 BALLS = {"B": np.array([10.0, -5.0, 60.0])}

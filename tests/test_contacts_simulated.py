@@ -7,16 +7,16 @@ single dataset's error is dominated by a few parameter directions (it scatters l
 degrees of freedom: 0.4 to 2.1 times the prediction over ten seeds of one Panda), so the test
 takes the RMS over eight datasets of each robot."""
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
+from contact_sim import aligned_rms, new_poses, plane_dataset, two_socket_dataset
 
-from contact_sim import UrdfChain, aligned_rms, new_poses, plane_dataset, two_socket_dataset
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
-from fgcal.robots.kinematics import jacobians
 from fgcal.measurements.dataset import Dataset
-from pathlib import Path
+from fgcal.robots.kinematics import jacobians
 
 DATA = Path(__file__).parent / "data" / "urdf"
 ROBOTS = {"panda": ("panda.urdf", {"base": "panda_link0", "tip": "panda_hand_tcp"}),

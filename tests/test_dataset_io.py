@@ -4,9 +4,9 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.measurements.dataset import Noise
-from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.errors import DatasetError
+from fgcal.io.dataset_io import load_dataset, save_dataset
+from fgcal.measurements.dataset import Noise
 from fgcal.studies.simulate import SimulationSettings, simulate
 
 

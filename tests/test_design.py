@@ -6,8 +6,15 @@ import pytest
 
 from fgcal.estimation.calibrate import calibrate
 from fgcal.measurements.dataset import Noise
-from fgcal.studies.design import Candidates, candidate_pool, design_plan, indices, pose_information, random_design_values
 from fgcal.robots.kinematics import forward
+from fgcal.studies.design import (
+    Candidates,
+    candidate_pool,
+    design_plan,
+    indices,
+    pose_information,
+    random_design_values,
+)
 from fgcal.studies.plans import ball_access
 from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.studies.study import run_trial, trials_for

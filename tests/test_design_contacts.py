@@ -9,15 +9,15 @@ predicts a better accuracy than the median random plan of 12 per placement, and 
 is verified at other placements (consistency) no worse than the median of 8 random plans."""
 import numpy as np
 import pytest
-
 from contact_sim import two_socket_dataset
+from test_contacts_simulated import DATA, ROBOTS
+
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.estimation.noise import NoiseMode
 from fgcal.estimation.verification import verify
 from fgcal.io.dataset_io import dataset_model, load_dataset
 from fgcal.studies.design import Candidates
 from fgcal.studies.design_dataset import dataset_layout, design_from_dataset, placement_of, with_dataset_tooling
-from test_contacts_simulated import DATA, ROBOTS
 
 PER_PLACEMENT = 12
 

@@ -7,17 +7,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fgcal.errors import FgcalError
 from fgcal.estimation.calibrate import calibrate
-from fgcal.measurements.dataset import Noise
+from fgcal.estimation.verification import verify
 from fgcal.io.dataset_io import save_dataset
+from fgcal.measurements.dataset import Noise
+from fgcal.robots.model import slots_from_file_units
+from fgcal.robots.robot_file import model_from_dict, model_to_dict, save_model
 from fgcal.studies.design import candidate_pool
 from fgcal.studies.design_dataset import dataset_layout, design_from_dataset, load_plan, save_plan
 from fgcal.studies.design_info import information
 from fgcal.studies.design_validate import compare_on_held_out
-from fgcal.errors import FgcalError
-from fgcal.estimation.verification import verify
-from fgcal.robots.model import slots_from_file_units
-from fgcal.robots.robot_file import model_from_dict, model_to_dict, save_model
 from fgcal.studies.simulate import SimulationSettings, simulate
 
 NOISE = Noise(0.01, 0.01)

@@ -2,14 +2,13 @@
 import gtsam
 import numpy as np
 import pytest
+from conftest import random_joints
 from gtsam.utils.numerical_derivative import numericalDerivative11
 
 import factors
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_IS_ANGLE
 from fgcal.robots.transforms import quaternion_to_matrix
-
-from conftest import random_joints
 
 
 def _setup(puma, seed):
@@ -126,8 +125,9 @@ def test_robust_noise_models():
 def test_distance_factor(puma, seed, robot):
     """A ballbar length: both blocks (parameters, joint variables), on the PUMA and on a chain with a
     prismatic joint and a coupling."""
-    from fgcal.robots.robot_file import model_from_dict
     from test_chains import PRISMATIC
+
+    from fgcal.robots.robot_file import model_from_dict
 
     model = puma if robot == "puma" else model_from_dict(dict(PRISMATIC, coupling={
         "matrix": [[1, 0, 0, 0, 0, 0], [0.5, 1, 0, 0, 0, 0], [0, 0, 1, 0, 0, 0], [0, 0, 0, 1, 0, 0],

@@ -12,15 +12,15 @@ import shutil
 import gtsam
 import numpy as np
 import pytest
+from contact_sim import plane_dataset, two_socket_dataset
+from test_contacts_simulated import DATA, ROBOTS, _merge
+from test_factors import _check
 
 import factors as fx
-from contact_sim import plane_dataset, two_socket_dataset
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate, solve_calibration
 from fgcal.estimation.gtsam_graph import distance_constraint_factor, gtsam_covariance, nonlinear_graph, to_gtsam
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.measurements.types import BY_LEVEL
-from test_contacts_simulated import DATA, ROBOTS, _merge
-from test_factors import _check
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +72,7 @@ def test_contact_and_distance_factor_jacobians(both, joints):
     t_key = fx.theta_key()
     column = graph.n_geo + graph.K
     checked = 0
-    for trial in range(3):
+    for _trial in range(3):
         theta = sol.state.theta + rng.normal(scale=1e-3, size=sol.state.theta.shape)  # a random point
         for level, terms in graph.measurements.items():
             kind = BY_LEVEL[level]

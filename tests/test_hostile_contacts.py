@@ -12,11 +12,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hostile_util import call, one_line_error
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.result import load_result
-
-from hostile_util import call, one_line_error
 
 REPO = Path(__file__).resolve().parent.parent
 URDF = REPO / "tests" / "data" / "urdf" / "panda.urdf"
@@ -288,6 +287,7 @@ def test_contacts_result_report_export_verify(mukca, tmp_path, capsys):
 
 def _probes_dataset(tmp_path):
     from hostile_util import small_dataset
+
     from fgcal.robots.robot_file import load_model
 
     small_dataset(load_model("puma560"), tmp_path / "probes")

@@ -2,11 +2,10 @@
 import tracemalloc
 
 import numpy as np
+from conftest import random_joints
 
 from fgcal.io.dataset_io import _point_table
 from fgcal.robots.identifiability import analyse, compact_jacobian, identification_jacobian
-
-from conftest import random_joints
 
 
 def test_probe_table_memory_per_row_is_small(tmp_path):
@@ -47,9 +46,10 @@ def test_compact_jacobian_analyses_like_the_full_one(puma):
 
 
 def test_batch_size_limit_refuses_calibrate_and_bounds_check(puma, tmp_path, capsys, monkeypatch):
+    from hostile_util import call, one_line_error, small_dataset
+
     import fgcal.cli.commands.calibrate as calibrate_command
     import fgcal.cli.commands.check as check_command
-    from hostile_util import call, one_line_error, small_dataset
 
     small_dataset(puma, tmp_path / "ds", n_poses=6)
     for command in (calibrate_command, check_command):  # 6 poses x 3 balls x 4 points = 72 rows

@@ -5,12 +5,11 @@ import signal
 import stat
 
 import pytest
-
-from fgcal.util import yamlio
-from fgcal.io.dataset_io import load_dataset, save_dataset
-from fgcal.util.yamlio import atomic_write_text
-
 from hostile_util import call, copy_dataset, one_line_error, run_cli, small_dataset
+
+from fgcal.io.dataset_io import load_dataset, save_dataset
+from fgcal.util import yamlio
+from fgcal.util.yamlio import atomic_write_text
 
 
 @pytest.fixture(scope="module")

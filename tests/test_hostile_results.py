@@ -4,14 +4,13 @@ from dataclasses import asdict
 
 import numpy as np
 import pytest
+from hostile_util import call, one_line_error, small_dataset
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate, save_result
 from fgcal.robots.robot_file import model_to_dict
 from fgcal.studies.study import RESULT_COLUMNS, trials_for
 from fgcal.studies.study_run import run_study
-
-from hostile_util import call, one_line_error, small_dataset
 
 
 def _fake_runner(t):

@@ -1,10 +1,9 @@
 """Nothing silent: dropped poses named, empty results refused, unit mistakes named, options validated."""
 import numpy as np
 import pytest
+from hostile_util import call, copy_dataset, one_line_error, small_dataset
 
 from fgcal.io.dataset_io import load_dataset, save_dataset
-
-from hostile_util import call, copy_dataset, one_line_error, small_dataset
 
 
 @pytest.fixture(scope="module")

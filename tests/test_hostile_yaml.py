@@ -3,12 +3,11 @@ import os
 import resource
 
 import pytest
-
-from fgcal.io.dataset_io import load_dataset
-from fgcal.errors import FgcalError
-from fgcal.util.yamlio import read_yaml
-
 from hostile_util import call, copy_dataset, one_line_error, run_cli, small_dataset
+
+from fgcal.errors import FgcalError
+from fgcal.io.dataset_io import load_dataset
+from fgcal.util.yamlio import read_yaml
 
 
 @pytest.fixture(scope="module")

@@ -1,9 +1,8 @@
 import numpy as np
 import pytest
+from conftest import random_joints
 
 from fgcal.robots.identifiability import analyse, identification_jacobian
-
-from conftest import random_joints
 
 
 @pytest.mark.parametrize("robot", ["puma", "ur10"])

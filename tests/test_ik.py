@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
+from conftest import random_joints
 
 from fgcal.robots.ik import BRANCHES, IKError, solve_numeric, solve_puma
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_IS_ANGLE
-
-from conftest import random_joints
 
 
 def test_all_eight_branches_round_trip(puma):

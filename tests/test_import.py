@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fgcal.io.dataset_io import dataset_model, load_dataset
-from fgcal.robots.kinematics import forward
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-from fgcal.robots.model import SLOT_NAMES, slot, slots_to_file_units
 from fgcal.estimation.result import load_result
-from fgcal.robots.robot_file import load_model
+from fgcal.io.dataset_io import dataset_model, load_dataset
 from fgcal.io.table_io import ColumnSpec, read_measurements
+from fgcal.robots.kinematics import forward
+from fgcal.robots.model import SLOT_NAMES, slot, slots_to_file_units
+from fgcal.robots.robot_file import load_model
 from fgcal.robots.transforms import to_euler_zyx_trans
 
 JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint"]

@@ -3,19 +3,25 @@
 import numpy as np
 import pytest
 
-from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
-from fgcal.measurements.dataset import Dataset, Noise, PoseObservations
 from fgcal.errors import ModelError
-from fgcal.robots.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
-from fgcal.estimation.joint_errors import (JointErrorBlock, JointErrorSpec, ModelKind, commands_for, corrected_joints,
-                                outside_region)
-from fgcal.robots.kinematics import forward
+from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
+from fgcal.estimation.joint_errors import (
+    JointErrorBlock,
+    JointErrorSpec,
+    ModelKind,
+    commands_for,
+    corrected_joints,
+    outside_region,
+)
 from fgcal.estimation.model_select import compare_models
 from fgcal.estimation.result import load_result, save_result
-from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
-from fgcal.studies.simulate import draw_truth
-from fgcal.robots.transforms import matrix_to_quaternion
+from fgcal.measurements.dataset import Dataset, Noise, PoseObservations
+from fgcal.robots.gravity import Payload, gravity_torques, inertials_from_dict, model_inertials
+from fgcal.robots.kinematics import forward
 from fgcal.robots.model import Tooling
+from fgcal.robots.robot_file import load_model, model_from_dict, model_to_dict
+from fgcal.robots.transforms import matrix_to_quaternion
+from fgcal.studies.simulate import draw_truth
 
 UR10 = load_model("ur10")
 LOW = np.radians([-170, -170, -160, -170, -170, -170])
@@ -140,8 +146,8 @@ def test_save_load_keeps_the_block(tmp_path):
     assert back.joint_errors["names"] == r.joint_errors["names"] and back.names == r.names
     q = UR10.joints_to_internal(ds.joints_deg[:5])
     np.testing.assert_allclose(corrected_joints(back, q), corrected_joints(r, q), atol=1e-15)
-    from fgcal.report.document import write_report
     from fgcal.estimation.verification import verify
+    from fgcal.report.document import write_report
 
     write_report(back, tmp_path / "report", verify(back, ds, UR10).to_dict())
     md = (tmp_path / "report" / "report.md").read_text()

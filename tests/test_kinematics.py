@@ -1,14 +1,13 @@
 import numpy as np
 import pytest
 import yaml
+from conftest import random_joints
+from plain_dh import fk
 
 from fgcal.robots.kinematics import forward, jacobians
 from fgcal.robots.model import SLOT_IS_ANGLE, SLOT_NAMES
-from fgcal.util.resources import builtin_robot_path
 from fgcal.robots.transforms import so3_log
-
-from conftest import random_joints
-from plain_dh import fk
+from fgcal.util.resources import builtin_robot_path
 
 
 def test_puma_tool_origin_at_zero(puma):

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from contact_sim import plane_dataset, two_socket_dataset
 from test_contacts_simulated import _merge
 from test_stations import _simulate as _stations_simulate

@@ -5,13 +5,13 @@ import sys
 import numpy as np
 import pytest
 
-from fgcal.measurements.dataset import Noise
 from fgcal.io.dataset_io import load_dataset, save_dataset
-from fgcal.robots.kinematics import forward, tool_points
+from fgcal.measurements.dataset import Noise
 from fgcal.measurements.measure import POSE_ROW, measure_probes
+from fgcal.robots.kinematics import forward, tool_points
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
-from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.robots.transforms import quaternion_to_matrix, so3_log
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 def _true_poses(ds):

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
+from fgcal.estimation.verification import verify
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.measurements import types
 from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.cells import ball_name, number
 from fgcal.measurements.dataset import Noise
-from fgcal.estimation.verification import verify
 from fgcal.robots.kinematics import tool_points
 from fgcal.studies.simulate import SimulationSettings, simulate
 

@@ -3,19 +3,18 @@
 The Monte Carlo rows are a reduced version of ``bench/bench_honest.py`` (which runs 25 seeds of
 every scenario); the bounds are the issue's targets.
 """
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-from fgcal.measurements.dataset import Noise
-from fgcal.studies.honesty import SCENARIOS, add_gross_errors, run_scenario, summarise
-from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.estimation.result import load_result, save_result
-from fgcal.studies.simulate import SimulationSettings, simulate
+from fgcal.measurements.dataset import Noise
 from fgcal.report.uncertainty import verdict
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.studies.honesty import SCENARIOS, add_gross_errors, run_scenario, summarise
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 def _truth(ds):

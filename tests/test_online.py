@@ -9,8 +9,8 @@ import pytest
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
-from fgcal.online.engines import make_engine, pose_records
 from fgcal.online.checkpoint import read_checkpoint
+from fgcal.online.engines import make_engine, pose_records
 from fgcal.online.run import OnlineRun
 from fgcal.studies.simulate import SimulationSettings, simulate
 
@@ -147,9 +147,9 @@ def test_drift_keeps_the_filter_open(puma, dataset):
 def test_cli_online_reads_standard_input(puma, dataset, tmp_path):
     lines = ["# a stream as a measuring program would write it"]
     for pid, q in zip(dataset.pose_ids[:10], dataset.joints_deg[:10]):
-        lines.append("joints,%d,%s" % (pid, ",".join(repr(float(v)) for v in q)))
+        lines.append(f"joints,{pid},{','.join(repr(float(v)) for v in q)}")
         sel = dataset.probes.pose == pid
-        lines += ["probe,%d,%s,%s" % (pid, b, ",".join(repr(float(v)) for v in x))
+        lines += [f"probe,{pid},{b},{','.join(repr(float(v)) for v in x)}"
                   for b, x in zip(dataset.probes.ball[sel], dataset.probes.xyz[sel])]
     lines.insert(4, "probe,1,Z,1,2,3")  # an unknown ball: reported, skipped, the session goes on
     text = "\n".join(lines) + "\n"

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from contact_sim import plane_dataset, two_socket_dataset
+from test_contacts_simulated import _merge
+
 from fgcal.estimation.calibrate import GAUGE_REASON, CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.online.engines import make_engine, pose_records
 from fgcal.online.run import OnlineRun
 from fgcal.robots.kinematics import jacobians
-from test_contacts_simulated import _merge
 
 URDF = Path(__file__).parent / "data" / "urdf" / "kinova.urdf"
 CHAIN = {"tip": "j2s6s200_end_effector"}
@@ -158,10 +158,10 @@ def test_stdin_contacts_as_the_files(datasets, engine, tmp_path):
     ds, model, _ = _batch(datasets["both"])
     lines = ["# contacts as a measuring program would write them"]
     for pid, q in zip(ds.pose_ids, ds.joints_deg):
-        lines.append("joints,%d,%s" % (pid, ",".join(repr(float(v)) for v in q)))
+        lines.append(f"joints,{pid},{','.join(repr(float(v)) for v in q)}")
         for obs in (ds.contacts, ds.plane_contacts):
             sel = obs.pose == pid
-            lines += ["contact,%d,%s,%s" % (pid, b, f) for b, f in zip(obs.ball[sel], obs.fixture[sel])]
+            lines += [f"contact,{pid},{b},{f}" for b, f in zip(obs.ball[sel], obs.fixture[sel])]
     lines.insert(3, "contact,1,B,nowhere")  # an unknown fixture: reported, skipped, the session goes on
     run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(ds.path), "--stdin", "--engine", engine,
                           "--checkpoint", str(tmp_path / "s.ck"), "--out", str(tmp_path / "s.json")],

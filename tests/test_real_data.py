@@ -6,12 +6,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-from fgcal.io.dataset_io import load_dataset
 from fgcal.errors import DatasetError
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.verification import verify
+from fgcal.io.dataset_io import load_dataset
 from fgcal.io.landgraf import read_series, series_to_datasets
 from fgcal.robots.robot_file import model_from_dict
-from fgcal.estimation.verification import verify
 
 # shared/ sits beside the checkout (or beside the worktrees' directory)
 SERIES = next((p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
@@ -99,6 +99,10 @@ def test_import_skips_rows_with_missing_values(tmp_path):
     assert s.T[0, 0, 3] == pytest.approx(100.0)  # decimal comma read
     run = subprocess.run([sys.executable, "-m", "fgcal.cli", "import", "landgraf", str(path), str(tmp_path / "out")],
                          capture_output=True, text=True)
+    # The rows are parsing fodder, not a robot (random joints, nearly fixed positions): refused ...
+    assert run.returncode == 2 and "misses the measured positions" in run.stderr, run.stderr
+    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "import", "landgraf", str(path), str(tmp_path / "out"),
+                          "--accept-fit"], capture_output=True, text=True)  # ... and read when the user insists
     assert run.returncode == 0, run.stderr
     assert "skipped" in run.stdout and "line 6" in run.stdout
     ds = load_dataset(tmp_path / "out")

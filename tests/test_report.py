@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-from fgcal.report.plots import plot_convergence, plot_correlation, plot_poses, plot_residuals, plot_sigmas
-from fgcal.report.document import write_report
 from fgcal.estimation.result import save_result
-from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.report.accuracy import round_to_sigma
+from fgcal.report.document import write_report
+from fgcal.report.plots import plot_convergence, plot_correlation, plot_poses, plot_residuals, plot_sigmas
 from fgcal.report.uncertainty import parameter_table, verdict
+from fgcal.studies.simulate import SimulationSettings, simulate
 
 
 @pytest.fixture(scope="module")

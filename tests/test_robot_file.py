@@ -1,12 +1,11 @@
 import numpy as np
 import pytest
+from conftest import random_joints
 
 from fgcal.errors import ModelError
 from fgcal.robots.kinematics import forward
 from fgcal.robots.model import SLOT_IS_ANGLE
 from fgcal.robots.robot_file import load_model, save_model
-
-from conftest import random_joints
 
 
 @pytest.mark.parametrize("name", ["puma560", "ur10", "ur5"])

@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 
 from fgcal.estimation.build import _sigmas
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-from fgcal.robots.gravity import model_inertials
-from fgcal.estimation.calibrate import split_held
+from fgcal.estimation.calibrate import CalibrationOptions, calibrate, split_held
 from fgcal.estimation.holding import holding_cost, unseen_parameters
 from fgcal.estimation.joint_errors import ModelKind
 from fgcal.estimation.model_noise import OWN_NOTE
@@ -22,8 +20,8 @@ from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.measurements.dataset import Noise
 from fgcal.online.display import Display
 from fgcal.online.run import OnlineRun
+from fgcal.robots.gravity import model_inertials
 from fgcal.robots.model import Tooling
-from fgcal.robots.robot_file import load_model
 from fgcal.studies.design_dataset import dataset_layout, design_from_dataset
 from fgcal.studies.simulate import SimulationSettings, simulate
 

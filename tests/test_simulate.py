@@ -1,14 +1,13 @@
 import numpy as np
 import pytest
+from plain_dh import fk_from_truth
 
-from fgcal.measurements.dataset import Noise
-from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.errors import FgcalError
+from fgcal.io.dataset_io import load_dataset, save_dataset
+from fgcal.measurements.dataset import Noise
 from fgcal.robots.kinematics import forward
 from fgcal.studies.plans import ball_access
 from fgcal.studies.simulate import SimulationSettings, simulate
-
-from plain_dh import fk_from_truth
 
 EXACT = Noise(cmm_sigma=0.0, joint_resolution=0.0)
 

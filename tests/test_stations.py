@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from contact_sim import UrdfChain, new_poses, perturbed_urdf
+
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset
 from fgcal.robots.kinematics import jacobians
@@ -153,7 +153,7 @@ def test_several_datasets_equal_one_with_a_station_column(tmp_path):
 def test_verify_from_the_stations_found(tmp_path):
     """New poses measured from stations B and C: verify puts them in the world by the stations the
     calibration found; the error against the truth there is the calibration's."""
-    true_text = _simulate(tmp_path / "train", 6)
+    _simulate(tmp_path / "train", 6)
     _simulate(tmp_path / "other", 6, pose_seed=60)  # the same robot, other poses and noise
     ds = load_dataset(tmp_path / "train" / "all")
     model = dataset_model(ds)

@@ -75,12 +75,12 @@ def _reference_trial(trial):
     from dataclasses import asdict
 
     from fgcal.estimation.calibrate import calibrate
+    from fgcal.estimation.verification import compare_poses, measured_poses
     from fgcal.measurements.dataset import Dataset, Noise
     from fgcal.robots.kinematics import forward
     from fgcal.robots.robot_file import load_model
     from fgcal.studies.plans import paper_plan, random_plan
     from fgcal.studies.simulate import draw_truth, measure
-    from fgcal.estimation.verification import compare_poses, measured_poses
 
     model = load_model(trial.robot)
     rng = np.random.default_rng([trial.seed, trial.trial, zlib.crc32(trial.study.encode())])
@@ -148,8 +148,8 @@ def test_simulated_probes_are_measure_s(puma):
     readings and kept poses (poses outside the volume dropped), and the generator ends in the same state."""
     from fgcal.measurements.dataset import Noise
     from fgcal.studies.plans import random_plan
-    from fgcal.studies.simulate import draw_truth, measure
     from fgcal.studies.probing import simulate_probes
+    from fgcal.studies.simulate import draw_truth, measure
 
     rng = np.random.default_rng(5)
     truth = draw_truth(puma, rng)
@@ -171,11 +171,11 @@ def test_simulated_probes_are_measure_s(puma):
 def test_vectorised_verification_poses_match_measured_poses(puma):
     """Four balls a pose, a gross error on one ball of one pose and on two balls of another: the
     vectorised sphere and rigid fits accept and reject the same poses as measured_poses, same poses."""
+    from fgcal.estimation.verification import measured_poses
     from fgcal.measurements.dataset import Noise
     from fgcal.studies.plans import random_plan
-    from fgcal.studies.simulate import draw_truth
     from fgcal.studies.probing import simulate_probes
-    from fgcal.estimation.verification import measured_poses
+    from fgcal.studies.simulate import draw_truth
 
     rng = np.random.default_rng(3)
     truth = draw_truth(puma, rng)

@@ -12,12 +12,14 @@ import sys
 
 import numpy as np
 
+from fgcal import SimulationSettings, load_dataset, load_model, simulate
+
 out = sys.argv[1]
 try:
     from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 except ImportError:
     from fgcal.calibrate import CalibrationOptions, calibrate
-from fgcal import load_model, simulate, SimulationSettings, load_dataset
+
 res = {}
 cases = {
     "paper": None,

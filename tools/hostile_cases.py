@@ -2,8 +2,23 @@
 workspace, what it runs, and what a good outcome is."""
 from __future__ import annotations
 
-from hostile_workspace import (DS_YAML, LAUGHS, MUKCA, REPO, Case, chain, edit, fgcal, line, model_file, replace_with,
-                               scale_joints, scale_probes, write)
+from hostile_workspace import (
+    DS_YAML,
+    LAUGHS,
+    MUKCA,
+    REPO,
+    Case,
+    chain,
+    edit,
+    fgcal,
+    line,
+    model_file,
+    replace_with,
+    scale_joints,
+    scale_probes,
+    write,
+)
+
 
 def cases() -> list[Case]:
     C = []

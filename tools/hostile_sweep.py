@@ -25,8 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from hostile_cases import cases
-from hostile_workspace import COMMANDS, Case, build_base, files_digest, fgcal
-
+from hostile_workspace import COMMANDS, Case, build_base, fgcal, files_digest
 
 # ---------------------------------------------------------------- running and classing
 
@@ -107,7 +106,7 @@ def main(argv=None) -> int:
             for c, fut in futures:
                 try:
                     verdict, detail, dt = fut.result()
-                except Exception as exc:  # noqa: BLE001 (a broken case is reported, not fatal)
+                except Exception as exc:
                     verdict, detail, dt = "setup-error", repr(exc)[:200], 0.0
                 counts[verdict] = counts.get(verdict, 0) + 1
                 if c.args and c.args[0] in COMMANDS:

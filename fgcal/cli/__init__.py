@@ -11,10 +11,16 @@ import sys
 from pathlib import Path
 
 from fgcal._version import __version__
-from fgcal.cli.commands.checks import (finite_float, nonnegative_float, nonnegative_int, os_error_message,
-                                       positive_float, positive_int)
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
+from fgcal.cli.commands.checks import (
+    finite_float,
+    nonnegative_float,
+    nonnegative_int,
+    os_error_message,
+    positive_float,
+    positive_int,
+)
 from fgcal.cli.commands.compensate import _cmd_compensate
 from fgcal.cli.commands.demo import _cmd_demo
 from fgcal.cli.commands.design import _cmd_design
@@ -22,7 +28,7 @@ from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
 from fgcal.cli.commands.report import _cmd_report
-from fgcal.cli.commands.simulate import _cmd_simulate
+from fgcal.cli.commands.simulate import _cmd_simulate, add_setup_options
 from fgcal.cli.commands.study import _cmd_study
 from fgcal.cli.commands.verify import _cmd_verify
 from fgcal.errors import FgcalError
@@ -80,6 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--truth", type=Path, default=None,
                    help="truth.yaml of another simulated dataset: the same actual robot (a verification set)")
     s.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    add_setup_options(s)
     s.set_defaults(func=_cmd_simulate)
 
     c = sub.add_parser("check", help="validate a dataset and report what its poses can identify")

@@ -12,8 +12,8 @@ from scipy.optimize import least_squares
 from scipy.sparse import csr_matrix
 
 from fgcal.measurements.dataset import Dataset
-from fgcal.robots.kinematics import jacobians
 from fgcal.measurements.measure import measure_probes
+from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import RobotModel
 
 __all__ = ["two_stage"]

@@ -4,19 +4,21 @@ prediction) and the :class:`fgcal.estimation.graph.Graph` itself. No I/O here.
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, Sigmas
-from fgcal.robots.gravity import model_inertials
 from fgcal.estimation.joint_errors import BlockParameters, JointErrorBlock, JointErrorSpec, is_block_name
 from fgcal.estimation.options import MIN_SIGMA, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.setup_params import SetupParameters, is_setup_name
 from fgcal.measurements.dataset import Dataset
-from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.posefit import rigid_fit
+from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.spherefit import best_of_candidates, fit_spheres_batch, mirror_through_points, point_groups
 from fgcal.measurements.types import all_levels, kinematic_levels, kinematic_types
+from fgcal.robots.gravity import model_inertials
 from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import to_euler_zyx_trans
@@ -129,7 +131,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     levels = _levels(ds, options)
     block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
     names = [n for n in names if not is_block_name(n) and not is_setup_name(n)]
-    params = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
+    params: Any = model.parameters(extra=[n for n in names if n not in model.identifiable_names()])
     params = type(params)(model, tuple(names))
     held = model.nominal.copy() if held is None else np.asarray(held, dtype=float)
     measured = set()
@@ -141,11 +143,11 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     row = {p: i for i, p in enumerate(pose_ids)}
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(pose_ids)])
     sig = _sigmas(ds, model, options, scale if scale is not None else options.noise_scale)
-    kw = {}
-    world_points = {}
+    kw: dict[str, Any] = {}
+    world_points: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     init_c = None
-    if "probes" in levels:
-        pr = ds.probes
+    pr = ds.probes
+    if "probes" in levels and pr is not None:
         keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
         var = {k: j for j, k in enumerate(keys)}
         ball_pose = np.array([row[p] for p, _ in keys], dtype=int)
@@ -215,7 +217,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         kw["setup"] = layout
     graph = Graph(params, held, q, sig, robust=options.robust, robust_k=options.robust_k, **kw)
     theta0 = params.take(start)
-    if init_c is not None and len(graph.ball_pose):
+    if init_c is not None and pr is not None and len(graph.ball_pose):
         # Refit each centre from the kinematic prediction: of the two centres that fit a cap of
         # points equally well, the one near the prediction is the ball's. Balls whose points do
         # not fit a sphere start at the prediction itself. A given start is near the optimum: its

@@ -17,24 +17,44 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from fgcal._version import __version__
-from fgcal.measurements.dataset import Dataset
-from fgcal.measurements.types import BY_LEVEL
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed  # noqa: F401 (also reached here)
+from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed
 from fgcal.estimation.graph import Graph, Sigmas, State
-from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions  # noqa: F401 (also reached here)
-from fgcal.estimation.solve import _solve, levenberg_marquardt  # noqa: F401
 from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
-from fgcal.robots.identifiability import analyse_information
-from fgcal.robots.model import RobotModel
-from fgcal.estimation.noise import (NoiseMode, OutlierMode, components, find_outliers, fit_test, included_leverage,
-                                    level_noise, name_outliers, readmissible, scaled_inverse, update_sigmas)
+from fgcal.estimation.noise import (
+    NoiseMode,
+    OutlierMode,
+    components,
+    find_outliers,
+    fit_test,
+    included_leverage,
+    level_noise,
+    name_outliers,
+    readmissible,
+    scaled_inverse,
+    update_sigmas,
+)
+from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
+from fgcal.estimation.solve import _solve, levenberg_marquardt
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import BY_LEVEL
+from fgcal.robots.identifiability import analyse_information
+from fgcal.robots.model import RobotModel
 
-__all__ = ["CalibrationOptions", "calibrate", "solve_calibration", "Solution", "solution_covariance", "build_graph", "levenberg_marquardt", "WEAK_PRIOR",
-           "identifiability_of"]
+__all__ = [
+    "WEAK_PRIOR",
+    "CalibrationOptions",
+    "Solution",
+    "build_graph",
+    "calibrate",
+    "identifiability_of",
+    "levenberg_marquardt",
+    "solution_covariance",
+    "solve_calibration",
+]
 
 # The GTSAM forms of the problem live in fgcal.estimation.gtsam_graph (which imports gtsam); reached through
 # this module too, loaded only when first asked for.
@@ -284,7 +304,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         state, it2, converged, rounds2, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
                                                                  outlier_mode)
         iterations, rounds = iterations + it2, rounds + rounds2
-    return Solution(graph, state, pose_ids, levels, iterations, converged, rounds, declared, noise_mode,
+    return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
                     outlier_mode, held_info, theta_start, priors, dropped)
 
 
@@ -296,7 +316,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
     state, iterations, converged = _solve(graph, state, options, damping=damping)
     declared = graph.sigmas
     rounds = readmitted = 0
-    for rounds in range(1, MAX_NOISE_ROUNDS + 1):
+    for rounds in range(1, MAX_NOISE_ROUNDS + 1):  # noqa: B007 (the count is returned)
         lin = graph.linearise(state)
         h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
         changed = False
@@ -427,6 +447,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]
     read_raw = raw_at_readings(graph, state.theta) if graph.joint_vars else None  # once, for both summaries
+    from fgcal.estimation.result_tooling import tooling_record
     from fgcal.robots.robot_file import model_to_dict
 
     return CalibrationResult(
@@ -444,7 +465,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         at_readings=at_readings(graph, state, read_raw),
         pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
-        setup=_setup_info(graph, state, held_info))
+        setup=_setup_info(graph, state, held_info), tooling=tooling_record(ds, levels))
 
 
 def _setup_info(graph: Graph, state: State, held_info) -> dict:
@@ -462,6 +483,7 @@ def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
     if getattr(params, "block", None) is None:  # BlockParameters, or set-up parameters around them
         return {}
     names = list(params.block.names)
+    assert options.joint_errors is not None  # a block is built only from a spec
     return {"spec": options.joint_errors.to_dict(), "names": names,
             "map_terms": sum(n.startswith("map.") for n in names),
             "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],

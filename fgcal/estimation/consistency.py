@@ -15,7 +15,7 @@ import numpy as np
 
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["FixtureConsistency", "DistanceCheck", "ContactConsistency", "contact_consistency"]
+__all__ = ["ContactConsistency", "DistanceCheck", "FixtureConsistency", "contact_consistency"]
 
 
 @dataclass

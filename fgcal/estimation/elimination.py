@@ -6,20 +6,39 @@ the rows' leverage. A mixin of :class:`fgcal.estimation.graph.Graph`, which supp
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
     from fgcal.estimation.graph import Linearisation, State
 
-__all__ = ["ArrowElimination", "POSE_CHUNK"]
+__all__ = ["POSE_CHUNK", "ArrowElimination"]
 
 POSE_CHUNK = 2000  # poses per block of work (bounds the temporaries)
 
 
 class ArrowElimination:
     """Solving and statistics of a graph whose per-pose variables touch only their pose and theta."""
+
+    # The layout, supplied by Graph (declared here for the type checker).
+    n_poses: int
+    m: int
+    nz: int
+    n_joints: int
+    local_used: np.ndarray
+    joint_vars: bool
+    ball_pose: np.ndarray
+    ball_col: np.ndarray
+    row: dict[str, Any]
+    excluded: dict[str, np.ndarray]
+    prior: Any
+
+    def linearise(self, state: State) -> Linearisation:
+        raise NotImplementedError  # Graph's
+
+    def factor_rows(self, level: str) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError  # Graph's
 
     def normal_equations(self, lin: Linearisation):
         """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
@@ -81,7 +100,7 @@ class ArrowElimination:
                 M[:, :mt, self.nz:] = lin.J_theta[c]
                 pad = ~self.local_used[c]
                 M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
-                R = np.linalg.qr(M, mode="r")[:, self.nz:, self.nz:]
+                R = np.asarray(np.linalg.qr(M, mode="r"))[:, self.nz:, self.nz:]
                 S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
             lin.cache["reduced"] = (S, Dinv)
         return lin.cache["reduced"]

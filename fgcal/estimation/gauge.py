@@ -9,7 +9,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.setup import BLOCK_KINDS
 from fgcal.measurements.types import BY_LEVEL
 
-__all__ = ["GAUGE_REASON", "world_is_fixed", "used_blocks", "setup_size"]
+__all__ = ["GAUGE_REASON", "setup_size", "used_blocks", "world_is_fixed"]
 
 
 GAUGE_REASON = ("the world frame: nothing in these data fixes it (contacts with unknown fixtures only), "
@@ -31,7 +31,7 @@ def used_blocks(ds: Dataset, levels) -> set:
     used = set()
     for lv in levels:
         kind = BY_LEVEL.get(lv)
-        if getattr(kind, "uses_setup", False):
+        if kind is not None and getattr(kind, "uses_setup", False):
             used |= set(kind.blocks_of(getattr(ds, lv)).tolist())
     return used
 

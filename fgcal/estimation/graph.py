@@ -26,7 +26,7 @@ from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import ParameterSet
 
-__all__ = ["Sigmas", "Graph", "State", "LEVELS"]
+__all__ = ["LEVELS", "Graph", "Sigmas", "State"]
 
 LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
@@ -54,7 +54,7 @@ class Sigmas:
                 return value
         raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
 
-    def replaced(self, **values) -> "Sigmas":
+    def replaced(self, **values) -> Sigmas:
         """A copy with the given sigmas changed (fields or ``other`` ones); itself when none are
         given (the same object means the same noise: a linearisation stays valid)."""
         if not values:
@@ -73,7 +73,7 @@ class State:
     q: np.ndarray
     c: np.ndarray
 
-    def copy(self) -> "State":
+    def copy(self) -> State:
         return State(self.theta.copy(), self.q.copy(), self.c.copy())
 
 
@@ -214,7 +214,7 @@ class Graph(ArrowElimination):
             return start
 
         self.row = {}
-        self.level_rows = {}
+        self.level_rows: dict[str, np.ndarray] = {}
         if nb:
             self.row["kinematic"] = take(self.ball_pose, 3)
         for level, terms in self.measurements.items():
@@ -233,8 +233,8 @@ class Graph(ArrowElimination):
     def ball_rows(self) -> list:
         """Per pose, each ball's ``(ball variable, its probe and kinematic rows)`` (for GTSAM factors)."""
         n, nb, probes = self.n_poses, len(self.ball_pose), self.probes
-        ball_rows = [[] for _ in range(n)]
-        per_ball = {j: [] for j in range(nb)}
+        ball_rows: list[list[tuple[int, np.ndarray]]] = [[] for _ in range(n)]
+        per_ball: dict[int, list[int]] = {j: [] for j in range(nb)}
         if probes is not None:
             for j, start in zip(probes[1], self.row["probes"]):
                 per_ball[int(j)].append(int(start))
@@ -248,7 +248,7 @@ class Graph(ArrowElimination):
     @cached_property
     def pose_rows(self) -> list:
         """Per pose, the rows that touch only theta and q (kinematic measurements, joints)."""
-        pose_rows = [[] for _ in range(self.n_poses)]
+        pose_rows: list[list] = [[] for _ in range(self.n_poses)]
         for level in [*self.measurements, "joints"]:
             if level in self.row:
                 pose, rows_ = self.factor_rows(level)
@@ -372,6 +372,7 @@ class Graph(ArrowElimination):
                 jac = jacobians(x, q[lo:lo + POSE_CHUNK], offsets=self.pose_offsets[lo:lo + POSE_CHUNK],
                                 chain=self.chain)
                 b, k = self.ball_pose[sel] - lo, self.ball_slot[sel]
+                assert jac.points is not None and jac.point_slots is not None and jac.point_joints is not None
                 pts[sel] = jac.points[b, k]
                 J_t[sel] = jac.point_slots[b, k][:, :, self.index]
                 J_q[sel] = jac.point_joints[b, k]
@@ -393,13 +394,13 @@ class Graph(ArrowElimination):
             put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
         if self.joint_vars:
             nj = self.n_joints
-            J_t = None
-            if self.K:  # the joint variable is the reading plus the block's correction
+            J_joints = None
+            if self.K and self.G is not None:  # the joint variable is the reading plus the block's correction
                 e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K])
-                J_t = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G, np.zeros((n, nj, self.S))], axis=2)
+                J_joints = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G, np.zeros((n, nj, self.S))], axis=2)
             else:
                 e = fx.joint_error(state.q, self.readings)
-            put("joints", np.arange(n), self.row["joints"], e, J_t=J_t, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
+            put("joints", np.arange(n), self.row["joints"], e, J_t=J_joints, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
                 sigma=self.sigmas.joint)
         prior_r = np.zeros(0)
         prior_J = np.zeros((0, P))

@@ -7,17 +7,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.calibrate import _unidentifiable
 from fgcal.estimation.gauge import world_is_fixed
+from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
-from fgcal.errors import FgcalError
-from fgcal.estimation.graph import Graph, State
 from fgcal.robots.model import RobotModel
 
-__all__ = ["nonlinear_graph", "to_gtsam", "gtsam_levenberg_marquardt", "gtsam_covariance", "distance_constraint_factor"]
+__all__ = ["distance_constraint_factor", "gtsam_covariance", "gtsam_levenberg_marquardt", "nonlinear_graph", "to_gtsam"]
 
 
 def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
@@ -101,7 +101,7 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
         gfg.add(gtsam.JacobianFactor(*args, np.ascontiguousarray(b), unit[len(b)]))
 
     for i in range(graph.n_poses):
-        q_block = lambda rows: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
+        q_block = lambda rows, i=i: [(fx.joint_key(i), lin.J_local[i, rows, :qdim])] if qdim else []  # noqa: E731
         for j, rows in graph.ball_rows[i]:
             col = graph.ball_col[j]
             add([(t_key, J_theta[i, rows])] + q_block(rows) + [(fx.centre_key(j), lin.J_local[i, rows, col:col + 3])],

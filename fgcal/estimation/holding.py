@@ -17,9 +17,9 @@ import logging
 
 import numpy as np
 
+from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
-from fgcal.robots.deviations import Deviations
 
 __all__ = ["held_parameters", "holding_cost", "priors_the_data_decide", "typical_geometry", "unseen_parameters"]
 

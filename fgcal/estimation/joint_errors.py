@@ -19,13 +19,23 @@ import logging
 import re
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Any
 
 import numpy as np
 
 from fgcal.robots.gravity import Inertials, Payload, gravity_torques, model_inertials
 
-__all__ = ["ModelKind", "JointErrorSpec", "JointErrorBlock", "BlockParameters", "is_block_name",
-           "compliance_joints", "corrected_joints", "commands_for", "outside_region"]
+__all__ = [
+    "BlockParameters",
+    "JointErrorBlock",
+    "JointErrorSpec",
+    "ModelKind",
+    "commands_for",
+    "compliance_joints",
+    "corrected_joints",
+    "is_block_name",
+    "outside_region",
+]
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +103,7 @@ class JointErrorSpec:
                 "payload": {"mass": float(self.payload.mass), "com": [float(c) for c in self.payload.com]}}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "JointErrorSpec":
+    def from_dict(cls, d: dict) -> JointErrorSpec:
         p = d.get("payload") or {}
         return cls(tuple(int(j) for j in d.get("compliance", ())), int(d.get("harmonics", 0)),
                    tuple(int(j) for j in d.get("map_joints", ())), float(d.get("map_sigma_urad", 50.0)) / MICRO,
@@ -139,7 +149,7 @@ class JointErrorBlock:
 
     @classmethod
     def build(cls, spec: JointErrorSpec, n_joints: int, inertials: Inertials | None, names=None,
-              chain=None) -> "JointErrorBlock":
+              chain=None) -> JointErrorBlock:
         """The block of ``spec``; ``names`` restricts it (for example after dropping unidentifiable ones)."""
         all_names = spec.names(n_joints)
         chosen = tuple(n for n in all_names if names is None or n in set(names))
@@ -178,6 +188,7 @@ class JointErrorBlock:
         for k, (kind, j, h) in enumerate(self._terms()):
             if kind == "compliance":
                 if tau is None:
+                    assert self.inertials is not None  # a compliance term needs the masses
                     tau = gravity_torques(slots, q, self.inertials, self.payload, self.chain)
                 G[:, j, k] = tau[:, j]
             else:
@@ -193,7 +204,7 @@ class BlockParameters:
     geometry only; ``names``, ``units``, ``nominal`` and the unit conversions cover both.
     """
 
-    geometric: object
+    geometric: Any  # a ParameterSet (or a SetupParameters over one)
     block: JointErrorBlock
 
     @property

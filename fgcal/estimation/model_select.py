@@ -20,15 +20,26 @@ import numpy as np
 
 from fgcal.estimation.build import build_graph
 from fgcal.estimation.calibrate import calibrate
+from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
+from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
-from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
-from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.robots.model import RobotModel
 
-__all__ = ["FoldOrder", "ModelScore", "ModelSelection", "CVProblem", "cv_problem", "cross_validate", "compare_models",
-           "HARMONICS_GRID", "SIGMA_GRID", "REUSED", "REUSED_NOTE"]
+__all__ = [
+    "HARMONICS_GRID",
+    "REUSED",
+    "REUSED_NOTE",
+    "SIGMA_GRID",
+    "CVProblem",
+    "FoldOrder",
+    "ModelScore",
+    "ModelSelection",
+    "compare_models",
+    "cross_validate",
+    "cv_problem",
+]
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +80,7 @@ class ModelSelection:
                 "reason": self.reason}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ModelSelection":
+    def from_dict(cls, d: dict) -> ModelSelection:
         return cls([ModelScore(**s) for s in d["scores"]], d["recommended"], int(d["folds"]), d.get("reason", ""))
 
     def score(self, model) -> ModelScore:
@@ -104,8 +115,14 @@ class CVProblem:
     unit: str = "mm"
 
 
+def _harmonic(name: str) -> int:
+    """The harmonic number ending a map parameter's name (``map.j2.c3`` -> 3)."""
+    found = re.search(r"(\d+)$", name)
+    return int(found.group(1)) if found else 0
+
+
 def _groups(q_rad, resolution_deg: float = 0.1) -> np.ndarray:
-    keys = {}
+    keys: dict[tuple, int] = {}
     return np.array([keys.setdefault(tuple(k), len(keys)) for k in np.round(np.degrees(q_rad) / resolution_deg)])
 
 
@@ -213,12 +230,12 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
     comp = [i for i, n in enumerate(prob.names) if n.endswith(".compliance")]
     inf = [np.inf] * len(geo)
     comp_sigma = [JointErrorSpec().compliance_sigma] * len(comp)
-    out = {ModelKind.GEOMETRIC.value: (sums.held_out_errors(geo, inf), {}),
+    out: dict[str, tuple[np.ndarray, dict]] = {ModelKind.GEOMETRIC.value: (sums.held_out_errors(geo, inf), {}),
            ModelKind.COMPLIANCE.value: (sums.held_out_errors(geo + comp, inf + comp_sigma), {})}
     best = None
     maps = {}
     for h in harmonics_grid:
-        mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and int(re.search(r"(\d+)$", n).group(1)) <= h]
+        mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and _harmonic(n) <= h]
         if mp:
             maps[int(h)] = mp
     sigmas = sorted(float(s) for s in sigma_grid)
@@ -331,7 +348,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     base = replace(options, joint_errors=None)
     results = {ModelKind.GEOMETRIC.value: calibrate(ds, model, base)}
     geo = results[ModelKind.GEOMETRIC.value]
-    specs = {ModelKind.GEOMETRIC.value: None}
+    specs: dict[str, JointErrorSpec | None] = {ModelKind.GEOMETRIC.value: None}
     q = model.joints_to_internal(ds.joints_deg[ds.row_of(np.array(geo.pose_ids))])
     torques = np.zeros_like(q)
     if up_to.order >= ModelKind.COMPLIANCE.order:
@@ -359,7 +376,9 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         unit = prob.unit
     else:
         geo_names = list(geo.names)
-        prob = cv_problem(ds, model, geo, JointErrorSpec(), options) if geo_names else None
+        if not geo_names:
+            raise FgcalError("model comparison: no geometric parameter is free to compare the models on")
+        prob = cv_problem(ds, model, geo, JointErrorSpec(), options)
         cv = cross_validate(prob, folds, rng, (), sigma_grid, fold_order)
         unit = prob.unit
     # The added models: fitted as the cross-validation weighted them (the geometric fit's noise),
@@ -373,7 +392,8 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     scores = []
     for kind, res in results.items():
         e = errors[kind]
-        score = ModelScore(kind, specs[kind].to_dict() if specs[kind] else {}, len(res.parameters), float(e.mean()),
+        spec = specs[kind]
+        score = ModelScore(kind, spec.to_dict() if spec is not None else {}, len(res.parameters), float(e.mean()),
                            float(e.std(ddof=1) / np.sqrt(len(e))), unit=unit,
                            condition_number=float(res.condition_number))
         if specs[kind] is not None:

@@ -27,9 +27,23 @@ from scipy import special
 
 from fgcal.measurements.types import all_levels, kinematic_types
 
-__all__ = ["NoiseMode", "OutlierMode", "LevelNoise", "Outlier", "component_table", "MIN_REDUNDANCY",
-           "OUTLIER_ALPHA", "components", "update_sigmas", "find_outliers", "readmissible", "included_leverage",
-           "fit_test", "scaled_inverse", "robust_scale"]
+__all__ = [
+    "MIN_REDUNDANCY",
+    "OUTLIER_ALPHA",
+    "LevelNoise",
+    "NoiseMode",
+    "Outlier",
+    "OutlierMode",
+    "component_table",
+    "components",
+    "find_outliers",
+    "fit_test",
+    "included_leverage",
+    "readmissible",
+    "robust_scale",
+    "scaled_inverse",
+    "update_sigmas",
+]
 
 log = logging.getLogger(__name__)
 
@@ -279,7 +293,7 @@ def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.n
     :data:`MAX_OUTLIER_FRACTION` would be excluded is left alone (logged): its residuals are
     heavy-tailed rather than a few gross errors.
     """
-    best = {}  # pose -> (ratio, level, index)
+    best: dict[int, tuple[float, str, int]] = {}  # pose -> (ratio, level, index)
     for level in all_levels():
         if level not in graph.row:
             continue
@@ -295,8 +309,8 @@ def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.n
             if ratio[k] > best.get(int(pose[k]), (0.0,))[0]:
                 best[int(pose[k])] = (float(ratio[k]), level, int(k))
     out: dict[str, list[int]] = {}
-    for _, level, k in best.values():
-        out.setdefault(level, []).append(k)
+    for _, level, row in best.values():
+        out.setdefault(level, []).append(row)
     return {lv: np.array(sorted(ks), dtype=int) for lv, ks in out.items()}
 
 

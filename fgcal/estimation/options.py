@@ -7,7 +7,7 @@ from fgcal.estimation.joint_errors import JointErrorSpec
 from fgcal.estimation.noise import NoiseMode, OutlierMode
 from fgcal.robots.deviations import Deviations
 
-__all__ = ["CalibrationOptions", "WEAK_PRIOR", "TYPICAL_DEVIATIONS", "MIN_SIGMA"]
+__all__ = ["MIN_SIGMA", "TYPICAL_DEVIATIONS", "WEAK_PRIOR", "CalibrationOptions"]
 
 # Weak prior: ten times the typical deviations of DESIGN.md (mm, deg).
 WEAK_PRIOR = Deviations(length=5.0, angle=0.5, base_length=50.0, base_angle=5.0)

@@ -16,7 +16,7 @@ from fgcal.estimation.result import PoseResidual, ResidualSummary
 from fgcal.measurements.types import kinematic_types
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["raw_at_readings", "at_readings", "pose_residuals"]
+__all__ = ["at_readings", "pose_residuals", "raw_at_readings"]
 
 
 def _levels() -> tuple:

@@ -9,12 +9,21 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import FgcalError
-from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.estimation.noise import LevelNoise, Outlier
+from fgcal.estimation.result_tooling import check_tooling
+from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.util.yamlio import atomic_write_text
 
-__all__ = ["FORMAT", "ParameterEstimate", "LevelSummary", "ResidualSummary", "PoseResidual", "CalibrationResult",
-           "save_result", "load_result"]
+__all__ = [
+    "FORMAT",
+    "CalibrationResult",
+    "LevelSummary",
+    "ParameterEstimate",
+    "PoseResidual",
+    "ResidualSummary",
+    "load_result",
+    "save_result",
+]
 
 FORMAT = "fgcal-result/1"
 MAX_RESULT_BYTES = 1 << 30
@@ -138,6 +147,10 @@ class CalibrationResult:
         point's ``position`` (mm), a plane's unit ``normal`` and ``offset`` (mm)), and ``gauge`` (how
         the world frame was fixed, when nothing in the data fixes it). Their parameters
         (``fixture.NAME.x``, ``plane.NAME.d``, ...) are rows of ``parameters``.
+    tooling : dict
+        The tooling the data used (:func:`fgcal.estimation.result_tooling.tooling_record`): ``radius`` (mm), ``balls`` (name ->
+        centre in the tool frame, mm) and ``tool_ball``, the ball that made every contact (the
+        tool point of a contact calibration: ``export --urdf`` puts its link ``tool`` there), or None.
     noise_mode : str
         ``estimated`` (each level's noise from the residuals where the redundancy allows) or
         ``declared``.
@@ -178,6 +191,7 @@ class CalibrationResult:
     robot_model: dict = field(default_factory=dict)
     joint_errors: dict = field(default_factory=dict)
     setup: dict = field(default_factory=dict)
+    tooling: dict = field(default_factory=dict)
     noise_mode: str = "declared"
     noise: dict[str, LevelNoise] = field(default_factory=dict)
     outliers: list[Outlier] = field(default_factory=list)
@@ -220,6 +234,11 @@ class CalibrationResult:
             self.__dict__["_model"] = cached
         return cached
 
+    def tool_point(self) -> np.ndarray | None:
+        """The centre (3,) mm in the tool frame of the ball that made the contacts, or None (DESIGN.md 8.2)."""
+        name = self.tooling.get("tool_ball")
+        return None if name is None else np.array(self.tooling["balls"][name], dtype=float)
+
     def correlation(self) -> np.ndarray:
         s = np.sqrt(np.diag(self.covariance))
         return self.covariance / np.outer(s, s)
@@ -230,7 +249,7 @@ class CalibrationResult:
              "covariance": np.asarray(self.covariance).tolist()}
         for key in ("slots", "held", "iterations", "converged", "cost", "singular_values", "condition_number",
                     "pose_ids", "options", "dataset", "fgcal_version", "residuals", "tool_xyz", "robot_model",
-                    "joint_errors", "setup"):
+                    "joint_errors", "setup", "tooling"):
             d[key] = getattr(self, key)
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         d["noise_mode"], d["fit_test"] = self.noise_mode, self.fit_test
@@ -383,7 +402,8 @@ def load_result(path) -> CalibrationResult:
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
             tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
             robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}),
-            setup=_check_setup(d.get("setup"), [p.name for p in params]), noise_mode=str(d.get("noise_mode", "declared")),
+            setup=_check_setup(d.get("setup"), [p.name for p in params]),
+            tooling=check_tooling(d.get("tooling")), noise_mode=str(d.get("noise_mode", "declared")),
             noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
             outliers=[Outlier(**o) for o in d.get("outliers", [])],
             fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},

@@ -8,6 +8,7 @@ does: ``index`` and ``full`` concern the robot's slots only; ``names``, ``units`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +30,7 @@ def is_setup_name(name: str) -> bool:
 class SetupParameters:
     """``inner`` (a ParameterSet or BlockParameters) followed by the layout's free entries."""
 
-    inner: object
+    inner: Any  # a ParameterSet or BlockParameters (duck-typed alike)
     layout: SetupLayout
 
     @property

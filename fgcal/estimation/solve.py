@@ -9,7 +9,7 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
 
-__all__ = ["levenberg_marquardt", "COST_ROUNDING"]
+__all__ = ["COST_ROUNDING", "levenberg_marquardt"]
 
 log = logging.getLogger(__name__)
 

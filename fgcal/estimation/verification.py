@@ -9,24 +9,36 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset
-from fgcal.measurements.types import kinematic_levels
 from fgcal.errors import FgcalError
 from fgcal.estimation.joint_errors import corrected_joints, outside_region
-from fgcal.robots.kinematics import tool_points
-from fgcal.measurements.measure import measure_probes
-from fgcal.robots.model import RobotModel
-from fgcal.measurements.posefit import rigid_fit
 from fgcal.estimation.result import CalibrationResult
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.measure import measure_probes
+from fgcal.measurements.posefit import rigid_fit
+from fgcal.measurements.types import kinematic_levels
+from fgcal.robots.kinematics import tool_points
+from fgcal.robots.model import RobotModel
 from fgcal.robots.transforms import pose_difference
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ErrorStats", "Comparison", "Verification", "measured_poses", "measured_points", "verify", "error_stats",
-           "compare_poses", "compare_points", "check_same_robot", "check_verification"]
+__all__ = [
+    "Comparison",
+    "ErrorStats",
+    "Verification",
+    "check_same_robot",
+    "check_verification",
+    "compare_points",
+    "compare_poses",
+    "error_stats",
+    "measured_points",
+    "measured_poses",
+    "verify",
+]
 
 
 @dataclass
@@ -81,14 +93,15 @@ class Verification:
     contacts: dict | None = None  # contacts: {"after": ..., "before": ...} of ContactConsistency.summary()
 
     def to_dict(self) -> dict:
-        d = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
+        d: dict[str, Any] = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
         if self.robot is not None:
             d["robot"] = self.robot
         d.update(self.after.summary())
         d["before"] = self.before.summary()
         if self.truth_after is not None:
             d["truth"] = self.truth_after.summary()
-            d["truth"]["before"] = self.truth_before.summary()
+            if self.truth_before is not None:
+                d["truth"]["before"] = self.truth_before.summary()
         n = len(self.pose_ids)
         none = [None] * n
 
@@ -123,7 +136,7 @@ def measured_poses(ds: Dataset):
     ``poses.csv`` as it is; otherwise a rigid fit of three or more ball centres (from
     ``centres.csv``, or fitted to ``probes.csv`` with the quality checks of ``fgcal measure``).
     """
-    skipped = []
+    skipped: list = []
     if ds.poses is not None:
         return ds.poses.pose.copy(), ds.poses.matrices(), skipped
     if ds.centres is not None:
@@ -248,7 +261,7 @@ def _full_pose_data(ds: Dataset) -> bool:
     obs = ds.centres if ds.centres is not None else ds.probes
     if obs is None:
         return False
-    balls = {}
+    balls: dict[int, set] = {}
     for p, b in zip(obs.pose.tolist(), obs.ball.tolist()):
         balls.setdefault(p, set()).add(b)
     return bool(balls) and min(len(v) for v in balls.values()) >= 3
@@ -322,6 +335,8 @@ def _stations_to_world(result: CalibrationResult, ds: Dataset) -> Dataset:
 
     found = (result.setup or {}).get("estimated", {})
     sc = ds.station_centres
+    if sc is None:
+        return ds
     xyz = sc.xyz.copy()
     for name in dict.fromkeys(sc.station.tolist()):
         pose = found.get(name, {}).get("pose") if found.get(name, {}).get("type") == "station" else None

@@ -14,24 +14,25 @@ import shutil
 import tempfile
 from array import array
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from fgcal.errors import DatasetError, FgcalError
+from fgcal.io.setup_io import read_fixtures, read_stations, stations_dict
 from fgcal.measurements.cells import MAX_DEG, ball_name, pose_id
 from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
+from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
 from fgcal.measurements.point import POINT
-from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
 from fgcal.measurements.setup import SetupSpec
-from fgcal.io.setup_io import read_fixtures, read_stations, stations_dict
 from fgcal.measurements.types import kinematic_types, noise_keys
-from fgcal.errors import DatasetError, FgcalError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
 from fgcal.util.yamlio import atomic_write_text, check_regular_file, dump_yaml, make_dir, read_yaml, short_repr
 
-__all__ = ["load_dataset", "read_joints", "load_dataset_meta", "save_dataset", "dataset_model", "write_csv", "load_truth"]
+__all__ = ["dataset_model", "load_dataset", "load_dataset_meta", "load_truth", "read_joints", "save_dataset", "write_csv"]
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +91,7 @@ def _table_records(path: Path, columns: list[str], optional=()):
             raise DatasetError(f"{path}: cannot read: {exc.strerror or exc}") from None
 
 
-def _read_table(path: Path, columns: list[str], optional: list[str] = ()):
+def _read_table(path: Path, columns: list[str], optional: tuple[str, ...] | list[str] = ()):
     """Rows of a CSV file as (line number, dict); the header holds ``columns`` and maybe ``optional``."""
     return [(line, dict(zip(header, cells))) for line, header, cells in _table_records(path, columns, optional)]
 
@@ -111,6 +112,7 @@ def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations
         k = ball_index.get(b)
         if k is None:
             ball_name(b, where, balls)  # raises, naming the tool's balls
+            continue
         pose.append(pid)
         ball.append(k)
         xyz.extend((_number(x, where, "x"), _number(y, where, "y"), _number(z, where, "z")))
@@ -128,7 +130,11 @@ def _measurement_table(path: Path, kind, known_poses: set, balls: dict):
     One row per pose and ball (or per pose, for types measured once per pose); each row is
     parsed and checked by the type.
     """
-    pose, ball, values, lines, seen = [], [], [], [], {}
+    pose: list[int] = []
+    ball: list[str] = []
+    values: list = []
+    lines: list[int] = []
+    seen: dict[tuple, int] = {}
     for line, header, cells in _table_records(path, list(kind.columns)):
         where = f"{path}: line {line}"
         record = dict(zip(header, cells))
@@ -174,7 +180,7 @@ def _contact_tables(path: Path, kinds, known_poses: set, balls: dict, setup: Set
             for k, (p, b, f, ln) in rows.items() if p}
 
 
-def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
+def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec, str | None]:
     data = read_yaml(path, error=DatasetError)
     if not isinstance(data, dict):
         raise DatasetError(f"{path}: expected a mapping with format, robot, tool, noise, provenance")
@@ -225,7 +231,8 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict]:
     if zero:  # a contact is never exact: at sigma 0 the joint readings would move to absorb every one
         raise DatasetError(f"{path}: noise.{zero[0]} must be positive (mm), got 0")
     extra = tuple(sorted((k, v) for k, v in values.items() if k in noise_keys()))
-    noise = Noise(**{k: v for k, v in values.items() if k not in noise_keys()}, extra=extra)
+    fields: dict[str, Any] = {k: v for k, v in values.items() if k not in noise_keys()}
+    noise = Noise(**fields, extra=extra)
     provenance = data["provenance"]
     if not isinstance(provenance, dict):
         provenance = {"text": str(provenance)}
@@ -339,7 +346,7 @@ def load_dataset(directory) -> Dataset:
         if tooling.radius <= 0:
             raise DatasetError(f"{directory / 'dataset.yaml'}: tool.radius must be positive to use probes.csv")
         ds.probes = _point_table(directory / "probes.csv", known, tooling.balls)
-    shared = {}
+    shared: dict[str, Any] = {}
     for kind in kinematic_types():
         if getattr(kind, "derived", False):
             continue  # split from another level's file below
@@ -394,7 +401,7 @@ def check_joint_count(ds: Dataset, model: RobotModel) -> None:
                            f"joints ({', '.join(model.joint_names)})")
 
 
-def _fmt(v: float) -> str:
+def _fmt(v: float | np.floating) -> str:
     return repr(float(v))
 
 
@@ -436,7 +443,7 @@ def _write_into(ds: Dataset, directory: Path) -> None:
     for name, (columns, rows) in files.items():
         write_csv(directory / name, columns, (r for _, r in sorted(rows, key=lambda lr: lr[0])))
     if ds.truth is not None:
-        truth = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
+        truth: dict[str, Any] = {"parameters": {k: float(v) for k, v in ds.truth.items()}}
         if ds.truth_outliers:
             truth["outliers"] = [[int(p), str(b), int(i)] for p, b, i in ds.truth_outliers]
         atomic_write_text(directory / "truth.yaml", dump_yaml(truth))

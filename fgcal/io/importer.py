@@ -22,16 +22,17 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.errors import DatasetError, FgcalError
+from fgcal.io.import_checks import check_fit
+from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
+from fgcal.measurements.dataset import Dataset, Noise, PointObservations, PoseObservations
 from fgcal.measurements.handeye import fit_base_and_point, fit_base_and_tool
 from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model, model_to_dict
-from fgcal.io.table_io import ColumnSpec, Measurements, read_measurements
 from fgcal.robots.transforms import matrix_to_quaternion
 from fgcal.util.yamlio import dump_yaml
 
-__all__ = ["DEFAULT_POSITION_SIGMA", "DEFAULT_ORIENTATION_SIGMA", "ImportResult", "to_datasets", "import_table"]
+__all__ = ["DEFAULT_ORIENTATION_SIGMA", "DEFAULT_POSITION_SIGMA", "ImportResult", "import_table", "to_datasets"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +56,8 @@ class ImportResult:
         RMS distance (mm) between measured and modelled points after the base and tool fit.
     skipped : list of str
         Rows of the source left out, ``"line L: reason"``.
+    rotation_rms_deg : float or None
+        RMS angle (deg) between modelled and measured orientations after the fit (pose data).
     """
 
     calibration: Dataset
@@ -62,6 +65,7 @@ class ImportResult:
     robot: dict
     rms: float
     skipped: list
+    rotation_rms_deg: float | None = None
 
     def save(self, out, overwrite: bool = False) -> list[Path]:
         """Write the calibration dataset to ``out`` and the held-out one to ``out-holdout``."""
@@ -93,7 +97,8 @@ def _noise(m: Measurements, position_sigma, orientation_sigma, joint_resolution)
 def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = False, holdout: float = 0.0,
                 rng: np.random.Generator | None = None, position_sigma: float | None = None,
                 orientation_sigma: float | None = None, joint_resolution: float = 0.0, name: str | None = None,
-                provenance: dict | None = None) -> ImportResult:
+                provenance: dict | None = None, chain: dict | None = None,
+                accept_fit: bool = False) -> ImportResult:
     """Calibration (and held-out) datasets with base and tool fitted to the measurements.
 
     Parameters
@@ -115,10 +120,21 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         Name of the written robot model (default ``ROBOT-imported``).
     provenance : dict, optional
         Added to each dataset's provenance.
+    chain : dict, optional
+        ``{"base": LINK, "tip": LINK}``: the chain of a URDF with more than one leaf.
+    accept_fit : bool
+        Import even when the nominal model's fit looks like a unit or convention mistake
+        (:func:`fgcal.io.import_checks.check_fit`); the findings are logged as warnings.
+
+    Raises
+    ------
+    DatasetError
+        When the fit looks like such a mistake (and ``accept_fit`` is false): the message names
+        the likely cause and the option that fixes it.
     """
     if not 0 <= holdout < 1:
         raise FgcalError("--holdout is a fraction from 0 to below 1")
-    model = load_model(robot)
+    model = load_model(robot, chain=chain)
     n_joints = model.joint_limits.shape[0]
     if m.joints_rad.shape[1] != n_joints:
         raise DatasetError(f"{m.source}: {m.joints_rad.shape[1]} joint columns, robot {model.name} has {n_joints} joints")
@@ -139,7 +155,15 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         slots, rms = fit_base_and_point(model, m.joints_rad[~hold], m.xyz[~hold])
     else:
         slots, rms = fit_base_and_tool(model, m.joints_rad[~hold], m.T[~hold])
-    log.info("base and tool fitted to %d rows: RMS %.3g mm", (~hold).sum(), rms)
+    fit = check_fit(model, slots, m.joints_rad[~hold], m.xyz[~hold], None if m.R is None else m.R[~hold])
+    log.info("base and tool fitted to %d rows: RMS %.3g mm%s", (~hold).sum(), rms,
+             "" if fit.rotation_rms_deg is None else f", {fit.rotation_rms_deg:.3g} deg")
+    if not fit.ok:
+        if not accept_fit:
+            raise DatasetError(f"{m.source}: " + "; ".join(fit.problems)
+                               + " (--accept-fit imports it anyway)")
+        for problem in fit.problems:
+            log.warning("%s: %s (imported: --accept-fit)", m.source, problem)
     model_dict = model_to_dict(model, slots)
     model_dict["name"] = name or f"{model.name}-imported"
     model_dict["description"] = (f"{model.name} nominal links; base (instrument to robot) and tool (flange to the "
@@ -164,7 +188,7 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         return ds
 
     return ImportResult(make(~hold, "calibration"), make(hold, "holdout") if hold.any() else None, model_dict, rms,
-                        list(m.skipped))
+                        list(m.skipped), fit.rotation_rms_deg)
 
 
 def import_table(path, robot: str, spec: ColumnSpec, **options) -> ImportResult:

@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import DatasetError, FgcalError
-from fgcal.util.yamlio import check_regular_file, read_text_file
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec
 from fgcal.robots.model import Tooling
+from fgcal.util.yamlio import check_regular_file, read_text_file
 
-__all__ = ["MukcaImport", "read_mukca", "HOLES", "MAX_ROWS"]
+__all__ = ["HOLES", "MAX_ROWS", "MukcaImport", "read_mukca"]
 
 HOLES = ("hole_0", "hole_1")
 MAX_ROWS = 100_000  # per file: far beyond a hand-recorded session
@@ -174,7 +174,10 @@ def read_mukca(directory, robot_file, n_joints: int, chain: dict | None, distanc
     for side, names in sides.items():
         if not names:
             continue
-        q_all, pose, fixture, lines = [], [], [], []
+        q_all: list = []
+        pose: list[int] = []
+        fixture: list[str] = []
+        lines: list = []
         fixtures, distances = {}, []
         for p in names:
             present = []

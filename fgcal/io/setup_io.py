@@ -58,7 +58,8 @@ def read_fixtures(path: Path, data: dict, num) -> SetupSpec:
     cons = data.get("constraints") or {}
     if not isinstance(cons, dict) or set(cons) - {"distances"}:
         raise DatasetError(f"{path}: constraints must be a mapping with distances: [[A, B, mm, sigma], ...]")
-    distances, pairs = [], {}
+    distances: list = []
+    pairs: dict[frozenset, int] = {}
     items = cons.get("distances") or []
     if not isinstance(items, list):
         raise DatasetError(f"{path}: constraints.distances must be a list of [A, B, mm, sigma]")
@@ -122,10 +123,10 @@ def read_stations(path: Path, data: dict, num) -> tuple[str | None, dict]:
 def stations_dict(ds: Dataset) -> dict:
     if ds.world_station is None:
         return {}
-    out = {ds.world_station: {}}
+    out: dict[str, dict[str, object]] = {ds.world_station: {}}
     for n, f in ds.setup.fixtures.items():
         if f.type == "station":
-            spec = {}
+            spec: dict[str, object] = {}
             if f.value is not None:
                 spec["pose"] = [float(v) for v in np.degrees(f.value[:3])] + [float(v) for v in f.value[3:]]
             if f.sigma is not None:

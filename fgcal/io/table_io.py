@@ -20,8 +20,18 @@ from scipy.spatial.transform import Rotation
 
 from fgcal.errors import DatasetError
 
-__all__ = ["AngleUnit", "LengthUnit", "QuaternionOrder", "ColumnSpec", "Measurements", "detect_format",
-           "read_lines", "read_columns", "read_measurements", "rotation_from_columns"]
+__all__ = [
+    "AngleUnit",
+    "ColumnSpec",
+    "LengthUnit",
+    "Measurements",
+    "QuaternionOrder",
+    "detect_format",
+    "read_columns",
+    "read_lines",
+    "read_measurements",
+    "rotation_from_columns",
+]
 
 _MISSING = ("", "nan", "na", "n/a", "none", "null")
 _DECIMAL_COMMA = re.compile(r"^\s*[+-]?\d*,\d+([eE][+-]?\d+)?\s*$")
@@ -145,7 +155,7 @@ class ColumnSpec:
 
     @property
     def required(self) -> tuple:
-        return self.joints + (self.point or self.pose)
+        return self.joints + (self.point or self.pose or ())
 
 
 def _guess_quaternion_order(names) -> QuaternionOrder:
@@ -205,10 +215,10 @@ class Measurements:
         """Group id per row: equal group values (rounded to 1e-6) share one; each row alone without them."""
         if self.group_values is None:
             return np.arange(len(self.line))
-        keys = {}
+        keys: dict[tuple, int] = {}
         return np.array([keys.setdefault(tuple(np.round(g, 6)), len(keys)) for g in self.group_values], dtype=int)
 
-    def subset(self, mask) -> "Measurements":
+    def subset(self, mask) -> Measurements:
         def cut(a):
             return None if a is None else a[mask]
         return Measurements(self.line[mask], self.joints_rad[mask], self.xyz[mask], cut(self.R), cut(self.position_std),
@@ -225,7 +235,7 @@ def detect_format(lines, delimiter: str | None = None) -> tuple[str, bool]:
     lines = [ln for ln in lines if ln.strip()]
     if delimiter is None:
         counts = {d: lines[0].count(d) for d in (";", "\t", ",")} if lines else {",": 1}
-        delimiter = max(counts, key=counts.get) if max(counts.values()) > 0 else " "
+        delimiter = max(counts, key=lambda d: counts[d]) if max(counts.values()) > 0 else " "
     decimal_comma = False
     if delimiter != ",":
         for ln in lines[1:]:
@@ -363,8 +373,8 @@ def read_measurements(path, spec: ColumnSpec) -> Measurements:
         return np.stack([values[n] for n in names], axis=1) * scale
 
     angle = 1.0 if spec.joint_unit is AngleUnit.RAD else math.pi / 180.0
-    cols = spec.point or spec.pose
-    has = {c: all(n in values for n in c) for c in optional}
+    cols = spec.point or spec.pose or ()
+    has: dict[tuple | None, bool] = {c: all(n in values for n in c) for c in optional}
     return Measurements(
         line=lines, joints_rad=table(spec.joints, angle),
         xyz=table(cols[:3], spec.length_unit.to_mm),

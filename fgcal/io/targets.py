@@ -39,7 +39,10 @@ def read_targets(path, n_joints: int = 6):
     has_q = [c in rows[0][1] for c in q_columns]
     if any(has_q) and not all(has_q):
         raise DatasetError(f"{path}: line 1: give all of {q_columns[0]}..{q_columns[-1]} or none")
-    ids, T, seeds, seen = [], [], [], {}
+    ids: list[int] = []
+    T: list = []
+    seeds: list = []
+    seen: dict[int, int] = {}
     for line, r in rows:
         where = f"{path}: line {line}"
         pid = integer(r["pose"], where, "pose")

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 from fgcal.errors import DatasetError
 from fgcal.io.table_io import QUATERNION_NORM_TOLERANCE, AngleUnit, LengthUnit, Measurements, read_columns, read_lines
 
-__all__ = ["read_tum", "join_by_time", "read_tum_with_joint_log"]
+__all__ = ["join_by_time", "read_tum", "read_tum_with_joint_log"]
 
 
 def read_tum(path, length_unit: LengthUnit = LengthUnit.M):

@@ -23,7 +23,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-__all__ = ["NoiseComponent", "Terms", "ObservationRows", "KinematicMeasurement"]
+__all__ = ["KinematicMeasurement", "NoiseComponent", "ObservationRows", "Terms"]
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class Terms:
     def __len__(self):
         return len(self.pose)
 
-    def take(self, rows) -> "Terms":
+    def take(self, rows) -> Terms:
         return Terms(self.pose[rows], tuple(np.asarray(d)[rows] for d in self.data))
 
 

@@ -6,7 +6,7 @@ import math
 from fgcal.errors import DatasetError
 from fgcal.util.yamlio import short_repr
 
-__all__ = ["MAX_MM", "MAX_DEG", "number", "integer", "pose_id", "ball_name"]
+__all__ = ["MAX_DEG", "MAX_MM", "ball_name", "integer", "number", "pose_id"]
 
 # Bounds beyond which a value is a mistake, not a measurement: 1000 km, or a million degrees.
 MAX_MM = 1e9

@@ -13,6 +13,7 @@ The errors depend on the parameters, one pose's joints and one fixture's block:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -21,8 +22,16 @@ from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, Observ
 from fgcal.measurements.setup import plane_normal
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["ContactObservations", "SetupMeasurement", "PointContact", "PlaneContact", "CONTACT", "PLANE_CONTACT",
-           "CONTACT_COLUMNS", "CONTACT_FILE"]
+__all__ = [
+    "CONTACT",
+    "CONTACT_COLUMNS",
+    "CONTACT_FILE",
+    "PLANE_CONTACT",
+    "ContactObservations",
+    "PlaneContact",
+    "PointContact",
+    "SetupMeasurement",
+]
 
 CONTACT_FILE = "contacts.csv"
 PLANE_MIN_SPREAD = 5.0  # mm (RMS) of a plane's contacts in their narrower direction: a tilt needs an area
@@ -53,9 +62,9 @@ class SetupMeasurement(KinematicMeasurement):
 
     uses_setup = True
     file = CONTACT_FILE
-    columns = CONTACT_COLUMNS
+    columns: tuple[str, ...] = CONTACT_COLUMNS
     fixture_type = ""
-    noise_key = "contact_sigma"
+    noise_key: str | None = "contact_sigma"
     noun = "contact"
 
     sigma_field = "contact"
@@ -77,10 +86,13 @@ class SetupMeasurement(KinematicMeasurement):
     def setup_error(self, theta, q, data, s, index, held, chain):
         raise NotImplementedError
 
+    def _payload(self, offsets, fixture, layout, radius) -> tuple:
+        raise NotImplementedError  # each contact type's
+
     def observations(self, pose, ball, values, line=None):
         return ContactObservations(pose, ball, values, line)
 
-    def rows(self, obs: ContactObservations):
+    def rows(self, obs: Any):
         return ([int(p), b, f] for p, b, f in zip(obs.pose, obs.ball, obs.fixture))
 
     def parse(self, where, record, balls):

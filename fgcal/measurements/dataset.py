@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.robots.model import Tooling
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.distance import DistanceObservations
 from fgcal.measurements.point import PointObservations
@@ -19,8 +18,9 @@ from fgcal.measurements.pose import PoseObservations
 from fgcal.measurements.setup import SetupSpec
 from fgcal.measurements.station import StationPointObservations
 from fgcal.measurements.types import LEVELS, all_levels
+from fgcal.robots.model import Tooling
 
-__all__ = ["FORMAT", "LEVELS", "Noise", "PointObservations", "PoseObservations", "DistanceObservations", "Dataset"]
+__all__ = ["FORMAT", "LEVELS", "Dataset", "DistanceObservations", "Noise", "PointObservations", "PoseObservations"]
 
 FORMAT = "fgcal-dataset/1"
 
@@ -162,7 +162,7 @@ class Dataset:
         pos = np.searchsorted(self.pose_ids, pose_ids, sorter=order)
         return order[np.asarray(pos)]
 
-    def select(self, pose_ids) -> "Dataset":
+    def select(self, pose_ids) -> Dataset:
         """A dataset with only the given poses (and their measurements)."""
         keep = np.isin(self.pose_ids, pose_ids)
         out = Dataset(robot=self.robot, tooling=self.tooling, noise=self.noise, provenance=dict(self.provenance),
@@ -185,6 +185,7 @@ class Dataset:
         other = st != self.world_station
         if other.any():
             c = self.centres
+            assert c.line is not None  # read from a file
             self.station_centres = StationPointObservations(c.pose[other], c.ball[other], c.xyz[other], st[other],
                                                             c.line[other])
             self.centres = c.subset(~other) if (~other).any() else None

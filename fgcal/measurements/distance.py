@@ -15,7 +15,7 @@ from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, Observ
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["DistanceObservations", "DistanceMeasurement", "DISTANCE"]
+__all__ = ["DISTANCE", "DistanceMeasurement", "DistanceObservations"]
 
 
 @dataclass

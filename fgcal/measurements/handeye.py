@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.measurements.posefit import nearest_rotation
+from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import so3_log, to_euler_zyx_trans
 
-__all__ = ["fit_base_and_tool", "fit_base_and_point"]
+__all__ = ["fit_base_and_point", "fit_base_and_tool"]
 
 
 def _exp(w):

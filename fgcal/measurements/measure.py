@@ -14,13 +14,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, PointObservations, PoseObservations
 from fgcal.errors import FgcalError
+from fgcal.measurements.dataset import Dataset, PointObservations, PoseObservations
 from fgcal.measurements.posefit import check_homogeneous, nearest_rotation, paper_pose, rigid_fit
 from fgcal.measurements.spherefit import fit_sphere, fit_spheres_checked
 from fgcal.robots.transforms import matrix_to_quaternion
 
-__all__ = ["QualityRow", "Measurement", "measure_probes", "derived_dataset", "quality_csv"]
+__all__ = ["Measurement", "QualityRow", "derived_dataset", "measure_probes", "quality_csv"]
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +116,7 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
             continue
         fit = fits.get(k) or fit_sphere(pts, radius=radius, sigma=sigma, threshold=threshold)
         status = fit.status
+        assert probes.line is not None
         lines = probes.line[sel]
         if fit.suspect is not None and fit.ok is False and "outlier: point" in status:
             status += f" [probes.csv line {lines[fit.suspect]}]"
@@ -145,7 +146,7 @@ def measure_probes(ds: Dataset, method: str = "svd", free_radius: bool = False, 
         if method == "paper":
             T = paper_pose(tool[:3], world[:3])
             spacing = min(np.linalg.norm(tool[i] - tool[j]) for i in range(3) for j in range(i + 1, 3))
-            tol = tolerance if tolerance is not None else max(1e-9, 10.0 * centre_sigma / spacing)
+            tol = tolerance if tolerance is not None else max(1e-9, 10.0 * centre_sigma / float(spacing))
             status = check_homogeneous(T, tol)
             T = T.copy()
             T[:3, :3] = nearest_rotation(T[:3, :3])

@@ -57,7 +57,7 @@ def merge_datasets(datasets, names) -> Dataset:
     world = first.world_station or names[0]
     fixtures: dict = {}
     stations = []
-    for ds, name, s in zip(datasets, names, shift):
+    for ds, name in zip(datasets, names):
         st = ds.stations if ds.stations is not None else np.full(ds.n_poses, name)
         stations.append(np.where(st == (ds.world_station or name), world if ds is first else st, st))
         for n, f in ds.setup.fixtures.items():

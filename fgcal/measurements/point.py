@@ -14,7 +14,7 @@ from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, Observ
 from fgcal.measurements.cells import ball_name, number
 from fgcal.robots.kinematics import tool_points
 
-__all__ = ["PointObservations", "PointMeasurement", "POINT"]
+__all__ = ["POINT", "PointMeasurement", "PointObservations"]
 
 
 @dataclass
@@ -64,7 +64,7 @@ class PointMeasurement(KinematicMeasurement):
         return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), obs.xyz))
 
     def world_points(self, terms: Terms) -> dict:
-        out = {}
+        out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for i, o, w in zip(terms.pose.tolist(), *terms.data):
             offs, pts = out.get(i, (np.zeros((0, 3)), np.zeros((0, 3))))
             out[i] = (np.vstack([offs, o]), np.vstack([pts, w]))

@@ -15,7 +15,7 @@ from fgcal.measurements.base import KinematicMeasurement, NoiseComponent, Observ
 from fgcal.measurements.cells import number
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseObservations", "PoseMeasurement", "POSE", "small_rotation"]
+__all__ = ["POSE", "PoseMeasurement", "PoseObservations", "small_rotation"]
 
 
 @dataclass

@@ -19,7 +19,7 @@ import numpy as np
 
 from fgcal.measurements.spherefit import FALSE_ALARM, MIN_THRESHOLD_MM, chi2_quantile
 
-__all__ = ["paper_pose", "homogeneity_errors", "check_homogeneous", "RigidFit", "rigid_fit", "nearest_rotation"]
+__all__ = ["RigidFit", "check_homogeneous", "homogeneity_errors", "nearest_rotation", "paper_pose", "rigid_fit"]
 
 
 def _check_pair(tool_points, world_points, minimum: int):
@@ -76,7 +76,7 @@ def check_homogeneous(T, tolerance: float) -> str:
     labels = {"norm": "column length (eq. 19)", "n_oxa": "n = o x a (eq. 20)", "o_axn": "o = a x n (eq. 21)"}
     if not bad:
         return "ok"
-    worst = max(errs, key=errs.get)
+    worst = max(errs, key=lambda k: errs[k])
     return f"not a rigid transform: {labels[worst]} off by {errs[worst]:.3g} (tolerance {tolerance:.3g})"
 
 
@@ -143,8 +143,8 @@ def rigid_fit(tool_points, world_points, sigma: float = 0.01, threshold: float |
     J[:, :, :3] = -np.stack([np.stack([zero, -b[:, 2], b[:, 1]], 1), np.stack([b[:, 2], zero, -b[:, 0]], 1),
                              np.stack([-b[:, 1], b[:, 0], zero], 1)], 1)
     J[:, :, 3:] = np.eye(3)
-    J = J.reshape(-1, 6)
-    cov = np.linalg.inv(J.T @ J) * sigma**2
+    J2 = J.reshape(-1, 6)
+    cov = np.linalg.inv(J2.T @ J2) * sigma**2
     dof = 3 * len(P) - 6
     if threshold is None:
         threshold = MIN_THRESHOLD_MM if sigma <= 0 else max(

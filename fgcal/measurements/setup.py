@@ -4,8 +4,8 @@ A *set-up block* is a small group of parameters estimated with the robot: a fixt
 socket, a datum cone: ``fixture.NAME.x|y|z``, mm), a plane (a table: ``plane.NAME.tilt_u|tilt_v``
 (deg) and ``plane.NAME.d`` (mm)) or an instrument station (``station.NAME.phi|theta|psi|px|py|pz``,
 deg and mm: the station's frame in the world, ``T = Rz(phi) Ry(theta) Rx(psi) Trans(px, py, pz)``
-as the base's, DESIGN.md 8.3). Each kind is a :class:`BlockKind` in :data:`BLOCK_KINDS`. Each has a start, an optional prior (a value and a sigma given
-in ``dataset.yaml``) or is fixed (``fixed: true``: known). Distances between fixture points
+as the base's, DESIGN.md 8.3). Each kind is a :class:`BlockKind` in :data:`BLOCK_KINDS`. Each has a start,
+an optional prior (a value and a sigma given in ``dataset.yaml``) or is fixed (``fixed: true``: known). Distances between fixture points
 (``constraints.distances``) are factors on the blocks alone.
 
 A plane is ``n . x = d`` with ``n`` a unit normal; the ball centre of a touching ball lies
@@ -20,8 +20,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FixtureSpec", "DistanceConstraint", "SetupSpec", "SetupLayout", "plane_basis", "plane_normal",
-           "BlockKind", "BLOCK_KINDS", "register_block_kind", "station_transform", "distance_error"]
+__all__ = [
+    "BLOCK_KINDS",
+    "BlockKind",
+    "DistanceConstraint",
+    "FixtureSpec",
+    "SetupLayout",
+    "SetupSpec",
+    "distance_error",
+    "plane_basis",
+    "plane_normal",
+    "register_block_kind",
+    "station_transform",
+]
 
 
 @dataclass(frozen=True)
@@ -194,7 +205,7 @@ class SetupSpec:
         order = {r: k for k, r in enumerate(dict.fromkeys(root(n) for n in self.fixtures))}
         return {n: order[root(n)] for n in self.fixtures}
 
-    def subset(self, used) -> "SetupSpec":
+    def subset(self, used) -> SetupSpec:
         """The fixtures named in ``used`` and the constraints between them."""
         used = set(used)
         return SetupSpec({n: f for n, f in self.fixtures.items() if n in used},
@@ -247,10 +258,13 @@ class SetupLayout:
     free: np.ndarray
 
     @classmethod
-    def build(cls, spec: SetupSpec, starts: dict) -> "SetupLayout":
+    def build(cls, spec: SetupSpec, starts: dict) -> SetupLayout:
         """``starts``: block name -> its start value (a point (3,), a plane (normal (3,), d), a
         station's entries (6,)) for blocks whose value is unknown."""
-        offset, reference, start, free = {}, {}, [], []
+        offset: dict[str, int] = {}
+        reference: dict[str, np.ndarray] = {}
+        start: list[float] = []
+        free: list[bool] = []
         for name, f in spec.fixtures.items():
             kind = BLOCK_KINDS[f.type]
             offset[name] = len(start)
@@ -354,7 +368,7 @@ class SetupLayout:
     def describe(self, s) -> dict:
         """The blocks' values in ``s`` as a plain dict (points mm; planes unit normal and offset mm;
         stations ``pose``: phi, theta, psi (deg), px, py, pz (mm); other kinds their entries)."""
-        out = {}
+        out: dict[str, dict[str, object]] = {}
         for name, f in self.spec.fixtures.items():
             k = self.offset[name]
             if f.type == "point":

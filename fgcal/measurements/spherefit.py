@@ -8,13 +8,22 @@ most likely caused it is named. Units: mm. No I/O here.
 from __future__ import annotations
 
 from dataclasses import dataclass
-
 from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["SphereFit", "algebraic_sphere", "fit_sphere", "fit_spheres_batch", "best_of_candidates",
-           "mirror_through_points", "fit_spheres_checked", "fit_spheres_arrays", "default_threshold", "check_points"]
+__all__ = [
+    "SphereFit",
+    "algebraic_sphere",
+    "best_of_candidates",
+    "check_points",
+    "default_threshold",
+    "fit_sphere",
+    "fit_spheres_arrays",
+    "fit_spheres_batch",
+    "fit_spheres_checked",
+    "mirror_through_points",
+]
 
 FALSE_ALARM = 1e-3  # probability that a good fit is flagged by the default threshold
 MIN_THRESHOLD_MM = 1e-6  # exact data still carries floating-point noise

@@ -10,6 +10,7 @@ in ``dataset.yaml`` lists them, the first being the world frame. A centre measur
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from fgcal.measurements.setup import station_transform
 from fgcal.robots.kinematics import tool_points
 from fgcal.robots.transforms import to_euler_zyx_trans
 
-__all__ = ["StationPointObservations", "StationPoint", "STATION_POINT"]
+__all__ = ["STATION_POINT", "StationPoint", "StationPointObservations"]
 
 
 @dataclass
@@ -125,7 +126,7 @@ class StationPoint(SetupMeasurement):
     def observations(self, pose, ball, values, line=None):
         raise NotImplementedError("station centres are split from centres.csv by joints.csv's station column")
 
-    def rows(self, obs: StationPointObservations):
+    def rows(self, obs: Any):
         return ([int(p), b, *map(float, x)] for p, b, x in zip(obs.pose, obs.ball, obs.xyz))
 
     def metric(self, e):

@@ -7,17 +7,29 @@ holds the contacts at points and on planes): the dataset keeps one level per typ
 """
 from __future__ import annotations
 
+from typing import Any
+
 from fgcal.measurements.contact import CONTACT, PLANE_CONTACT
 from fgcal.measurements.distance import DISTANCE
 from fgcal.measurements.point import POINT
 from fgcal.measurements.pose import POSE
 from fgcal.measurements.station import STATION_POINT
 
-__all__ = ["KINEMATIC_TYPES", "BY_LEVEL", "LEVELS", "kinematic_levels", "all_levels", "kinematic_types",
-           "register", "unregister", "noise_keys"]
+__all__ = [
+    "BY_LEVEL",
+    "KINEMATIC_TYPES",
+    "LEVELS",
+    "all_levels",
+    "kinematic_levels",
+    "kinematic_types",
+    "noise_keys",
+    "register",
+    "unregister",
+]
 
-KINEMATIC_TYPES = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT)
-BY_LEVEL = {t.level: t for t in KINEMATIC_TYPES}
+# Plug-ins: a KinematicMeasurement, or a SetupMeasurement (with uses_setup): duck-typed, hence Any.
+KINEMATIC_TYPES: tuple[Any, ...] = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT)
+BY_LEVEL: dict[str, Any] = {t.level: t for t in KINEMATIC_TYPES}
 LEVELS = ("probes",) + tuple(BY_LEVEL)  # the dataset's measurement levels, richest first
 
 

@@ -4,16 +4,17 @@ smoothing by the batch solve. No I/O here."""
 from __future__ import annotations
 
 import logging
+from typing import Any
 
 import numpy as np
 
 import factors as fx
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
-from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
-from fgcal.estimation.setup_params import is_setup_name
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.holding import held_parameters, unseen_parameters
+from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
+from fgcal.estimation.setup_params import is_setup_name
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
@@ -203,7 +204,7 @@ class _Engine:
             return best
 
         def without_one(rec):
-            for j, (ball, pts) in enumerate(rec.probes):
+            for j, (_ball, pts) in enumerate(rec.probes):
                 for k in range(len(pts) if len(pts) >= 4 else 0):
                     yield _variant(rec, {"drop": (j, k)}), (), (j, k)
 
@@ -218,7 +219,7 @@ class _Engine:
     def _report(self, rec: PoseData, reason=None, m: PoseMeasurement | None = None, f: float = 1.0) -> UpdateReport:
         """The pose's report (accepted when ``reason`` is None), with what a replay needs: the
         noise estimate the pose added, and for an accepted pose its noise factor and how it was taken."""
-        journal = {} if self.noise.last is None else {"noise": list(self.noise.last)}
+        journal: dict[str, Any] = {} if self.noise.last is None else {"noise": list(self.noise.last)}
         if reason is not None:
             return UpdateReport(rec.pose, False, reason, journal)
         self.records.append(rec)

@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.measurements.spherefit import (best_of_candidates, chi2_quantile, fit_spheres_batch, fit_spheres_checked,
-                                          mirror_through_points)
+from fgcal.measurements.spherefit import (
+    best_of_candidates,
+    chi2_quantile,
+    fit_spheres_batch,
+    fit_spheres_checked,
+    mirror_through_points,
+)
 from fgcal.online.records import PoseData
 
-__all__ = ["prefit", "INNOVATION_FALSE_ALARM", "NARROW_CAP", "NEAR_ENOUGH"]
+__all__ = ["INNOVATION_FALSE_ALARM", "NARROW_CAP", "NEAR_ENOUGH", "prefit"]
 
 INNOVATION_FALSE_ALARM = 1e-6
 MIRROR_CHI2 = chi2_quantile(1 - INNOVATION_FALSE_ALARM, 1)  # a mirror image this close in fit is a candidate
@@ -49,6 +54,7 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, prediction=None, spr
     bad += [f"ball {b}: {len(p)} probe points" for b, p in rec.probes if len(p) < 3]
     sigma = max(sigma_cmm, 1e-6)
     prefit([rec], tooling, sigma_cmm)
+    assert rec.fits is not None  # set by prefit
     fits = [rec.fits[j][1:] for j, (_, p) in enumerate(rec.probes) if len(p) >= 3]
     kept, narrow = [], {}
     for (ball, pts), (fit, mirror, thin) in zip(usable, fits):

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from fgcal.errors import FgcalError
 
-__all__ = ["CHECKPOINT_FORMAT", "SNAPSHOT_EVERY", "INPUT_NAMES", "default_checkpoint", "read_checkpoint"]
+__all__ = ["CHECKPOINT_FORMAT", "INPUT_NAMES", "SNAPSHOT_EVERY", "default_checkpoint", "read_checkpoint"]
 
 CHECKPOINT_FORMAT = "fgcal-online-checkpoint/3"
 SNAPSHOT_EVERY = 100  # poses between snapshots of a filter's state (the journal has every pose)

@@ -59,6 +59,8 @@ def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: floa
     ``settle`` seconds (so a pose whose probe points are still being written is not cut short).
     A file caught half-written is read again at the next poll.
     """
+    if run.ds.path is None:
+        raise ValueError("following a dataset needs its folder (the dataset was made in memory)")
     path = Path(run.ds.path)
     last_change = time.monotonic()
     last_sig = None

@@ -31,8 +31,18 @@ from fgcal.online.measurement import NoiseTracker, UpdateReport
 from fgcal.online.records import PoseData, pose_records, records_dataset
 from fgcal.robots.model import RobotModel
 
-__all__ = ["PoseData", "pose_records", "prefit", "records_dataset", "weak_prior", "UpdateReport", "NoiseTracker",
-           "ISAM2Engine", "KalmanEngine", "make_engine"]
+__all__ = [
+    "ISAM2Engine",
+    "KalmanEngine",
+    "NoiseTracker",
+    "PoseData",
+    "UpdateReport",
+    "make_engine",
+    "pose_records",
+    "prefit",
+    "records_dataset",
+    "weak_prior",
+]
 
 
 def make_engine(kind: str, ds: Dataset, model: RobotModel, options=CalibrationOptions(), **kw):

@@ -1,6 +1,8 @@
 """The iSAM2 engine: incremental smoothing over the batch graph's GTSAM factors, in segments."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 import factors as fx
@@ -68,8 +70,8 @@ class ISAM2Engine(_Engine):
         self.isam = gtsam.ISAM2(self._isam_params)
         self._marginal = marginal
         self._in_tree = 0  # poses in this tree
-        self._linpoint = None
-        self._keep = []  # the factors' closures reference their arguments: keep them alive
+        self._linpoint: Any = None  # a gtsam.Values once the tree has one
+        self._keep: list = []  # the factors' closures reference their arguments: keep them alive
         self._est = None  # (theta, covariance) of the tree as it is
 
     def _current(self) -> np.ndarray:
@@ -176,7 +178,7 @@ class ISAM2Engine(_Engine):
             k += 3
         x = prop.augment(*now)[0]
         chain = self.model.chain
-        for e, J, Jq, group in prop.rows(self, x):
+        for _e, _J, Jq, group in prop.rows(self, x):
             if group is None:
                 continue
             width = group.kind.width

@@ -10,11 +10,11 @@ import numpy as np
 from fgcal.measurements.distance import DISTANCE
 from fgcal.measurements.pose import POSE
 from fgcal.measurements.spherefit import chi2_quantile
-from fgcal.online.centres import INNOVATION_FALSE_ALARM
 from fgcal.measurements.types import BY_LEVEL
+from fgcal.online.centres import INNOVATION_FALSE_ALARM
 from fgcal.online.records import PoseData
 
-__all__ = ["UpdateReport", "NoiseTracker", "PoseMeasurement"]
+__all__ = ["NoiseTracker", "PoseMeasurement", "UpdateReport"]
 
 REDUNDANCY = 0.5  # a pose's innovation informs the noise factor when this share of it is measurement noise
 

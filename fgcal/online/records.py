@@ -5,13 +5,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
 from fgcal.errors import FgcalError
+from fgcal.measurements.dataset import Dataset, DistanceObservations, PointObservations, PoseObservations
 from fgcal.measurements.types import BY_LEVEL, kinematic_types
 from fgcal.robots.transforms import matrix_to_quaternion, pose_matrices
 
-__all__ = ["PoseData", "pose_records", "records_dataset", "record_to_json", "record_from_json", "setup_types",
-           "generic_types"]
+__all__ = [
+    "PoseData",
+    "generic_types",
+    "pose_records",
+    "record_from_json",
+    "record_to_json",
+    "records_dataset",
+    "setup_types",
+]
 
 BUILT_IN = ("centres", "poses", "distances")  # the kinematic levels PoseData holds in fields of their own
 
@@ -100,7 +107,7 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     pose_rows = _rows_by_pose(ds.poses, ids) if "poses" in levels else {}
     distance_rows = _rows_by_pose(ds.distances, ids) if "distances" in levels else {}
     setup_rows = {k.level: _rows_by_pose(getattr(ds, k.level), ids) for k in setup_types() if k.level in levels}
-    generic_rows = {}
+    generic_rows: dict[str, tuple] = {}
     for k in generic_types():
         obs = getattr(ds, k.level, None) if k.level in levels else None
         if obs is not None:
@@ -109,17 +116,17 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     out = []
     for pid, q in zip(ids.tolist(), joints):
         rec = PoseData(pid, q)
-        if probes:
+        if probes and ds.probes is not None:
             rows = probes[pid]
             balls = ds.probes.ball[rows]
             for b in dict.fromkeys(balls.tolist()):
                 rec.probes.append((b, ds.probes.xyz[rows[balls == b]]))
-        if centres:
+        if centres and ds.centres is not None:
             rec.centres += [(str(ds.centres.ball[i]), ds.centres.xyz[i]) for i in centres[pid]]
-        if pose_rows and len(pose_rows[pid]):
+        if pose_rows and len(pose_rows[pid]) and ds.poses is not None:
             i = pose_rows[pid][0]
             rec.T = pose_matrices(ds.poses.xyz[i], ds.poses.quat[i])
-        if distance_rows:
+        if distance_rows and ds.distances is not None:
             rec.distances += [(str(ds.distances.ball[i]), float(ds.distances.length[i])) for i in distance_rows[pid]]
         for level, rows in setup_rows.items():
             obs = getattr(ds, level)
@@ -140,31 +147,35 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
     q = np.array([r.q for r in records]).reshape(len(records), -1)
     setup_levels = {}
     for kind in setup_types():
-        rows = [(r.pose, b, f) for r in records for lv, b, f in r.contacts if lv == kind.level]
-        if rows:
-            setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in rows], dtype=int),
-                                                         np.array([b for _, b, _ in rows]),
-                                                         np.array([f for _, _, f in rows]))
+        contact_rows = [(r.pose, b, f) for r in records for lv, b, f in r.contacts if lv == kind.level]
+        if contact_rows:
+            setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in contact_rows], dtype=int),
+                                                         np.array([b for _, b, _ in contact_rows]),
+                                                         np.array([f for _, _, f in contact_rows]))
     for kind in generic_types():  # rebuilt through the type's own observations
-        rows = [(r.pose, b, v) for r in records for lv, b, v in r.generic if lv == kind.level]
-        if rows:
-            setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in rows], dtype=int),
-                                                         np.array([b for _, b, _ in rows]),
-                                                         np.array([v for _, _, v in rows], dtype=float).reshape(len(rows), -1))
+        type_rows = [(r.pose, b, v) for r in records for lv, b, v in r.generic if lv == kind.level]
+        if type_rows:
+            setup_levels[kind.level] = kind.observations(
+                np.array([p for p, _, _ in type_rows], dtype=int), np.array([b for _, b, _ in type_rows]),
+                np.array([v for _, _, v in type_rows], dtype=float).reshape(len(type_rows), -1))
 
     def points(rows):
-        return PointObservations([p for p, _, _ in rows], [b for _, b, _ in rows],
-                                 np.array([x for _, _, x in rows]).reshape(-1, 3)) if rows else None
+        if not rows:
+            return None
+        return PointObservations(np.array([p for p, _, _ in rows], dtype=int), np.array([b for _, b, _ in rows], dtype=str),
+                                 np.array([x for _, _, x in rows]).reshape(-1, 3))
 
     out = Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
-                  pose_ids=[r.pose for r in records],
+                  pose_ids=np.array([r.pose for r in records], dtype=int),
                   joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
                   probes=points(probes), centres=points(centres),
-                  poses=PoseObservations([p for p, _ in poses], np.array([T[:3, 3] for _, T in poses]),
+                  poses=PoseObservations(np.array([p for p, _ in poses], dtype=int), np.array([T[:3, 3] for _, T in poses]),
                                          matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
                   if poses else None,
-                  distances=DistanceObservations([p for p, _, _ in distances], [b for _, b, _ in distances],
-                                                 [v for _, _, v in distances]) if distances else None,
+                  distances=DistanceObservations(np.array([p for p, _, _ in distances], dtype=int),
+                                                 np.array([b for _, b, _ in distances], dtype=str),
+                                                 np.array([v for _, _, v in distances], dtype=float))
+                  if distances else None,
                   path=meta.path, chain=meta.chain, setup=meta.setup)
     for level, obs in setup_levels.items():
         setattr(out, level, obs)

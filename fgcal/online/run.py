@@ -20,15 +20,15 @@ from fgcal.errors import FgcalError
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.result import CalibrationResult, ParameterEstimate
 from fgcal.estimation.setup_params import SetupParameters
-from fgcal.util.yamlio import atomic_write_text
 from fgcal.measurements.dataset import Dataset
 from fgcal.online.checkpoint import CHECKPOINT_FORMAT, INPUT_NAMES, SNAPSHOT_EVERY, read_checkpoint
 from fgcal.online.engines import make_engine, pose_records, prefit
 from fgcal.online.records import record_from_json, record_to_json
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.robots.robot_file import model_to_dict
+from fgcal.util.yamlio import atomic_write_text
 
-__all__ = ["OnlineRun", "SNAPSHOT_EVERY"]
+__all__ = ["SNAPSHOT_EVERY", "OnlineRun"]
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,7 @@ class OnlineRun:
         import fcntl
 
         ck = self.checkpoint
+        assert ck is not None  # opened only with a checkpoint
         if self.ds.path is not None:
             folder = Path(self.ds.path).resolve()
             target = ck.resolve()
@@ -242,7 +243,7 @@ class OnlineRun:
         gone = {h["name"] for h in held}
         keep = [i for i, n in enumerate(params.names) if n not in gone]
         x, cov_all, layout = self.engine.estimate_all()
-        kept = ParameterSet(self.model, tuple(params.names[i] for i in keep))
+        kept: ParameterSet | SetupParameters = ParameterSet(self.model, tuple(params.names[i] for i in keep))
         if layout is not None:  # the set-up blocks' free entries follow, as the batch names them
             keep += list(range(len(params), len(x)))
             kept = SetupParameters(kept, layout)

@@ -33,7 +33,7 @@ from fgcal.errors import FgcalError
 from fgcal.measurements.setup import SetupLayout, SetupSpec, distance_error
 from fgcal.online.records import PoseData, setup_types
 
-__all__ = ["OnlineSetup", "SetupProposal", "WIDE_PRIOR_MM", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM"]
+__all__ = ["PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup", "SetupProposal"]
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +56,7 @@ class Pending:
         return [self.pose, self.q.tolist(), self.level, self.ball, self.fixture]
 
     @classmethod
-    def from_json(cls, d) -> "Pending":
+    def from_json(cls, d) -> Pending:
         return cls(int(d[0]), np.array(d[1], dtype=float), str(d[2]), str(d[3]), str(d[4]))
 
 
@@ -198,7 +198,7 @@ class OnlineSetup:
         prior = layout.prior()[1][n_before:] if layout is not None else np.zeros(0)
         wide = np.concatenate([[WIDE_PRIOR_MM] * 3 if self.spec.fixtures[n].type == "point"
                                else [WIDE_PRIOR_MM / 1000.0] * 2 + [WIDE_PRIOR_MM]
-                               for n in started if not self.spec.fixtures[n].fixed] or [np.zeros(0)])
+                               for n in started if not self.spec.fixtures[n].fixed] or [[]])
         sigma = np.where(np.isfinite(prior), prior, wide)
         groups = []
         here = [(lv, b, n) for lv, b, n in rec.contacts if layout is not None and n in layout.offset]
@@ -267,7 +267,7 @@ def _groups(kinds, contacts, q, tooling, layout, current: bool) -> list:
     return out
 
 
-def _centres(engine, theta, touches):
+def _centres(engine, theta, touches) -> tuple[np.ndarray, np.ndarray]:
     """Predicted ball centres (k, 3) and tool origins (k, 3) of ``touches`` ((q, ball), ...) at ``theta``."""
     balls = engine.ds.tooling.balls
     centres, origins = [], []

@@ -17,9 +17,20 @@ import numpy as np
 
 from fgcal.estimation.result import CalibrationResult
 
-__all__ = ["AccuracyStats", "accuracy_stats", "PoseFlags", "flag_poses", "ToleranceVerdict", "tolerance_verdict",
-           "HeldCost", "held_parameter_cost", "predicted_position_sigma", "round_to_sigma", "OUTLIER_Z",
-           "verification_joints"]
+__all__ = [
+    "OUTLIER_Z",
+    "AccuracyStats",
+    "HeldCost",
+    "PoseFlags",
+    "ToleranceVerdict",
+    "accuracy_stats",
+    "flag_poses",
+    "held_parameter_cost",
+    "predicted_position_sigma",
+    "round_to_sigma",
+    "tolerance_verdict",
+    "verification_joints",
+]
 
 OUTLIER_Z = 3.5  # robust z-score (median, 1.4826 MAD) above which a pose's error is an outlier
 MAD_TO_SIGMA = 1.4826
@@ -51,7 +62,8 @@ def accuracy_stats(errors_mm, error_xyz_mm=None) -> AccuracyStats:
         return AccuracyStats(0, nan, nan, nan, nan, nan)
     bias = None
     if error_xyz_mm is not None and len(error_xyz_mm):
-        bias = tuple(float(v) for v in np.mean(np.asarray(error_xyz_mm, dtype=float), axis=0))
+        bx, by, bz = (float(v) for v in np.mean(np.asarray(error_xyz_mm, dtype=float), axis=0))
+        bias = (bx, by, bz)
     return AccuracyStats(int(e.size), float(e.mean()), float(e.std(ddof=1)) if e.size > 1 else 0.0,
                          float(np.sqrt(np.mean(e**2))), float(np.percentile(e, 95)), float(e.max()), bias)
 

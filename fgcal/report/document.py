@@ -11,12 +11,12 @@ import io
 import logging
 from pathlib import Path
 
+from fgcal.estimation.result import CalibrationResult
 from fgcal.report import plots
 from fgcal.report.report_sections import ReportContent, build_content
-from fgcal.estimation.result import CalibrationResult
 from fgcal.util.yamlio import atomic_write_bytes, atomic_write_text
 
-__all__ = ["write_report", "figures", "captions", "render_html", "render_markdown"]
+__all__ = ["captions", "figures", "render_html", "render_markdown", "write_report"]
 
 log = logging.getLogger(__name__)
 

@@ -10,9 +10,17 @@ from matplotlib.figure import Figure
 
 from fgcal.estimation.result import CalibrationResult
 
-__all__ = ["plot_sigmas", "plot_correlation", "plot_residuals", "plot_verification", "plot_error_distribution",
-           "plot_workspace_errors", "plot_poses",
-           "plot_convergence", "RESIDUAL_LEVELS"]
+__all__ = [
+    "RESIDUAL_LEVELS",
+    "plot_convergence",
+    "plot_correlation",
+    "plot_error_distribution",
+    "plot_poses",
+    "plot_residuals",
+    "plot_sigmas",
+    "plot_verification",
+    "plot_workspace_errors",
+]
 
 RESIDUAL_LEVELS = {"probes_mm": ("probe points: distance off the sphere", "mm"),
                    "centres_mm": ("ball centres (per coordinate)", "mm"),
@@ -64,7 +72,7 @@ def plot_residuals(result: CalibrationResult, level: str, ax=None):
         ax.hist(values, bins=min(60, max(10, values.size // 10)), density=True, color="0.6", label="residuals")
         summary_key = {"probes_mm": "probes", "centres_mm": "centres", "poses_position_mm": "poses",
                        "poses_rotation_deg": "poses", "joints_deg": "joints"}.get(level)
-        s = result.levels.get(summary_key)
+        s = result.levels.get(summary_key) if summary_key else None
         sigma = None
         if s is not None:
             sigma = s.sigma_rotation_deg if level == "poses_rotation_deg" else s.sigma

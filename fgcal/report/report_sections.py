@@ -10,15 +10,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.report.accuracy import (OUTLIER_Z, AccuracyStats, accuracy_stats, flag_poses, held_parameter_cost,
-                                   predicted_position_sigma, round_to_sigma, tolerance_verdict, verification_joints)
 from fgcal.errors import FgcalError
 from fgcal.estimation.result import CalibrationResult
+from fgcal.report.accuracy import (
+    OUTLIER_Z,
+    AccuracyStats,
+    accuracy_stats,
+    flag_poses,
+    held_parameter_cost,
+    predicted_position_sigma,
+    round_to_sigma,
+    tolerance_verdict,
+    verification_joints,
+)
 from fgcal.report.uncertainty import parameter_table, verdict
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Block", "Section", "ReportContent", "build_content", "num", "training_flags"]
+__all__ = ["Block", "ReportContent", "Section", "build_content", "num", "training_flags"]
 
 MAX_FLAGGED_ROWS = 30
 
@@ -123,7 +132,7 @@ def _parameter_rows(result: CalibrationResult):
     header = ["name", "unit", "nominal", "estimate", "sigma", "deviation", "95% interval", "deviation/sigma", "flags"]
     rows, flagged = [], []
     for r in parameter_table(result):
-        if r.sigma is None:
+        if r.sigma is None or r.interval95 is None:
             cells = [r.name, r.unit, f"{r.nominal:.8g}", f"{r.estimate:.8g}", "-", "0", "-", "-"]
         else:
             est, sig = round_to_sigma(r.estimate, r.sigma)

@@ -12,9 +12,18 @@ import numpy as np
 from fgcal.estimation.options import WEAK_PRIOR
 from fgcal.estimation.result import CalibrationResult
 
-__all__ = ["ParameterRow", "parameter_table", "PLAUSIBLE", "CORRELATION_LIMIT", "verdict", "strong_correlations",
-           "joint_error_verdict",
-           "noise_verdict", "outlier_location", "readings_note"]
+__all__ = [
+    "CORRELATION_LIMIT",
+    "PLAUSIBLE",
+    "ParameterRow",
+    "joint_error_verdict",
+    "noise_verdict",
+    "outlier_location",
+    "parameter_table",
+    "readings_note",
+    "strong_correlations",
+    "verdict",
+]
 
 NOISE_P = 0.01  # a declared noise whose test gives less than this is called off
 NOISE_RATIO = 1.25  # ... when it is also off by more than this factor

@@ -21,8 +21,16 @@ from fgcal.robots.ik import BRANCHES, Branch, IKError, solve_numeric, solve_puma
 from fgcal.robots.model import EULER_FIELDS, SLOT_NAMES, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, pose_difference, rot
 
-__all__ = ["Frame", "Compensation", "compensate_targets", "compensate", "tcp_matrix", "base_transform", "mounting",
-           "MAX_CHANGE_DEG"]
+__all__ = [
+    "MAX_CHANGE_DEG",
+    "Compensation",
+    "Frame",
+    "base_transform",
+    "compensate",
+    "compensate_targets",
+    "mounting",
+    "tcp_matrix",
+]
 
 MAX_CHANGE_DEG = 10.0  # a calibration moves joints by a degree or two; more is another configuration
 
@@ -107,7 +115,7 @@ class Compensation:
 
 def _choose_branch(model: RobotModel, x_seed, targets) -> tuple[Branch | None, np.ndarray | None]:
     """The PUMA branch whose nominal solutions are within the limits for the most targets."""
-    best = (None, None, -1)
+    best: tuple[Branch | None, np.ndarray | None, int] = (None, None, -1)
     for branch in BRANCHES:
         q, ok = solve_puma_batch(model, targets, branch, slots=x_seed)
         ok = ok & np.all(np.isfinite(q), axis=1) & model.in_limits(np.nan_to_num(q))

@@ -27,7 +27,7 @@ import numpy as np
 from fgcal.errors import ModelError
 from fgcal.robots.kinematics import chain_for
 
-__all__ = ["Inertials", "Payload", "inertials_from_dict", "inertials_to_dict", "model_inertials", "gravity_torques"]
+__all__ = ["Inertials", "Payload", "gravity_torques", "inertials_from_dict", "inertials_to_dict", "model_inertials"]
 
 STANDARD_GRAVITY = 9.81
 
@@ -105,7 +105,8 @@ def inertials_from_dict(value, n_links: int, source: str, last_row=None) -> Iner
     links = value.get("links")
     if not isinstance(links, list) or len(links) != n_links:
         raise ModelError(f"{where}.links: expected a list of {n_links} rows {{mass: kg, com: [x, y, z] mm}}")
-    mass, com = [], []
+    mass: list[float] = []
+    com_rows: list = []
     for i, row in enumerate(links):
         w = f"{where}.links[{i}]"
         if not isinstance(row, dict) or set(row) - {"mass", "com"} or "mass" not in row:
@@ -114,8 +115,8 @@ def inertials_from_dict(value, n_links: int, source: str, last_row=None) -> Iner
         if m < 0:
             raise ModelError(f"{w}.mass: must not be negative")
         mass.append(m)
-        com.append(_triple(row.get("com", [0, 0, 0]), f"{w}.com"))
-    com = np.array(com)
+        com_rows.append(_triple(row.get("com", [0, 0, 0]), f"{w}.com"))
+    com = np.array(com_rows)
     if last_row is not None:
         com[-1] = last_row[:3, :3] @ com[-1] + last_row[:3, 3]
     gravity = _triple(value.get("gravity", [0.0, 0.0, -STANDARD_GRAVITY]), f"{where}.gravity")

@@ -15,7 +15,7 @@ import numpy as np
 
 from fgcal.robots.model import ParameterSet, RobotModel
 
-__all__ = ["identification_jacobian", "compact_jacobian", "Identifiability", "analyse", "minimal_parameters"]
+__all__ = ["Identifiability", "analyse", "compact_jacobian", "identification_jacobian", "minimal_parameters"]
 
 
 def identification_jacobian(params: ParameterSet, q, slots=None, measurement="pose",
@@ -70,7 +70,7 @@ def compact_jacobian(params: ParameterSet, q, measurement="pose", chunk: int = 2
     R = None
     for start in range(0, len(q), chunk):
         J = identification_jacobian(params, q[start:start + chunk], measurement=measurement, **kw)
-        R = np.linalg.qr(J if R is None else np.vstack([R, J]), mode="r")
+        R = np.asarray(np.linalg.qr(J if R is None else np.vstack([R, J]), mode="r"))
     if R is None:
         return np.zeros((0, len(params.names)))
     return R
@@ -181,8 +181,8 @@ def analyse_information(S, names, rtol: float = 1e-6) -> Identifiability:
     top = max(eigval.max(initial=0.0), 1e-300)
     null = eigvec[:, eigval < rtol * top]
     redundant: dict[str, list[str]] = {n: [] for n, ok in zip(names, live) if not ok}
-    for i in np.nonzero(~live)[0]:  # a parameter nothing constrains is its own null direction
-        null = null - np.outer(np.eye(len(names))[i], null[i])
+    for dead in np.nonzero(~live)[0]:  # a parameter nothing constrains is its own null direction
+        null = null - np.outer(np.eye(len(names))[dead], null[dead])
     while null.shape[1]:
         u, s, _ = np.linalg.svd(null, full_matrices=False)
         null = u[:, s > 1e-6]
@@ -190,7 +190,7 @@ def analyse_information(S, names, rtol: float = 1e-6) -> Identifiability:
             break
         weight = np.linalg.norm(null, axis=1)
         candidates = [i for i in range(len(names)) if weight[i] > 0.1 * weight.max() and names[i] not in redundant]
-        i = candidates[-1]
+        i = int(candidates[-1])
         v = null @ null[i] / np.linalg.norm(null[i])
         v /= np.linalg.norm(v)
         order = np.argsort(-np.abs(v))

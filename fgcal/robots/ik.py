@@ -18,7 +18,7 @@ from fgcal.errors import FgcalError
 from fgcal.robots.model import RobotModel, slot
 from fgcal.robots.transforms import check_transform, euler_zyx_trans, pose_difference, rot, so3_left_jacobian_inverse
 
-__all__ = ["Branch", "BRANCHES", "solve_puma", "solve_puma_batch", "solve_numeric", "wrap_into_limits", "IKError"]
+__all__ = ["BRANCHES", "Branch", "IKError", "solve_numeric", "solve_puma", "solve_puma_batch", "wrap_into_limits"]
 
 
 class IKError(FgcalError):
@@ -193,7 +193,7 @@ def solve_numeric(model: RobotModel, T_target, q_seed, slots=None, orientation_s
     sol = least_squares(residual, seed, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15,
                         max_nfev=200, method="trf")
     q, r = sol.x, sol.fun
-    err = np.linalg.norm(r)
+    err = float(np.linalg.norm(r))
     # The bounded solver creeps the last digits on a redundant arm (7 joints, 6 equations): finish
     # with minimum-norm Gauss-Newton steps while they stay inside the limits.
     for _ in range(20):

@@ -26,8 +26,19 @@ import numpy as np
 from fgcal.robots.single_pose import OperationTables, jacobians_one
 from fgcal.robots.transforms import rot
 
-__all__ = ["ChainOp", "Chain", "chain_for", "default_chain", "check_joints", "forward", "forward_frames",
-           "ChainJacobians", "jacobians", "tool_points", "n_slots"]
+__all__ = [
+    "Chain",
+    "ChainJacobians",
+    "ChainOp",
+    "chain_for",
+    "check_joints",
+    "default_chain",
+    "forward",
+    "forward_frames",
+    "jacobians",
+    "n_slots",
+    "tool_points",
+]
 
 REVOLUTE, PRISMATIC = "revolute", "prismatic"
 
@@ -222,7 +233,7 @@ class Chain:
                     p = p + R[:, :, op.axis] * t
         return self._finish(_homogeneous(R, p))
 
-    def jacobians(self, x, q, offsets=None) -> "ChainJacobians":
+    def jacobians(self, x, q, offsets=None) -> ChainJacobians:
         """Analytic Jacobians of the tool pose, and of tool-frame points, w.r.t. slots and readings.
 
         Parameters
@@ -239,7 +250,7 @@ class Chain:
             return jacobians_one(self, self.check_slots(x), q, offsets)  # one pose: by a scan, not op by op
         return self.jacobians_walk(x, q, offsets)
 
-    def jacobians_walk(self, x, q, offsets=None) -> "ChainJacobians":
+    def jacobians_walk(self, x, q, offsets=None) -> ChainJacobians:
         """:meth:`jacobians` by walking the operations one by one, vectorised over the poses (what
         :meth:`jacobians` does for more than one pose)."""
         R_before, p_before, T = self.forward_frames(x, q)

@@ -30,7 +30,7 @@ import numpy as np
 
 from fgcal.robots.transforms import euler_zyx_trans, to_euler_zyx_trans
 
-__all__ = ["SLOT_NAMES", "SLOT_IS_ANGLE", "JointType", "Tooling", "RobotModel", "ParameterSet", "slot_names_for"]
+__all__ = ["SLOT_IS_ANGLE", "SLOT_NAMES", "JointType", "ParameterSet", "RobotModel", "Tooling", "slot_names_for"]
 
 EULER_FIELDS = ("phi", "theta", "psi", "px", "py", "pz")
 LINK_FIELDS = ("theta", "d", "beta", "a", "alpha")
@@ -286,7 +286,7 @@ class RobotModel:
         """Parameters of the paper's rule that the rank check dropped, with the reason."""
         return dict(self._identifiable[1])
 
-    def parameters(self, extra=(), exclude=()) -> "ParameterSet":
+    def parameters(self, extra=(), exclude=()) -> ParameterSet:
         """The identifiable :class:`ParameterSet`, with ``extra`` slots added and ``exclude`` removed.
 
         Extra slots are appended after the standard ones (so that rank checks blame them first).

@@ -31,11 +31,11 @@ import numpy as np
 
 from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
-from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
+from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.util.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
-__all__ = ["load_model", "model_from_dict", "model_to_dict", "save_model", "FORMAT", "euler_dict"]
+__all__ = ["FORMAT", "euler_dict", "load_model", "model_from_dict", "model_to_dict", "save_model"]
 
 FORMAT = "fgcal-robot/1"
 
@@ -264,7 +264,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     def value(name):
         return round(float(values[model.slot(name)]), 12)
 
-    out = {"format": FORMAT, "name": model.name}
+    out: dict[str, object] = {"format": FORMAT, "name": model.name}
     if model.description:
         out["description"] = model.description
     out["base"] = {f: value(f"base.{f}") for f in EULER_FIELDS}
@@ -279,7 +279,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     if model.joint_names != default_names or not np.all(model.joint_is_angle):
         out["joints"] = [{"name": nm, "type": t.value} for nm, t in zip(model.joint_names, model.joint_types)]
     if model.joint_map is not None or model.joint_offset is not None:
-        c = {}
+        c: dict[str, list] = {}
         if model.joint_map is not None:
             c["matrix"] = [[float(v) for v in row] for row in model.joint_map]
         if model.joint_offset is not None:

@@ -9,14 +9,14 @@ import numpy as np
 
 __all__ = [
     "check_transform",
-    "rot",
     "euler_zyx_trans",
-    "to_euler_zyx_trans",
     "matrix_to_quaternion",
-    "quaternion_to_matrix",
-    "pose_matrices",
-    "so3_log",
     "pose_difference",
+    "pose_matrices",
+    "quaternion_to_matrix",
+    "rot",
+    "so3_log",
+    "to_euler_zyx_trans",
 ]
 
 
@@ -93,18 +93,17 @@ def matrix_to_quaternion(R) -> np.ndarray:
         tr = np.trace(m)
         if tr > 0:
             s = 2.0 * np.sqrt(tr + 1.0)
-            q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+            q = np.array([0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s])
         else:
             i = int(np.argmax(np.diag(m)))
-            j, l = (i + 1) % 3, (i + 2) % 3
-            s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[l, l])
+            j, n = (i + 1) % 3, (i + 2) % 3
+            s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[n, n])
             q = np.empty(4)
-            q[0] = (m[l, j] - m[j, l]) / s
+            q[0] = (m[n, j] - m[j, n]) / s
             q[1 + i] = 0.25 * s
             q[1 + j] = (m[j, i] + m[i, j]) / s
-            q[1 + l] = (m[l, i] + m[i, l]) / s
-        q = np.asarray(q)
-        q /= np.linalg.norm(q)
+            q[1 + n] = (m[n, i] + m[i, n]) / s
+        q = q / np.linalg.norm(q)
         out[k] = q if q[0] >= 0 else -q
     return out.reshape(R.shape[:-2] + (4,))
 

@@ -11,6 +11,9 @@ Two forms:
   origins of the actuated joints 2..n, a ``world`` root (the measuring instrument's frame) placed
   by the calibrated base, and a ``tool`` link on the tip link (the calibrated tool frame).
 
+Both take a ``tool_point``: the centre of the ball that made a contact calibration's contacts
+(mm, tool frame); the ``tool`` link is then there (the tool frame moved by it, DESIGN.md 8.2).
+
 Lengths are written in metres, as URDF requires, with round-trip precision. No I/O here.
 """
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["chain_origins", "to_urdf", "calibrated_urdf", "export_urdf", "rpy"]
+__all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "rpy", "to_urdf"]
 
 
 def rpy(R) -> tuple[float, float, float]:
@@ -60,8 +63,17 @@ def _origin(T) -> str:
     return f'<origin xyz="{xyz}" rpy="{angles}"/>'
 
 
-def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
-    """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad.
+def _at_point(tool_point) -> np.ndarray:
+    """Trans(tool_point) (4, 4): the tool link moved from the tool frame to a ball centre (mm)."""
+    T = np.eye(4)
+    if tool_point is not None:
+        T[:3, 3] = np.asarray(tool_point, dtype=float)
+    return T
+
+
+def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) -> str:
+    """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad; its ``tool`` link at
+    ``tool_point`` (3,) mm in the tool frame (the tool frame itself by default).
 
     Effort and velocity limits are not part of a model file; they are written as 1e6 (effectively
     unlimited) rather than 0, which URDF consumers (MoveIt, Gazebo) read as "cannot move".
@@ -89,7 +101,7 @@ def to_urdf(model: RobotModel, slots, name: str | None = None) -> str:
         parent = child
     lines.append('  <link name="tool"/>')
     lines.append(f'  <joint name="tool_mount" type="fixed"><parent link={quoteattr(parent)}/><child link="tool"/>'
-                 f"{_origin(origins[-1] @ model.tool_offset_matrix)}</joint>")
+                 f"{_origin(origins[-1] @ model.tool_offset_matrix @ _at_point(tool_point))}</joint>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
 
@@ -112,8 +124,9 @@ def _joint_frames(model: RobotModel, slots) -> list[np.ndarray]:
     return out
 
 
-def calibrated_urdf(model: RobotModel, slots) -> str:
-    """A calibrated copy of the URDF ``model`` was imported from (see the module docstring)."""
+def calibrated_urdf(model: RobotModel, slots, tool_point=None) -> str:
+    """A calibrated copy of the URDF ``model`` was imported from (see the module docstring); its
+    ``tool`` link at ``tool_point`` (3,) mm in the tool frame (the tool frame by default)."""
     from fgcal.robots.urdf_import import parse_urdf, urdf_chain
 
     info = model.extra["urdf"]
@@ -137,6 +150,7 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
             continue
         k = index[j.name]
         if k > 0:
+            assert T_parent is not None  # set by joint k - 1
             origin = np.linalg.inv(T_parent) @ Jw[k]
             _set_origin(elements[j.name], origin)
         T_parent = Jw[k]
@@ -163,7 +177,7 @@ def calibrated_urdf(model: RobotModel, slots) -> str:
         T_world_tip = T_world_tip @ j.origin
     x = np.asarray(slots, dtype=float)
     A_t = euler_zyx_trans(*[x[model.slot(f"tool.{f}")] for f in EULER_FIELDS])
-    tool = np.linalg.inv(T_world_tip) @ F[-1] @ A_t @ model.tool_offset_matrix
+    tool = np.linalg.inv(T_world_tip) @ F[-1] @ A_t @ model.tool_offset_matrix @ _at_point(tool_point)
     tool_name = "tool" if "tool" not in links else "fgcal_tool"
     _add_link(root, tool_name)
     _add_fixed(root, f"{tool_name}_mount", info["tip"], tool_name, tool)
@@ -206,6 +220,9 @@ def _add_fixed(root, name, parent, child, T) -> None:
     ET.SubElement(e, "origin", {"xyz": xyz, "rpy": angles})
 
 
-def export_urdf(model: RobotModel, slots) -> str:
-    """The calibrated URDF: a copy of the user's URDF when the model came from one, else :func:`to_urdf`."""
-    return calibrated_urdf(model, slots) if "urdf" in model.extra else to_urdf(model, slots)
+def export_urdf(model: RobotModel, slots, tool_point=None) -> str:
+    """The calibrated URDF: a copy of the user's URDF when the model came from one, else :func:`to_urdf`;
+    the ``tool`` link at ``tool_point`` (3,) mm in the tool frame when given (a contact calibration's ball)."""
+    if "urdf" in model.extra:
+        return calibrated_urdf(model, slots, tool_point)
+    return to_urdf(model, slots, tool_point=tool_point)

@@ -26,7 +26,7 @@ from fgcal.robots.model import JointType, RobotModel
 from fgcal.robots.transforms import rot, to_euler_zyx_trans
 from fgcal.util.yamlio import read_text_file
 
-__all__ = ["UrdfJoint", "parse_urdf", "urdf_chain", "model_from_urdf", "load_urdf_model", "rpy_matrix"]
+__all__ = ["UrdfJoint", "load_urdf_model", "model_from_urdf", "parse_urdf", "rpy_matrix", "urdf_chain"]
 
 log = logging.getLogger(__name__)
 

@@ -24,18 +24,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.measurements.dataset import Noise
 from fgcal.errors import FgcalError
 from fgcal.estimation.calibrate import _hold_order
 from fgcal.estimation.graph import Sigmas
-from fgcal.studies.design_info import Layout, information, information_and_middle, layout_from_access
+from fgcal.measurements.dataset import Noise
+from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import ParameterSet, RobotModel
+from fgcal.studies.design_info import Layout, information, information_and_middle, layout_from_access
 from fgcal.studies.plans import PLAN_MARGIN_DEG, PLAN_MARGIN_MM
-from fgcal.robots.deviations import Deviations
 
-__all__ = ["INDICES", "pose_information", "indices", "marginal", "predicted_rms", "Design", "design_plan", "candidate_pool",
-           "verification_weight", "Candidates", "random_design_values"]
+__all__ = [
+    "INDICES",
+    "Candidates",
+    "Design",
+    "candidate_pool",
+    "design_plan",
+    "indices",
+    "marginal",
+    "pose_information",
+    "predicted_rms",
+    "random_design_values",
+    "verification_weight",
+]
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +117,7 @@ def _scores(infos, scale, index: str, W=None, middles=None) -> np.ndarray:
                 cov = cov @ middles @ cov
             out = -np.sqrt(np.clip(np.einsum("pq,kqp->k", W, cov), 0.0, None))
         except np.linalg.LinAlgError:
-            out = np.array([-predicted_rms(I, W, None if middles is None else middles[i]) for i, I in enumerate(infos)])
+            out = np.array([-predicted_rms(info, W, None if middles is None else middles[i]) for i, info in enumerate(infos)])
         return np.where(np.isfinite(out), out, -np.inf)
     s = np.sqrt(np.clip(np.linalg.eigvalsh(infos * np.outer(scale, scale)[None]), 1e-300, None))
     if index == "O1":
@@ -240,7 +251,7 @@ class Candidates:
         scale = deviations.sigmas(params.names)
         S, P = layout.n_setup, len(params.names)
         prior = np.zeros((P + S, P + S))
-        if S:
+        if S and layout.setup is not None:
             prior[P:, P:] = layout.setup.prior_information(layout.setup.start)
         # Of parameters the pool confounds, the estimator holds the tool's angles first: so does the design.
         order = _hold_order(params.names)

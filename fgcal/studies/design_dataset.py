@@ -24,21 +24,30 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from fgcal.measurements.dataset import Dataset
+from fgcal.errors import FgcalError
 from fgcal.estimation.build import _setup_layout
 from fgcal.estimation.gauge import world_is_fixed
-from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
-from fgcal.measurements.types import kinematic_levels
-from fgcal.studies.design import Candidates, design_plan, random_design_values
-from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
-from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.noise import NoiseMode, component_table
+from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.types import kinematic_levels
 from fgcal.robots.model import RobotModel
+from fgcal.studies.design import Candidates, design_plan, random_design_values
+from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
 
-__all__ = ["DATASET_INDEX", "DatasetDesign", "DesignNoise", "dataset_noise", "dataset_layout", "design_from_dataset",
-           "placement_of",
-           "save_plan", "load_plan", "with_dataset_tooling"]
+__all__ = [
+    "DATASET_INDEX",
+    "DatasetDesign",
+    "DesignNoise",
+    "dataset_layout",
+    "dataset_noise",
+    "design_from_dataset",
+    "load_plan",
+    "placement_of",
+    "save_plan",
+    "with_dataset_tooling",
+]
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +97,8 @@ class DatasetDesign:
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
-        return tuple(float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
+        q25, q50, q75 = (float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
+        return q25, q50, q75
 
     def summary(self) -> list[str]:
         lo, med, hi = self.random_quartiles()

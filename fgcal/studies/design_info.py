@@ -32,19 +32,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factors.errors import ball_centre_error, probe_error
-
+from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
+from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset, Noise
 from fgcal.measurements.setup import SetupLayout
 from fgcal.measurements.types import kinematic_levels
-from fgcal.errors import FgcalError
-from fgcal.estimation.graph import Sigmas
 from fgcal.robots.model import ParameterSet, RobotModel, Tooling
 from fgcal.studies.plans import UP, ball_access
 
-__all__ = ["Layout", "sigmas_of", "cap_directions", "layout_from_access", "information",
-           "information_and_middle", "joint_sensitivity"]
+__all__ = [
+    "Layout",
+    "cap_directions",
+    "information",
+    "information_and_middle",
+    "joint_sensitivity",
+    "layout_from_access",
+    "sigmas_of",
+]
 
 
 
@@ -78,7 +84,7 @@ class Layout:
         """(N,) bool: the pose gives at least one measurement."""
         if "poses" in self.levels:
             return np.ones(len(self.balls), dtype=bool)
-        return self.balls.any(axis=1) | self.touching().any(axis=1)
+        return np.asarray(self.balls.any(axis=1) | self.touching().any(axis=1))
 
     def touching(self) -> np.ndarray:
         """(N, levels with set-up blocks) int: each pose's contacts per such level."""
@@ -196,7 +202,8 @@ def _group_information(model, params, x, q, balls, layout: Layout, sig: Sigmas, 
     for kind in kinematic_levels(layout.levels):  # each measurement type's own error and noise
         if getattr(kind, "uses_setup", False):  # contacts: rows in the parameters and the set-up blocks
             if kind.level in touch and touch[kind.level][0].shape[1]:
-                J_t, J_q, w, c = _setup_rows(kind, model, theta, idx, x, q, *touch[kind.level], layout, sig)
+                balls, fixtures = touch[kind.level]
+                J_t, J_q, w, c = _setup_rows(kind, model, theta, idx, x, q, balls, fixtures, layout, sig)
                 add(J_t, J_q, ratio=np.tile((kind.sigma(act) * w) ** 2, c))
             continue
         if kind.per_ball and not k:
@@ -252,6 +259,7 @@ def _setup_rows(kind, model, theta, idx, x, q, balls, fixtures, layout: Layout, 
     n, c = balls.shape
     offsets = model.tooling.offsets()
     setup = layout.setup
+    assert setup is not None and model.tooling is not None  # contacts: the layout has the blocks
     radius = model.tooling.radius
     *payload, s = kind.design_data(None, offsets[balls].reshape(-1, 3), fixtures.reshape(-1), setup, radius)
     _, J_t, J_q, J_s, cols = kind.setup_error(theta, np.repeat(q, c, axis=0), tuple(payload), s, idx, x, model.chain)
@@ -363,7 +371,8 @@ def joint_sensitivity(model: RobotModel, q, layout: Layout, sigmas: Sigmas, slot
         else:
             T_m, q_m, off = T, q, np.zeros((len(q), 3))
         # a contact's payload needs its fixture and the set-up blocks
-        more = (layout.contacts[kind.level][pose, ball], layout.setup, model.tooling.radius) if setup else ()
+        radius = model.tooling.radius if model.tooling is not None else 0.0
+        more = (layout.contacts[kind.level][pose, ball], layout.setup, radius) if setup else ()
         _, _, Jq = kind.error(x[idx], q_m, kind.design_data(T_m, off, *more), idx, x, model.chain)
         w2 = np.einsum("mrj,mrj->r", Jq, Jq) / kind.sigma(sigmas) ** 2  # per component column
         for name, (level, cols, *_rest) in component_table().items():

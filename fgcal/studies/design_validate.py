@@ -13,14 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgcal.estimation.calibrate import calibrate
-from fgcal.estimation.options import CalibrationOptions
-from fgcal.measurements.dataset import Dataset
-from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 from fgcal.errors import FgcalError
+from fgcal.estimation.calibrate import calibrate
 from fgcal.estimation.noise import NoiseMode
-from fgcal.robots.model import RobotModel
+from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.verification import verify
+from fgcal.measurements.dataset import Dataset
+from fgcal.robots.model import RobotModel
+from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
 
 __all__ = ["HeldOutComparison", "compare_on_held_out"]
 
@@ -72,7 +72,7 @@ def compare_on_held_out(ds: Dataset, held: Dataset, model: RobotModel, n_poses: 
     plan = design_from_dataset(ds, model, n_poses, index=index, rng=rng, noise=noise)
     plan_mean, plan_rms = _held_out_error(ds, plan.pose_ids, held, model, options)
     usable = ds.pose_ids[dataset_layout(ds, model).usable()]
-    errors = []
+    errors: list[tuple[float, float]] = []
     for k in range(random_sets):
         try:
             errors.append(_held_out_error(ds, rng.choice(usable, size=n_poses, replace=False), held, model, options))
@@ -80,5 +80,5 @@ def compare_on_held_out(ds: Dataset, held: Dataset, model: RobotModel, n_poses: 
             log.warning("random set %d of %d did not calibrate: %s", k + 1, random_sets, str(exc).strip().split("\n")[0])
             errors.append((np.inf, np.inf))
         log.info("random set %d of %d: held-out mean %.4f mm", k + 1, random_sets, errors[-1][0])
-    errors = np.array(errors).reshape(-1, 2)
-    return HeldOutComparison(plan, plan_mean, plan_rms, errors[:, 0], errors[:, 1])
+    table = np.array(errors).reshape(-1, 2)
+    return HeldOutComparison(plan, plan_mean, plan_rms, table[:, 0], table[:, 1])

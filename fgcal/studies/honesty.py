@@ -22,11 +22,18 @@ from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Noise
 from fgcal.robots.kinematics import forward, jacobians, tool_points
 from fgcal.robots.model import SLOT_NAMES, ParameterSet, slots_from_file_units
-from fgcal.studies.simulate import SimulationSettings, simulate
 from fgcal.robots.transforms import pose_difference
+from fgcal.studies.simulate import SimulationSettings, simulate
 
-__all__ = ["Scenario", "SCENARIOS", "run_scenario", "add_gross_errors", "summarise", "scenario_dataset",
-           "online_agreement"]
+__all__ = [
+    "SCENARIOS",
+    "Scenario",
+    "add_gross_errors",
+    "online_agreement",
+    "run_scenario",
+    "scenario_dataset",
+    "summarise",
+]
 
 Z95 = 1.959963984540054
 
@@ -83,7 +90,7 @@ def add_mirrored_caps(ds, truth, n: int, rng, half_angle_deg: float = 8.0) -> li
 
     pr = ds.probes
     keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
-    out = []
+    out: list[tuple[int, str]] = []
     for k in rng.permutation(len(keys)):
         if len(out) == n:
             break
@@ -145,7 +152,9 @@ def _reference(result, truth, model, q, points) -> np.ndarray:
     if not held:
         return t
     params = ParameterSet(model, tuple(names + held))
-    J = jacobians(truth, q, points).point_slots[..., params.index].reshape(-1, len(names) + len(held))
+    slots = jacobians(truth, q, points).point_slots
+    assert slots is not None  # asked for by the points
+    J = slots[..., params.index].reshape(-1, len(names) + len(held))
     x = result.slot_vector()
     dh = np.array([truth[SLOT_NAMES.index(n)] - x[SLOT_NAMES.index(n)] for n in held])
     return t + np.linalg.lstsq(J[:, :len(names)], J[:, len(names):] @ dh, rcond=None)[0]
@@ -174,8 +183,8 @@ def online_agreement(model, kind: str, seed: int, reverse: bool = False, scenari
     prediction, lands more than a radius from the true centre: the mirror image) and
     ``batch_truth`` (largest |batch - truth| over the batch sigma).
     """
-    from fgcal.online.engines import make_engine, pose_records
     from fgcal.measurements.spherefit import fit_spheres_checked
+    from fgcal.online.engines import make_engine, pose_records
 
     ds, truth, _, _ = scenario_dataset(model, scenario, seed)
     batch = calibrate(ds, model, replace(scenario.options, prior="weak"))
@@ -213,7 +222,7 @@ def run_scenario(model, scenario: Scenario, seeds) -> list[dict]:
         q_new = rng.uniform(model.joint_limits[:, 0], model.joint_limits[:, 1], size=(100, 6))
         true_pts = tool_points(forward(truth, q_new), points)
 
-        def rms(slots):
+        def rms(slots, q_new=q_new, true_pts=true_pts):
             return float(np.sqrt(np.mean(np.sum((tool_points(forward(slots, q_new), points) - true_pts) ** 2, axis=2))))
 
         base = _baseline(ds, model, model.identifiable_names())

@@ -15,7 +15,7 @@ from fgcal.robots.kinematics import forward, tool_points
 from fgcal.robots.model import RobotModel, Tooling
 from fgcal.robots.transforms import quaternion_to_matrix
 
-__all__ = ["UP", "PLAN_MARGIN_MM", "PLAN_MARGIN_DEG", "ball_access", "random_plan", "paper_points", "paper_plan"]
+__all__ = ["PLAN_MARGIN_DEG", "PLAN_MARGIN_MM", "UP", "ball_access", "paper_plan", "paper_points", "random_plan"]
 
 UP = np.array([0.0, 0.0, 1.0])  # the CMM's probe comes down from +z of the world
 MAX_APPROACH_ANGLE_DEG = 110.0  # a ball whose stem points up more steeply than this is hidden
@@ -70,7 +70,7 @@ def random_plan(model: RobotModel, slots, n_poses: int, rng: np.random.Generator
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
     wide = model.joint_is_angle & (hi - lo > 2 * np.pi)
     lo, hi = np.where(wide, np.maximum(lo, -np.pi), lo), np.where(wide, np.minimum(hi, np.pi), hi)
-    accepted = []
+    accepted: list[np.ndarray] = []
     tries = 0
     while len(accepted) < n_poses:
         batch = max(256, 4 * (n_poses - len(accepted)))
@@ -124,7 +124,9 @@ def paper_plan(model: RobotModel, rng: np.random.Generator, tooling: Tooling, vo
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
     half_range = np.maximum(np.abs(lo), np.abs(hi))[3:]
     rotations = _random_rotations(rng, n_orientations)
-    chosen, labels, skipped = [], [], []
+    chosen: list = []
+    labels: list[str] = []
+    skipped: list = []
     for k, p in enumerate(points):
         targets = np.zeros((n_orientations, 4, 4))
         targets[:, :3, :3] = rotations

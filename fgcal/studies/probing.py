@@ -56,7 +56,8 @@ class ProbedPoses:
 
         Sphere fits of known radius with the residual check (as
         :func:`fgcal.measurements.spherefit.fit_spheres_checked`), then a least-squares rigid fit of
-        each pose's three or more good balls with its chi-square check, all vectorised. Returns the rows (into ``pose_ids``) of the accepted poses, ``(K',)``,
+        each pose's three or more good balls with its chi-square check, all vectorised. Returns the rows
+        (into ``pose_ids``) of the accepted poses, ``(K',)``,
         and their poses ``(K', 4, 4)``.
         """
         from fgcal.measurements.posefit import rigid_fit
@@ -81,8 +82,8 @@ class ProbedPoses:
             ok[whole], T[whole] = rigid_fits(tool[whole], centre[whole], np.sqrt(var[whole].mean(axis=1)))
         for k in np.nonzero(~whole & (good.sum(axis=1) >= 3))[0]:  # a ball failed its check: the other balls
             g = good[k]
-            fit = rigid_fit(tool[k, g], centre[k, g], sigma=float(np.sqrt(var[k, g].mean())))
-            ok[k], T[k] = fit.ok, fit.T
+            rigid = rigid_fit(tool[k, g], centre[k, g], sigma=float(np.sqrt(var[k, g].mean())))
+            ok[k], T[k] = rigid.ok, rigid.T
         rows = np.nonzero(ok)[0]
         return rows, T[rows]
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 
-__all__ = ["Trial", "STUDIES", "trials_for", "run_trial", "RESULT_COLUMNS", "EXPERIMENT_REPEATABILITY_DEG"]
+__all__ = ["EXPERIMENT_REPEATABILITY_DEG", "RESULT_COLUMNS", "STUDIES", "Trial", "run_trial", "trials_for"]
 
 # Joint landing error (deg) for the "experiment" study: with it, identification from 21 of the
 # paper's planned poses verifies at ~0.3 mm RMS against the measurements, as the paper found.
@@ -144,8 +144,8 @@ def _model(robot: str):
 
 def prepare_process(robots) -> None:
     """Import what a trial uses and read the ``robots``' models, so that forked workers inherit them."""
-    import fgcal.estimation.calibrate  # noqa: F401
-    import fgcal.estimation.verification  # noqa: F401
+    import fgcal.estimation.calibrate
+    import fgcal.estimation.verification
     import fgcal.studies.probing  # noqa: F401
 
     for robot in robots:
@@ -170,11 +170,11 @@ def run_trial(trial: Trial, q_identify=None) -> dict:
     (same random stream, same estimators and checks: the same numbers, to rounding).
     """
     from fgcal.estimation.calibrate import calibrate
-    from fgcal.measurements.dataset import Noise
     from fgcal.estimation.verification import compare_poses
+    from fgcal.measurements.dataset import Noise
     from fgcal.robots.kinematics import forward
-    from fgcal.studies.probing import simulate_probes
     from fgcal.studies.plans import random_plan
+    from fgcal.studies.probing import simulate_probes
     from fgcal.studies.simulate import draw_truth
 
     t0 = time.perf_counter()

@@ -16,6 +16,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +24,7 @@ from fgcal.errors import FgcalError
 from fgcal.studies.study import RESULT_COLUMNS, Trial, run_trial
 from fgcal.util.yamlio import atomic_write_bytes, atomic_write_text
 
-__all__ = ["read_rows", "run_study", "study_figures", "Progress"]
+__all__ = ["Progress", "read_rows", "run_study", "study_figures"]
 
 log = logging.getLogger(__name__)
 
@@ -120,7 +121,7 @@ def _check_settings(csv_path: Path, rows: list[dict], trials: list[Trial]) -> No
                 same = str(theirs if theirs is not None else "") == mine
             else:
                 try:
-                    same = math.isclose(float(theirs), float(mine), rel_tol=1e-9, abs_tol=1e-12)
+                    same = theirs is not None and math.isclose(float(theirs), float(mine), rel_tol=1e-9, abs_tol=1e-12)
                 except (TypeError, ValueError):
                     same = False
             if not same:
@@ -182,7 +183,8 @@ def run_study(trials: list[Trial], out_dir, workers: int | None = None, schedule
         return rows
     if scheduler:
         try:
-            from distributed import Client, as_completed as dask_completed
+            from distributed import Client
+            from distributed import as_completed as dask_completed
         except ImportError:
             raise FgcalError("--scheduler needs Dask: pip install 'dask[distributed]' (or fgcal's [study] extra)") \
                 from None
@@ -201,8 +203,8 @@ def run_study(trials: list[Trial], out_dir, workers: int | None = None, schedule
             finished(runner(t))
     else:
         with ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=_worker_context(todo)) as pool:
-            futures = [pool.submit(runner, t) for t in todo]
-            for fut in as_completed(futures):
+            submitted = [pool.submit(runner, t) for t in todo]
+            for fut in as_completed(submitted):
                 finished(fut.result())
     return rows
 
@@ -219,7 +221,7 @@ def study_figures(study: str, rows: list[dict]) -> dict:
     from matplotlib.figure import Figure
 
     rows = [r for r in rows if r["study"] == study]
-    figs = {}
+    figs: dict[str, Any] = {}
     if not rows:
         return figs
     if study in ("fig8-9", "experiment") or study.startswith("sweep"):

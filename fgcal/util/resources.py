@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["datasets_dir", "builtin_robot_path", "builtin_robot_names", "default_dataset_dir"]
+__all__ = ["builtin_robot_names", "builtin_robot_path", "datasets_dir", "default_dataset_dir"]
 
 _PACKAGE = Path(__file__).resolve().parents[1]  # the fgcal package folder
 

@@ -20,8 +20,18 @@ import yaml
 
 from fgcal.errors import FgcalError
 
-__all__ = ["read_yaml", "read_text_file", "check_regular_file", "atomic_write_text", "atomic_write_bytes",
-           "dump_yaml", "make_dir", "short_repr", "MAX_YAML_BYTES", "MAX_YAML_DEPTH"]
+__all__ = [
+    "MAX_YAML_BYTES",
+    "MAX_YAML_DEPTH",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_regular_file",
+    "dump_yaml",
+    "make_dir",
+    "read_text_file",
+    "read_yaml",
+    "short_repr",
+]
 
 MAX_YAML_BYTES = 16 * 1024 * 1024  # model files and dataset.yaml are a few kB
 MAX_YAML_DEPTH = 64
@@ -142,7 +152,7 @@ def read_yaml(path, error=FgcalError):
     path = Path(path)
     text = read_text_file(path, error, MAX_YAML_BYTES)
     try:
-        return yaml.load(text, Loader=_SafeLoader)  # noqa: S506 (the loader is a SafeLoader)
+        return yaml.load(text, Loader=_SafeLoader)
     except yaml.constructor.ConstructorError as exc:
         where = f"line {exc.problem_mark.line + 1}: " if exc.problem_mark else ""
         raise error(f"{path}: {where}refusing a YAML tag that builds objects") from None

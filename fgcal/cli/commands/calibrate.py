@@ -5,9 +5,10 @@ import logging
 
 import numpy as np
 
+from fgcal.cli.commands.check import _measurement_rows, _warn_units
 from fgcal.cli.commands.checks import MAX_BATCH_ROWS, check_output_file, dataset_inputs, parameter_names
 from fgcal.errors import FgcalError
-from fgcal.cli.commands.check import _measurement_rows, _warn_units
+from fgcal.estimation.noise import NoiseMode, OutlierMode
 
 log = logging.getLogger("fgcal")
 
@@ -38,8 +39,8 @@ def parse_pose_selection(text: str | None, available) -> np.ndarray:
     for part in text.split(","):
         part = part.strip()
         try:
-            a, b = part.split("-", 1) if "-" in part[1:] and not part.startswith("-") else (part, part)
-            a, b = int(a), int(b)
+            first, last = part.split("-", 1) if "-" in part[1:] and not part.startswith("-") else (part, part)
+            a, b = int(first), int(last)
         except ValueError:
             raise FgcalError(f"--poses {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
         if b < a:
@@ -93,8 +94,8 @@ def _print_result(result) -> None:
 def _cmd_calibrate(args) -> int:
     from fgcal.estimation.calibrate import calibrate
     from fgcal.estimation.options import CalibrationOptions
-    from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import save_result
+    from fgcal.io.dataset_io import dataset_model, load_dataset
 
     paths = args.dataset if isinstance(args.dataset, list) else [args.dataset]
     for path in paths:
@@ -119,7 +120,8 @@ def _cmd_calibrate(args) -> int:
     options = CalibrationOptions(
         levels=tuple(args.levels.split(",")) if args.levels else None, robust=args.robust, prior=args.prior,
         joint_noise=not args.exact_joints, estimate_noise=getattr(args, "estimate_noise", False),
-        noise=getattr(args, "noise", "estimated"), outliers=getattr(args, "outliers", "exclude"),
+        noise=NoiseMode(getattr(args, "noise", "estimated")),
+        outliers=OutlierMode(getattr(args, "outliers", "exclude")),
         extra=extra, exclude=exclude, engine=getattr(args, "engine", "batch"))
     if getattr(args, "model", "geometric") == "geometric" and getattr(args, "verification", None) is None:
         result = calibrate(ds, model, options)
@@ -168,8 +170,8 @@ def _parse_payload(text):
 
 def _compare_models(args, ds, model, options):
     """``calibrate --model``: cross-validated comparison of the models up to the one asked for."""
-    from fgcal.io.dataset_io import load_dataset
     from fgcal.estimation.model_select import HARMONICS_GRID, compare_models
+    from fgcal.io.dataset_io import load_dataset
 
     ver = load_dataset(args.verification) if args.verification is not None else None
     results, _ = compare_models(ds, model, options, up_to=args.model, verification=ver, folds=args.folds,

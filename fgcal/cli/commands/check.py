@@ -4,7 +4,6 @@ from __future__ import annotations
 import logging
 import sys
 
-
 from fgcal.cli.commands.checks import MAX_BATCH_ROWS
 
 log = logging.getLogger("fgcal")

@@ -15,8 +15,18 @@ from pathlib import Path
 
 from fgcal.errors import FgcalError
 
-__all__ = ["parameter_names", "finite_float", "nonnegative_float", "positive_float", "positive_int", "nonnegative_int",
-           "check_output_file", "check_output_dir", "dataset_inputs", "os_error_message"]
+__all__ = [
+    "check_output_dir",
+    "check_output_file",
+    "dataset_inputs",
+    "finite_float",
+    "nonnegative_float",
+    "nonnegative_int",
+    "os_error_message",
+    "parameter_names",
+    "positive_float",
+    "positive_int",
+]
 
 DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
 

@@ -36,10 +36,10 @@ def _parse_branch(text):
 
 
 def _cmd_compensate(args) -> int:
-    from fgcal.robots.compensate import Frame, compensate_targets
+    from fgcal.estimation.result import load_result
     from fgcal.io.dataset_io import joint_columns, write_csv
     from fgcal.io.targets import read_targets
-    from fgcal.estimation.result import load_result
+    from fgcal.robots.compensate import Frame, compensate_targets
 
     if args.out:
         check_output_file(args.out, [args.result, args.targets])

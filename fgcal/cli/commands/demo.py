@@ -4,10 +4,9 @@ from __future__ import annotations
 import argparse
 import logging
 
-
-from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.calibrate import _cmd_calibrate
 from fgcal.cli.commands.check import _cmd_check
+from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.report import _cmd_report
 from fgcal.cli.commands.verify import _cmd_verify
 

@@ -51,11 +51,11 @@ def _cmd_design_dataset(args) -> int:
 
 
 def _cmd_design(args) -> int:
-    from fgcal.measurements.dataset import Noise
     from fgcal.io.dataset_io import joint_columns, write_csv
+    from fgcal.measurements.dataset import Noise
+    from fgcal.robots.robot_file import load_model
     from fgcal.studies.design import INDICES, Candidates, candidate_pool, design_plan, random_design_values
     from fgcal.studies.design_info import layout_from_access
-    from fgcal.robots.robot_file import load_model
     from fgcal.studies.plans import random_plan
 
     if args.dataset is not None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-
 from fgcal.cli.commands.checks import check_output_file
 from fgcal.errors import FgcalError
 
@@ -38,9 +37,12 @@ def _cmd_export(args) -> int:
         save_model(calibrated, args.model, slots=slots)
         print(f"wrote {args.model} (fgcal-robot/1)")
     if args.urdf:
-        atomic_write_text(args.urdf, export_urdf(calibrated, slots))
+        point = result.tool_point()  # a contact calibration: the link tool at the ball's centre (DESIGN.md 8.2)
+        atomic_write_text(args.urdf, export_urdf(calibrated, slots, tool_point=point))
         kind = "a calibrated copy of the imported URDF" if "urdf" in model.extra else "URDF"
-        print(f"wrote {args.urdf} ({kind})")
+        at = "" if point is None else (f"; link tool at the centre of ball {result.tooling['tool_ball']} "
+                                       f"({', '.join(f'{v:g}' for v in point)} mm in the tool frame)")
+        print(f"wrote {args.urdf} ({kind}{at})")
     if args.deltas:
         from fgcal.io.dataset_io import write_csv
 

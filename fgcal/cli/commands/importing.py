@@ -51,6 +51,25 @@ def _measurements(args):
     return read_measurements(args.file, spec), args.robot, None, {"columns": spec.describe()}
 
 
+def _chain(text: str | None) -> dict | None:
+    """``--chain BASE,TIP`` as the ``{"base": .., "tip": ..}`` of :func:`fgcal.robots.robot_file.load_model`."""
+    if text is None:
+        return None
+    parts = [p.strip() for p in text.split(",")]
+    if len(parts) != 2 or not all(parts):
+        raise FgcalError(f"--chain {text!r}: expected BASE,TIP (two link names)")
+    return {"base": parts[0], "tip": parts[1]}
+
+
+def _with_chain_hint(load, *args, **kw):
+    """``load(*args, **kw)``; a loader's hint about dataset.yaml's chain becomes the import's option."""
+    try:
+        return load(*args, **kw)
+    except FgcalError as exc:  # the dataset that hint names is the one being written: the option is the way
+        raise FgcalError(str(exc).replace("chain: {base: LINK, tip: LINK} in dataset.yaml", "--chain BASE,TIP")) \
+            from None
+
+
 def _cmd_import(args) -> int:
     from fgcal.io.importer import to_datasets
 
@@ -64,15 +83,18 @@ def _cmd_import(args) -> int:
     m, robot, name, settings = _measurements(args)
     for s in m.skipped:
         print(f"skipped {args.file}: {s}")
-    result = to_datasets(m, robot, position_only=args.position_only, holdout=args.holdout,
-                         rng=np.random.default_rng(args.seed), position_sigma=args.sigma,
-                         orientation_sigma=args.orientation_sigma, joint_resolution=args.joint_resolution, name=name,
-                         provenance={"importer": f"fgcal import {args.format}", **settings})
+    result = _with_chain_hint(to_datasets, m, robot, position_only=args.position_only, holdout=args.holdout,
+                              rng=np.random.default_rng(args.seed), position_sigma=args.sigma,
+                              orientation_sigma=args.orientation_sigma, joint_resolution=args.joint_resolution,
+                              name=name, provenance={"importer": f"fgcal import {args.format}", **settings},
+                              chain=_chain(getattr(args, "chain", None)), accept_fit=args.accept_fit)
     written = result.save(args.out, overwrite=args.force)
     kind = "positions" if result.calibration.centres is not None else "full poses"
     print(f"wrote {written[0]}: {result.calibration.n_poses} poses ({kind}); {len(m.skipped)} row(s) skipped; "
-          f"base and tool fitted to the data (RMS {result.rms:.3g} mm) in {written[0] / 'robot.yaml'}")
-    if len(written) > 1:
+          f"base and tool fitted to the data (RMS {result.rms:.3g} mm"
+          + ("" if result.rotation_rms_deg is None else f", {result.rotation_rms_deg:.3g} deg")
+          + f") in {written[0] / 'robot.yaml'}")
+    if len(written) > 1 and result.holdout is not None:
         print(f"wrote {written[1]}: {result.holdout.n_poses} held-out poses (repeated measurements kept on one side)")
     return 0
 
@@ -81,7 +103,9 @@ def _common(p: argparse.ArgumentParser, robot: bool = True) -> None:
     p.add_argument("file", type=Path)
     p.add_argument("out", type=Path, help="dataset directory to write (OUT-holdout too with --holdout)")
     if robot:
-        p.add_argument("--robot", required=True, help="built-in model name or model file of the measured robot")
+        p.add_argument("--robot", required=True, help="built-in model name, model file or URDF of the measured robot")
+        p.add_argument("--chain", default=None, help="BASE,TIP links of a URDF with more than one leaf (a gripper's "
+                       "fingers, say): the chain to calibrate")
     p.add_argument("--position-only", action="store_true", help="keep only the measured positions (centres.csv)")
     p.add_argument("--holdout", type=finite_float, default=0.0,
                    help="fraction of the rows (of the groups) to write to OUT-holdout for verification (default 0)")
@@ -92,6 +116,9 @@ def _common(p: argparse.ArgumentParser, robot: bool = True) -> None:
                    help="orientation noise, deg (default: the file's std columns, else 0.01)")
     p.add_argument("--joint-resolution", type=nonnegative_float, default=0.0, help="joint reading resolution, deg (default 0)")
     p.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    p.add_argument("--accept-fit", action="store_true",
+                   help="import even when the nominal robot misfits the data like a unit or convention mistake "
+                        "(by more than 20 mm or 2%% of the workspace, or 2 deg): refused by default, naming the cause")
     p.set_defaults(func=_cmd_import)
 
 
@@ -158,16 +185,11 @@ def _cmd_import_mukca(args) -> int:
     """``fgcal import mukca``: the two-socket tool's placements as contacts at unknown fixture points."""
     from fgcal.io.dataset_io import save_dataset
     from fgcal.io.mukca import read_mukca
-    from fgcal.util.yamlio import read_text_file
     from fgcal.robots.robot_file import load_model
     from fgcal.util.resources import builtin_robot_names, builtin_robot_path
+    from fgcal.util.yamlio import read_text_file
 
-    chain = None
-    if args.chain is not None:
-        parts = [p.strip() for p in args.chain.split(",")]
-        if len(parts) != 2 or not all(parts):
-            raise FgcalError(f"--chain {args.chain!r}: expected BASE,TIP (two link names)")
-        chain = {"base": parts[0], "tip": parts[1]}
+    chain = _chain(args.chain)
     held = _columns(args.holdout_placements) or ()
     if args.holdout_placements is not None and not held:
         raise FgcalError(f"--holdout-placements {args.holdout_placements!r}: no placement named "
@@ -180,11 +202,7 @@ def _cmd_import_mukca(args) -> int:
     holdout_dir = args.out.with_name(args.out.name + "-holdout")
     if held:
         check_output_dir(holdout_dir, inputs, option="OUT-holdout", must_be_new=True, force=args.force)
-    try:
-        model = load_model(robot, chain=chain)
-    except FgcalError as exc:  # the hint of a dataset's loader: here the option is the way
-        raise FgcalError(str(exc).replace("chain: {base: LINK, tip: LINK} in dataset.yaml", "--chain BASE,TIP")) \
-            from None
+    model = _with_chain_hint(load_model, robot, chain=chain)
     robot_name = "robot" + Path(robot).suffix.lower()
     robot_text = read_text_file(robot, FgcalError, max_bytes=20 << 20)
     imp = read_mukca(args.file, robot_name, model.n_joints, chain, args.distance, args.distance_sigma,

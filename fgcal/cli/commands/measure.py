@@ -3,10 +3,9 @@ from __future__ import annotations
 
 import logging
 
-
+from fgcal.cli.commands.check import _warn_units
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.errors import FgcalError
-from fgcal.cli.commands.check import _warn_units
 
 log = logging.getLogger("fgcal")
 

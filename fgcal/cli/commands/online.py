@@ -13,10 +13,10 @@ log = logging.getLogger("fgcal")
 
 
 def _cmd_online(args) -> int:
+    from fgcal.estimation.result import save_result
     from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.online.display import Display, follow
     from fgcal.online.run import OnlineRun
-    from fgcal.estimation.result import save_result
 
     if args.stdin and args.follow:
         raise FgcalError("--stdin and --follow: choose one source of new poses")
@@ -81,9 +81,10 @@ def _cmd_online(args) -> int:
         save_result(result, args.out)
         print(f"wrote {args.out} ({result.n_poses} poses, engine {args.engine})")
     if args.plot and run.history:
+        import io
+
         from fgcal.report.plots import plot_convergence
         from fgcal.util.yamlio import atomic_write_bytes
-        import io
 
         params = run.engine.params  # the history's columns (a parameter the final smoothing held: sigma 0)
         names = list(params.names)

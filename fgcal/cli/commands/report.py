@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import logging
 
-
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.errors import FgcalError
 
@@ -13,9 +12,8 @@ log = logging.getLogger("fgcal")
 def _cmd_report(args) -> int:
     import json
 
-    from fgcal.report.document import write_report
     from fgcal.estimation.result import load_result
-
+    from fgcal.report.document import write_report
     from fgcal.util.yamlio import read_text_file
 
     check_output_dir(args.out, [args.result, args.verify])
@@ -25,7 +23,7 @@ def _cmd_report(args) -> int:
         text = read_text_file(args.verify, max_bytes=256 * 1024 * 1024)
         try:
             verification = json.loads(text)
-        except ValueError as exc:
+        except json.JSONDecodeError as exc:
             raise FgcalError(f"{args.verify}: not a verification file (invalid JSON: {exc.msg}, "
                              f"line {getattr(exc, 'lineno', '?')})") from None
         from fgcal.estimation.verification import check_verification

@@ -4,7 +4,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-
 from fgcal.cli.commands.checks import check_output_dir
 
 log = logging.getLogger("fgcal")

@@ -3,10 +3,9 @@ from __future__ import annotations
 
 import logging
 
-
-from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.cli.commands.calibrate import parse_pose_selection
 from fgcal.cli.commands.check import _warn_units
+from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 
 log = logging.getLogger("fgcal")
 
@@ -14,9 +13,9 @@ log = logging.getLogger("fgcal")
 def _cmd_verify(args) -> int:
     import json
 
-    from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.estimation.result import load_result
     from fgcal.estimation.verification import check_same_robot, verify
+    from fgcal.io.dataset_io import dataset_model, load_dataset
     from fgcal.util.yamlio import atomic_write_text
 
     if args.out:
