@@ -1,20 +1,28 @@
-"""Batch calibration: whole-process CPU time and peak memory of fgcal against a scipy joint solve.
+"""Batch calibration: whole-process CPU and peak memory of ``fgcal calibrate`` against a plain scipy solve.
 
-Each run is a fresh process with single-threaded BLAS (``OPENBLAS_NUM_THREADS=1`` and friends),
-measured from outside (``os.wait4``: user + system CPU of the whole process, imports and reading
-the files included, and its peak RSS), on a simulated PUMA 560 with the paper's noise (3 balls x
-4 probe points per pose):
+The reference is ``../shared/bench/sparse_joint_solve.py`` (relative to the repository; another
+path with ``--reference``), a numpy + scipy solve of the same probe-level problem written without
+fgcal: the 30 parameters and a joint correction per pose, ball centres eliminated, analytic sparse
+Jacobian, ``least_squares(method="trf", x_scale="jac")``, covariance by a per-pose Schur
+complement. It is run as it is, never copied here; when it is absent the bench says so and stops.
 
-  fgcal   ``fgcal.estimation.calibrate`` (the factor graph from raw probe points, covariance included)
-  scipy   ``bench/scipy_reference.py``: the same probe-level problem with ``least_squares``
+Datasets: ``fgcal simulate DIR --robot puma560 --poses N --seed N`` (3 balls x 4 probe points per
+pose, the paper's noise). Every run is a fresh process with single-threaded BLAS
+(``OMP/OPENBLAS/MKL_NUM_THREADS=1``), measured from outside (``os.wait4``: user + system CPU of the
+whole process and its children, imports, reading and writing included, and its peak RSS); the runs
+of a size are interleaved ``--repeat`` times and the least CPU of each is kept (the machine is
+shared: CPU time, not wall time).
 
-The timed fgcal run is ``calibrate``'s default (noise estimated per level, outliers excluded: what
-``fgcal calibrate`` does); the estimates are compared on the same problem as scipy's (declared
-noise, every measurement kept) by one more, untimed, fgcal run: ``max |fgcal - scipy| / sigma``
-(goal below 0.01) and the sigmas' largest relative difference.
-Goals (issue 16): CPU ratio fgcal/scipy at most 0.8 at 1000 and 10000 poses, CPU per pose not
-growing with the poses, peak at 10000 poses at most 400 MB.
-Run: ``python bench/bench_batch.py [--poses 21 1000 10000] [--repeat 3]``.
+Timed: ``fgcal calibrate DIR --out R.json`` with its defaults (noise estimated per level, outliers
+excluded: what a user runs) and ``sparse_joint_solve.py DIR OUT.json --quiet``.
+Checked, untimed: ``fgcal calibrate --noise declared --outliers none`` (the reference's problem:
+declared noise, nothing excluded) against the reference's estimate, ``max |d| / sigma`` (goal 0.01),
+and the sigmas' largest relative difference.
+``--own`` also runs ``bench/scipy_reference.py`` (our own scipy solve, which imports fgcal's
+kinematics) beside it; it is never the reference.
+
+Goals (issue 25): CPU ratio at most 0.8 at 1,000 and 10,000 poses; peak at 10,000 poses at most 400 MB.
+Run: ``python bench/bench_batch.py [--poses 21 1000 10000] [--repeat 3] [--reference PATH] [--own]``.
 """
 from __future__ import annotations
 
@@ -26,77 +34,94 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 HERE = Path(__file__).resolve().parent
+REFERENCE = HERE.parent.parent / "shared" / "bench" / "sparse_joint_solve.py"
 SINGLE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
                                   "OPENBLAS_MAIN_FREE", "NUMEXPR_NUM_THREADS")}
-
-FGCAL_CASE = """
-import json, sys
-from fgcal import dataset_model, load_dataset
-from fgcal.estimation.calibrate import CalibrationOptions, calibrate
-ds = load_dataset(sys.argv[1])
-same = CalibrationOptions(noise="declared", outliers="none")  # scipy's problem
-r = calibrate(ds, dataset_model(ds), same if sys.argv[2:] == ["same"] else CalibrationOptions())
-print(json.dumps({"names": r.names, "estimate": r.estimate.tolist(), "sigma": r.sigma.tolist(),
-                  "iterations": r.iterations}))
-"""
+FGCAL = [sys.executable, "-m", "fgcal.cli"]
 
 
-def run(cmd) -> dict:
-    """``cmd`` in a fresh process: its JSON output, CPU seconds (user + sys) and peak RSS (MB)."""
+def run(cmd: list[str]) -> dict:
+    """``cmd`` in a fresh process: its CPU seconds (user + sys, children included), peak RSS (MB), stdout."""
     env = dict(os.environ, **SINGLE_THREAD)
     env["PYTHONPATH"] = os.pathsep.join([str(HERE.parent)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
-    out = proc.stdout.read()
-    err = proc.stderr.read()
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode:
-        raise RuntimeError(f"{' '.join(cmd)} failed:\n{err.decode()}")
-    d = json.loads(out)
-    d["cpu"] = usage.ru_utime + usage.ru_stime
-    d["peak_mb"] = usage.ru_maxrss / 1024
-    return d
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)  # reaps it: its own and its children's CPU, its peak RSS
+        out.seek(0)
+        err.seek(0)
+        if os.waitstatus_to_exitcode(status):
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{err.read().decode()}")
+        stdout = out.read()
+    return {"cpu": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024, "stdout": stdout}
 
 
-def main():
+def estimates(path: Path) -> dict[str, tuple[float, float]]:
+    """``{name: (estimate, sigma)}`` (file units: mm, deg) of a ``fgcal-result/1``-style JSON file."""
+    return {p["name"]: (p["estimate"], p["sigma"]) for p in json.loads(path.read_text())["parameters"]}
+
+
+def compare(ours: Path, ref: Path) -> tuple[float, float]:
+    """``max |ours - ref| / sigma_ref`` and ``max |sigma_ours / sigma_ref - 1|`` over the reference's parameters."""
+    a, b = estimates(ours), estimates(ref)
+    if sorted(a) != sorted(b):
+        raise RuntimeError(f"different parameters: fgcal {sorted(a)} against the reference {sorted(b)}")
+    z = max(abs(a[n][0] - b[n][0]) / b[n][1] for n in b)
+    s = max(abs(a[n][1] / b[n][1] - 1) for n in b)
+    return z, s
+
+
+def own_reference(stdout: bytes, ref: Path) -> float:
+    """``max |own - ref| / sigma_ref`` of ``bench/scipy_reference.py``'s printed estimate."""
+    d = json.loads(stdout)
+    b = estimates(ref)
+    return max(abs(e - b[n][0]) / b[n][1] for n, e in zip(d["names"], d["estimate"], strict=True))
+
+
+def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--poses", type=int, nargs="+", default=[21, 1000, 10000])
     ap.add_argument("--repeat", type=int, default=3, help="runs per case, interleaved; the least CPU is kept")
+    ap.add_argument("--reference", type=Path, default=REFERENCE, help=f"the reference solve (default {REFERENCE})")
+    ap.add_argument("--own", action="store_true",
+                    help="also run bench/scipy_reference.py (shown beside, never instead)")
     args = ap.parse_args()
-    from fgcal import SimulationSettings, load_model, save_dataset, simulate
-
-    model = load_model("puma560")
+    if not args.reference.is_file():
+        print(f"bench_batch: the reference {args.reference} is absent: skipped (give its path with --reference)")
+        return 0
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.poses:
-            ds, _ = simulate(model, np.random.default_rng(n), SimulationSettings(n_poses=n))
-            path = Path(tmp) / f"d{n}"
-            save_dataset(ds, path)
-            cmds = {"fgcal": [sys.executable, "-c", FGCAL_CASE, str(path)],
-                    "scipy": [sys.executable, str(HERE / "scipy_reference.py"), str(path)]}
-            runs = {name: [] for name in cmds}
-            for _ in range(args.repeat):  # interleaved: a slow spell of the shared machine hits both alike
-                for name, cmd in cmds.items():
-                    runs[name].append(run(cmd))
-            best = {}
-            for name, rs in runs.items():
-                best[name] = min(rs, key=lambda r: r["cpu"])
-                best[name]["peak_mb"] = max(r["peak_mb"] for r in rs)
-            f, s = best["fgcal"], best["scipy"]
-            same = run([sys.executable, "-c", FGCAL_CASE, str(path), "same"])
-            assert same["names"] == s["names"]
-            z = np.max(np.abs(np.array(same["estimate"]) - s["estimate"]) / np.array(same["sigma"]))
-            sig = np.max(np.abs(np.array(same["sigma"]) / s["sigma"] - 1))
-            rows.append((n, f["cpu"], s["cpu"], f["peak_mb"], s["peak_mb"], z, sig, f["iterations"]))
-    print(f"{'poses':>6} {'fgcal s':>8} {'scipy s':>8} {'ratio':>6} {'fgcal ms/pose':>13} "
-          f"{'fgcal MB':>8} {'scipy MB':>8} {'max|d|/sigma':>12} {'sigma rel':>9} {'LM it':>5}")
-    for n, fc, sc, fm, sm, z, sig, it in rows:
-        print(f"{n:6d} {fc:8.2f} {sc:8.2f} {fc / sc:6.2f} {1000 * fc / n:13.2f} {fm:8.0f} {sm:8.0f} "
-              f"{z:12.2g} {sig:9.1g} {it:5d}")
+            ds = Path(tmp) / f"puma{n}"
+            run(FGCAL + ["simulate", str(ds), "--robot", "puma560", "--poses", str(n), "--seed", str(n)])
+            out = {k: Path(tmp) / f"{k}{n}.json" for k in ("fgcal", "ref", "same")}
+            cmds = {"fgcal": FGCAL + ["calibrate", str(ds), "--out", str(out["fgcal"])],
+                    "ref": [sys.executable, str(args.reference), str(ds), str(out["ref"]), "--quiet"]}
+            if args.own:
+                cmds["own"] = [sys.executable, str(HERE / "scipy_reference.py"), str(ds)]
+            runs: dict[str, list[dict]] = {k: [] for k in cmds}
+            for _ in range(args.repeat):  # interleaved: a slow spell of the shared machine hits all alike
+                for k, cmd in cmds.items():
+                    runs[k].append(run(cmd))
+            best = {k: min(rs, key=lambda r: r["cpu"]) | {"peak_mb": max(r["peak_mb"] for r in rs)}
+                    for k, rs in runs.items()}
+            run(FGCAL + ["calibrate", str(ds), "--out", str(out["same"]), "--noise", "declared", "--outliers", "none"])
+            z, s = compare(out["same"], out["ref"])
+            own = (best["own"]["cpu"], own_reference(best["own"]["stdout"], out["ref"])) if args.own else None
+            rows.append((n, best["fgcal"], best["ref"], z, s, own))
+    print(f"reference: {args.reference}; CPU = user + sys of the whole process, best of {args.repeat}, "
+          "single-threaded BLAS")
+    head = (f"{'poses':>6} {'fgcal s':>8} {'ref s':>8} {'ratio':>6} {'fgcal MB':>8} {'ref MB':>8} {'MB ratio':>8} "
+            f"{'max|d|/sigma':>12} {'sigma rel':>9}")
+    print(head + (f" {'own s':>7} {'own/ref':>7} {'own |d|/sig':>11}" if args.own else ""))
+    for n, f, r, z, s, own in rows:
+        line = (f"{n:6d} {f['cpu']:8.2f} {r['cpu']:8.2f} {f['cpu'] / r['cpu']:6.2f} {f['peak_mb']:8.0f} "
+                f"{r['peak_mb']:8.0f} {f['peak_mb'] / r['peak_mb']:8.2f} {z:12.2g} {s:9.1g}")
+        if own:
+            line += f" {own[0]:7.2f} {own[0] / r['cpu']:7.2f} {own[1]:11.2g}"
+        print(line)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,7 +1,7 @@
 """All benchmarks in one run, side by side: ``python bench/run_all.py``.
 
-1. batch CPU and peak memory at 21, 1000 and 10000 poses against a scipy joint solve
-   (``bench_batch.py``, ``scipy_reference.py``);
+1. batch CPU and peak memory at 21, 1000 and 10000 poses against a plain scipy joint solve
+   (``bench_batch.py`` runs ``../shared/bench/sparse_joint_solve.py``; skipped when it is absent);
 2. online: the whole CLI step per pose and total CPU against one batch calibration, 1000 poses
    (``bench_online.py``);
 3. studies: a trial against its calibration, and the 2-worker study against bare calibrations

@@ -22,7 +22,8 @@ from .errors import (
 )
 
 _GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior",
-                "kinematic_factor", "noise_model", "parameter_prior", "pose_factor", "probe_factor", "probes_factor", "theta_key")
+                "kinematic_factor", "noise_model", "parameter_prior", "pose_centres_factor", "pose_factor",
+                "pose_probes_factor", "probe_factor", "probes_factor", "theta_key")
 
 
 def __getattr__(name):
@@ -48,8 +49,10 @@ __all__ = [
     "noise_model",
     "parameter_prior",
     "pose_ball_centres_error",
+    "pose_centres_factor",
     "pose_error",
     "pose_factor",
+    "pose_probes_factor",
     "probe_error",
     "probe_factor",
     "probes_factor",

@@ -23,7 +23,9 @@ __all__ = [
     "joint_prior",
     "noise_model",
     "parameter_prior",
+    "pose_centres_factor",
     "pose_factor",
+    "pose_probes_factor",
     "probe_factor",
     "probes_factor",
     "theta_key",
@@ -61,8 +63,10 @@ def _vector(values, key):
     return values.atVector(key)
 
 
-def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None) -> gtsam.CustomFactor:
-    """A probe point (3,) mm on the sphere of ``radius`` around the centre variable ``c_key``."""
+def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None,
+                 k: float = 1.345) -> gtsam.CustomFactor:
+    """A probe point (3,) mm on the sphere of ``radius`` around the centre variable ``c_key``
+    (``robust``, ``k``: see :func:`noise_model`)."""
     point = np.array(point, dtype=float).reshape(1, 3)
 
     def error(this, values, H):
@@ -71,7 +75,7 @@ def probe_factor(c_key: int, point, radius: float, sigma: float, robust=None) ->
             H[0] = J[0]
         return e[0]
 
-    return gtsam.CustomFactor(noise_model([sigma], robust), [c_key], error)
+    return gtsam.CustomFactor(noise_model([sigma], robust, k), [c_key], error)
 
 
 def probes_factor(c_key: int, points, radius: float, sigma: float, robust=None) -> gtsam.CustomFactor:
@@ -86,6 +90,28 @@ def probes_factor(c_key: int, points, radius: float, sigma: float, robust=None) 
         return e[:, 0]
 
     return gtsam.CustomFactor(noise_model([sigma] * len(points), robust), [c_key], error)
+
+
+def pose_probes_factor(c_keys, owner, points, radius: float, sigma: float) -> gtsam.CustomFactor:
+    """Probe points (n, 3) of several balls (``owner`` (n,): the index in ``c_keys`` of each
+    point's centre variable) in one factor (n-dim error, not robust): the same rows as n
+    :func:`probe_factor`s in one Python callback."""
+    c_keys = [int(k) for k in c_keys]
+    points = np.array(points, dtype=float).reshape(-1, 3)
+    owner = np.asarray(owner, dtype=int)
+    rows = np.arange(len(points))
+
+    def error(this, values, H):
+        centres = np.array([_vector(values, k) for k in c_keys])
+        e, J = probe_error(centres[owner], points, radius)
+        if H is not None:
+            for b in range(len(c_keys)):
+                h = np.zeros((len(points), 3))
+                h[rows[owner == b]] = J[owner == b, 0, :]
+                H[b] = h
+        return e[:, 0]
+
+    return gtsam.CustomFactor(noise_model([sigma] * len(points)), c_keys, error)
 
 
 def ball_centre_factor(index, held, offset, sigma: float, *, t_key: int, q_key: int | None = None,
@@ -150,6 +176,43 @@ def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int
         return e.ravel()
 
     return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Covariance(np.asarray(covariance, dtype=float)), keys, error)
+
+
+def pose_centres_factor(index, held, offsets, sigma: float, *, t_key: int, c_keys, q_key: int | None = None,
+                        q_fixed=None, chain=None) -> gtsam.CustomFactor:
+    """The B ball-centre variables ``c_keys`` of one pose at FK(theta, q) times their ``offsets``
+    (B, 3), in one factor (3B-dim error, one kinematics call; not robust): the same rows as B
+    :func:`ball_centre_factor`s, a third of the Python callbacks for three balls."""
+    if (q_key is None) == (q_fixed is None):
+        raise ValueError("give exactly one of q_key and q_fixed")
+    offsets = np.array(offsets, dtype=float).reshape(-1, 3)
+    c_keys = [int(k) for k in c_keys]
+    if len(c_keys) != len(offsets):
+        raise ValueError(f"{len(c_keys)} centre keys for {len(offsets)} offsets")
+    index = np.array(index, dtype=int)
+    held = np.array(held, dtype=float)
+    q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(-1)
+    keys = [t_key] + ([q_key] if q_key is not None else []) + c_keys
+    B = len(offsets)
+    H_c = [np.zeros((3 * B, 3)) for _ in range(B)]
+    for b, h in enumerate(H_c):
+        h[3 * b:3 * b + 3] = -np.eye(3)
+
+    def error(this, values, H):
+        q = q_const if q_key is None else _vector(values, q_key)
+        centres = np.array([_vector(values, k) for k in c_keys])
+        e, J_t, J_q = pose_ball_centres_error(_vector(values, t_key), q, offsets, centres, index, held, chain)
+        if H is not None:
+            H[0] = J_t.reshape(3 * B, -1)
+            i = 1
+            if q_key is not None:
+                H[1] = J_q.reshape(3 * B, -1)
+                i = 2
+            for b, h in enumerate(H_c):
+                H[i + b] = h
+        return e.ravel()
+
+    return gtsam.CustomFactor(noise_model([sigma] * (3 * B)), keys, error)
 
 
 def kinematic_factor(error_fn, noise, index, held, *, t_key: int, q_key: int | None, q_fixed, chain):

@@ -78,7 +78,7 @@ def test_cli_design(tmp_path):
     plan = np.loadtxt(out, delimiter=",", skiprows=1)
     assert plan.shape == (8, 7) and list(plan[:, 0]) == list(range(1, 9))
     assert "predicted position error RMS" in run.stdout and "O1" in run.stdout
-    bad = subprocess.run([sys.executable, "-m", "fgcal.cli", "design", "--poses", "3", "--out", str(out)],
+    bad = subprocess.run([sys.executable, "-m", "fgcal.cli", "design", "--poses", "3", "--out", str(out), "--force"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "at least 5" in bad.stderr
 

@@ -145,3 +145,40 @@ def test_distance_factor(puma, seed, robot):
     v.insert(factors.theta_key(), theta)
     v.insert(factors.joint_key(0), q)
     _check(f, v)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pose_centres_factor_is_its_ball_centre_factors(puma, seed):
+    """The grouped factor of a pose's ball centres: analytic Jacobians against numerical ones, and
+    the same whitened rows as one ball_centre_factor per ball."""
+    rng, index, held, theta, q = _setup(puma, seed)
+    offsets = np.array([[60.0, 0, 0], [0, 60.0, 0], [0, -90.0, 0]])
+    T = forward(held, q)[0]
+    v = gtsam.Values()
+    v.insert(factors.theta_key(), theta)
+    v.insert(factors.joint_key(0), q)
+    keys = [factors.centre_key(b) for b in range(3)]
+    for k, o in zip(keys, offsets, strict=True):
+        v.insert(k, T[:3, :3] @ o + T[:3, 3] + rng.normal(size=3))
+    f = factors.pose_centres_factor(index, held, offsets, 1e-2, t_key=factors.theta_key(), c_keys=keys,
+                                    q_key=factors.joint_key(0))
+    _check(f, v)
+    one = [factors.ball_centre_factor(index, held, o, 1e-2, t_key=factors.theta_key(), q_key=factors.joint_key(0),
+                                      c_key=k) for k, o in zip(keys, offsets, strict=True)]
+    np.testing.assert_allclose(f.whitenedError(v), np.concatenate([g.whitenedError(v) for g in one]), rtol=1e-12)
+    assert f.error(v) == pytest.approx(sum(g.error(v) for g in one), rel=1e-12)
+
+
+def test_pose_probes_factor_is_its_probe_factors():
+    rng = np.random.default_rng(4)
+    centres = rng.uniform(0, 1000, (3, 3))
+    owner = np.array([0, 0, 1, 2, 1, 2, 0])
+    points = centres[owner] + 6.35 * rng.normal(size=(7, 3)) / 2
+    keys = [factors.centre_key(b) for b in range(3)]
+    v = gtsam.Values()
+    for k, c in zip(keys, centres, strict=True):
+        v.insert(k, c)
+    f = factors.pose_probes_factor(keys, owner, points, 6.35, 0.01)
+    _check(f, v)
+    one = [factors.probe_factor(keys[b], p, 6.35, 0.01) for b, p in zip(owner, points, strict=True)]
+    np.testing.assert_allclose(f.whitenedError(v), np.concatenate([g.whitenedError(v) for g in one]), rtol=1e-12)

@@ -48,8 +48,8 @@ def test_compact_jacobian_analyses_like_the_full_one(puma):
 def test_batch_size_limit_refuses_calibrate_and_bounds_check(puma, tmp_path, capsys, monkeypatch):
     from hostile_util import call, one_line_error, small_dataset
 
-    import fgcal.cli.commands.calibrate as calibrate_command
-    import fgcal.cli.commands.check as check_command
+    import fgcal.api.calibration as calibrate_command
+    import fgcal.api.checking as check_command
 
     small_dataset(puma, tmp_path / "ds", n_poses=6)
     for command in (calibrate_command, check_command):  # 6 poses x 3 balls x 4 points = 72 rows

@@ -2,7 +2,7 @@
 
 Every module of ``fgcal/`` and ``factors/`` is parsed (``ast``: every import statement, those
 inside functions too, relative ones resolved) and each import of a module of this tree becomes an
-edge. Layers, top to bottom (README, "What is here"): ``fgcal.cli`` > ``fgcal.studies`` >
+edge. Layers, top to bottom (docs/DESIGN.md): ``fgcal.cli`` > ``fgcal.api`` > ``fgcal.studies`` >
 ``fgcal.report`` > ``fgcal.online`` > ``fgcal.estimation`` > ``fgcal.io`` > ``fgcal.measurements`` >
 ``factors`` > ``fgcal.robots`` > the ground floor (``fgcal.errors``, ``fgcal.util``,
 ``fgcal._version``), which everyone may import. ``fgcal/__init__.py``, the package's face, hands
@@ -21,7 +21,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("fgcal", "factors")
 
-LAYERS = ("fgcal.cli", "fgcal.studies", "fgcal.report", "fgcal.online", "fgcal.estimation", "fgcal.io",
+LAYERS = ("fgcal.cli", "fgcal.api", "fgcal.studies", "fgcal.report", "fgcal.online", "fgcal.estimation", "fgcal.io",
           "fgcal.measurements", "factors", "fgcal.robots")  # top to bottom
 GROUND = ("fgcal.errors", "fgcal.util", "fgcal._version")
 FACE = "fgcal"

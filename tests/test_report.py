@@ -172,7 +172,7 @@ def test_pose_residuals_at_the_readings_are_kept_and_name_the_outlier(puma, tmp_
     assert f"Outlier poses (residual at the readings more than 3.5 robust sigma above the median): {bad}." in text
     table = next(b for b in section.blocks if b.kind == "table")
     assert table.rows[0][0] == str(bad) and "outlier" in table.rows[0][-1]
-    from fgcal.cli.commands.calibrate import _print_result
+    from fgcal.api.calibration import calibration_summary
 
-    _print_result(back)  # what `fgcal calibrate` prints
-    assert f"outlier poses (residual at the joint readings): {bad} ({worst.rms_mm:.3g} mm)" in capsys.readouterr().out
+    text = "\n".join(calibration_summary(back))  # what `fgcal calibrate` prints
+    assert f"outlier poses (residual at the joint readings): {bad} ({worst.rms_mm:.3g} mm)" in text

@@ -90,6 +90,7 @@ def test_fgcal_demo_runs_from_the_wheel(installed):
     _, fgcal, env, tmp, _ = installed
     run = _run([fgcal, "demo", "--out", tmp / "demo"], tmp, env)
     assert "_data" in run.stdout.splitlines()[0]
+    assert "PASS: the calibrated position error is within 0.2 mm" in run.stdout  # the demo shows its verdict
     out = tmp / "demo"
     assert (out / "report" / "report.html").stat().st_size > 1000
     ver = json.loads((out / "verify.json").read_text())

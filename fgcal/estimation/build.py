@@ -74,8 +74,10 @@ def _initial_base(model: RobotModel, held, q, world_points_by_pose):
         return held
     poses = np.array(list(world_points_by_pose), dtype=int)
     T = model.forward(x, q[poses])  # one kinematics evaluation for all poses
-    pred = np.vstack([tool_points(T[k:k + 1], offsets)[0]
-                      for k, (offsets, _) in enumerate(world_points_by_pose.values())])
+    counts = [len(offsets) for offsets, _ in world_points_by_pose.values()]
+    at = np.repeat(np.arange(len(poses)), counts)  # each point's pose (row of T)
+    offsets = np.vstack([o for o, _ in world_points_by_pose.values()]).reshape(-1, 3)
+    pred = tool_points(T[at], offsets[:, None, :])[:, 0]
     meas = np.vstack([world for _, world in world_points_by_pose.values()])
     if len(pred) < 3 or np.linalg.matrix_rank(pred - pred.mean(0), tol=1e-6) < 2:
         return held
@@ -87,6 +89,27 @@ def _initial_base(model: RobotModel, held, q, world_points_by_pose):
     out = held.copy()
     out[base] = values
     return out
+
+
+def _rows_of(pose_ids, pose) -> np.ndarray:
+    """The row in ``pose_ids`` (N,) of each id of ``pose`` (M,); every one must be there."""
+    order = np.argsort(pose_ids, kind="stable")
+    return order[np.searchsorted(pose_ids[order], pose)].astype(int)
+
+
+def _points_by_pose(ball_pose, ball_offset, centre) -> dict:
+    """``{pose row: (offsets (k, 3), centres (k, 3))}`` of the balls with a finite centre, poses in
+    the order of their first such ball, balls in variable order (the rigid fit's order)."""
+    ok = np.flatnonzero(np.all(np.isfinite(centre), axis=1))
+    if not len(ok):
+        return {}
+    rows = ball_pose[ok]
+    _, first, inverse = np.unique(rows, return_index=True, return_inverse=True)
+    order = ok[np.argsort(first[inverse.ravel()], kind="stable")]
+    pose, offsets, centres = ball_pose[order].tolist(), ball_offset[order], centre[order]
+    cuts = np.flatnonzero(np.diff(ball_pose[order])) + 1
+    return {pose[a]: (offsets[a:z], centres[a:z])
+            for a, z in zip([0, *cuts.tolist()], [*cuts.tolist(), len(order)])}
 
 
 def _initial_pivot(model: RobotModel, held, q, offsets, length):
@@ -113,7 +136,8 @@ def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> Setup
     for kind in kinds:
         obs = getattr(ds, kind.level)
         i = np.array([row[p] for p in obs.pose.tolist()], dtype=int)
-        used.update(dict.fromkeys(kind.blocks_of(obs).tolist()))
+        blocks = kind.all_blocks(obs) if hasattr(kind, "all_blocks") else kind.blocks_of(obs).tolist()
+        used.update(dict.fromkeys(blocks))  # a camera's corners use its camera and their target
         unknown = {n for n in used if n in ds.setup.fixtures and ds.setup.fixtures[n].value is None}
         starts.update(kind.block_starts(obs, T[i], ds.tooling, unknown, ds.path or "dataset"))
     return SetupLayout.build(ds.setup.subset(used), starts)
@@ -148,22 +172,25 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     init_c = None
     pr = ds.probes
     if "probes" in levels and pr is not None:
-        keys = list(dict.fromkeys(zip(pr.pose.tolist(), pr.ball.tolist())))
-        var = {k: j for j, k in enumerate(keys)}
-        ball_pose = np.array([row[p] for p, _ in keys], dtype=int)
-        ball_offset = np.array([ds.tooling.balls[b] for _, b in keys])
+        probe_row = _rows_of(pose_ids, pr.pose)
+        ball_names, ball_of_probe = np.unique(pr.ball, return_inverse=True)
+        # The ball variables: one per (pose, ball), numbered in the order of first appearance.
+        key, first, inverse = np.unique(probe_row * len(ball_names) + ball_of_probe.ravel(),
+                                        return_index=True, return_inverse=True)
+        by_first = np.argsort(first, kind="stable")
+        rank = np.empty_like(by_first)
+        rank[by_first] = np.arange(len(by_first))
+        var_of_probe = rank[inverse.ravel()]
+        ball_pose = (key // len(ball_names))[by_first].astype(int)
+        ball_offset = np.array([ds.tooling.balls[b] for b in ball_names])[(key % len(ball_names))[by_first]]
+        ball_offset = ball_offset.reshape(-1, 3).astype(float)
         # Start each centre from a sphere fit of its points (batched over balls with equal counts).
-        init_c = np.full((len(keys), 3), np.nan)
-        var_of_probe = np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int)
+        init_c = np.full((len(key), 3), np.nan)
         for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=4):
             init_c[vs] = fit_spheres_batch(pts, ds.tooling.radius)
-        for j, (p, b) in enumerate(keys):
-            if np.all(np.isfinite(init_c[j])):
-                offs, pts_w = world_points.get(row[p], (np.zeros((0, 3)), np.zeros((0, 3))))
-                world_points[row[p]] = (np.vstack([offs, ds.tooling.balls[b]]), np.vstack([pts_w, init_c[j]]))
-        kw.update(probes=(np.array([row[p] for p in pr.pose], dtype=int),
-                          np.array([var[(p, b)] for p, b in zip(pr.pose.tolist(), pr.ball.tolist())], dtype=int),
-                          pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset, radius=ds.tooling.radius)
+        world_points = _points_by_pose(ball_pose, ball_offset, init_c)
+        kw.update(probes=(probe_row, var_of_probe, pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset,
+                  radius=ds.tooling.radius)
     kw["measurements"] = {}
     setup_kinds = [k for k in kinematic_levels(levels) if getattr(k, "uses_setup", False)]
     for kind in kinematic_levels(levels):

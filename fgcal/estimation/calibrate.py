@@ -18,8 +18,9 @@ import numpy as np
 
 from fgcal._version import __version__
 from fgcal.errors import FgcalError
+from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.gauge import GAUGE_REASON, setup_size, world_is_fixed
+from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, setup_size, tool_is_free, world_is_fixed
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
 from fgcal.estimation.noise import (
@@ -91,7 +92,7 @@ def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict
             kind = BY_LEVEL[level]
             dist, angle = kind.metric(e)
             sigma, sigma_angle = kind.reported_sigma(sig)
-            out[level] = LevelSummary(len(e), _rms(dist), "mm", sigma, vf, redundancy,
+            out[level] = LevelSummary(len(e), _rms(dist), getattr(kind, "unit", "mm"), sigma, vf, redundancy,
                                       None if angle is None else _rms(angle), sigma_angle)
             continue
         norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
@@ -181,7 +182,8 @@ def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
 def _measured_points(ds: Dataset, levels) -> np.ndarray | str:
     if "poses" in levels:
         return "pose"
-    balls = sorted(set().union(*(set(getattr(ds, lv).ball.tolist()) for lv in levels if lv != "poses")))
+    with_balls = [getattr(ds, lv) for lv in levels if lv != "poses" and hasattr(getattr(ds, lv), "ball")]
+    balls = sorted(set().union(*(set(obs.ball.tolist()) for obs in with_balls)))  # pixels have none
     return np.array([ds.tooling.balls[b] for b in balls]).reshape(-1, 3)
 
 
@@ -203,6 +205,7 @@ class Solution:
     held: list = field(default_factory=list)  # {"name", "value" (file units), "reason"} per held parameter
     theta_start: np.ndarray | None = None  # the start (nominal chain, base fitted) in internal units
     priors: dict = field(default_factory=dict)  # weakly identifiable parameters: their prior sigma (internal)
+    refused: list = field(default_factory=list)  # rows refused before the solve (fgcal.estimation.admit)
     data_decided: dict = field(default_factory=dict)  # prior dropped at the solution: the data's sigma (internal)
 
 
@@ -252,6 +255,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     if options.joint_errors is not None:
         names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
+    ds, refused = admit_rows(ds, model, levels)
     held_info = []
     if not world_is_fixed(ds, levels):  # the gauge: nothing in the data fixes the world frame
         for n in [n for n in names if n.startswith("base.")]:
@@ -260,6 +264,12 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         names = [n for n in names if not n.startswith("base.")]
         if held_info:
             log.info("the world frame: %s", GAUGE_REASON)
+    if tool_is_free(ds, levels):  # a target (or camera) of unknown pose on the tool: the tool's frame is its
+        for n in [n for n in names if n.startswith("tool.")]:
+            held_info.append({"name": n, "value": float(model.slots_to_file_units(model.nominal)[model.slot(n)]),
+                              "reason": TOOL_GAUGE_REASON})
+        names = [n for n in names if not n.startswith("tool.")]
+        log.info("%s", TOOL_GAUGE_REASON)
     _check_equations(ds, levels, len(names) + setup_size(ds, levels))
 
     priors = dict(priors or {})
@@ -305,7 +315,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
                                                                  outlier_mode)
         iterations, rounds = iterations + it2, rounds + rounds2
     return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start, priors, dropped)
+                    outlier_mode, held_info, theta_start, priors, refused, dropped)
 
 
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
@@ -340,7 +350,8 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
             readmitted += changed
         if not changed:
             break
-        state, it2, converged = _solve(graph, state, options, damping=damping)
+        # From the last optimum: lightly damped (a full damping here took 6 steps for what 2-3 do)
+        state, it2, converged = _solve(graph, state, options, damping=min(damping, WARM_DAMPING))
         iterations += it2
     else:
         log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
@@ -421,7 +432,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     red_total = sum(n.redundancy for n in noise_table.values())
     outliers = name_outliers(graph, lin, h, ds, pose_ids,
                              included_leverage(graph, state) if any(m.any() for m in graph.excluded.values()) else None)
-    costly = [h_ for h_ in held_info if h_["reason"] != GAUGE_REASON]  # the gauge is a choice of frame: no cost
+    costly = [h_ for h_ in held_info if h_["reason"] not in (GAUGE_REASON, TOOL_GAUGE_REASON)]  # a choice of frame
     if costly:
         cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in costly], graph.readings,
                             _measured_points(ds, levels))
@@ -465,14 +476,19 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         at_readings=at_readings(graph, state, read_raw),
         pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
-        setup=_setup_info(graph, state, held_info), tooling=tooling_record(ds, levels))
+        setup=_setup_info(graph, state, held_info, sol.refused), tooling=tooling_record(ds, levels))
 
 
-def _setup_info(graph: Graph, state: State, held_info) -> dict:
-    """What a result keeps of the set-up unknowns (see :class:`CalibrationResult`)."""
+def _setup_info(graph: Graph, state: State, held_info, refused=()) -> dict:
+    """What a result keeps of the set-up unknowns (see :class:`CalibrationResult`); with cameras
+    also their start and the refused corners."""
     if graph.setup is None:
         return {}
     out = {**graph.setup.spec.to_dict(), "estimated": graph.setup.describe(graph.setup_values(state.theta))}
+    if any(f.type == "camera" for f in graph.setup.spec.fixtures.values()):
+        out["start"] = graph.setup.describe(graph.setup.start)
+    if refused:
+        out["refused"] = list(refused)
     if any(h["reason"] == GAUGE_REASON for h in held_info):
         out["gauge"] = GAUGE_REASON
     return out

@@ -5,6 +5,8 @@ factor is a Python callback), the same answer; the graph is for users to extend.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from fgcal.errors import FgcalError
@@ -13,34 +15,75 @@ from fgcal.estimation.calibrate import _unidentifiable
 from fgcal.estimation.gauge import world_is_fixed
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
+from fgcal.estimation.solve import COST_ROUNDING
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.robots.model import RobotModel
+
+log = logging.getLogger(__name__)
 
 __all__ = ["distance_constraint_factor", "gtsam_covariance", "gtsam_levenberg_marquardt", "nonlinear_graph", "to_gtsam"]
 
 
 def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12):
-    """GTSAM's Levenberg-Marquardt on the graph of :func:`nonlinear_graph`; ``(state, iterations, converged)``."""
+    """Levenberg-Marquardt on the GTSAM graph of :func:`nonlinear_graph`; ``(state, iterations, converged)``.
+
+    The loop is driven from Python on a ``gtsam.Values`` it owns: each iteration linearises the
+    graph once (``NonlinearFactorGraph.linearize``), solves the system damped by ``lambda * I``
+    (GTSAM's own Levenberg-Marquardt damping: a unit prior per variable) with
+    ``GaussianFactorGraph.optimize`` and moves by ``Values.retract``. Inside
+    ``gtsam.LevenbergMarquardtOptimizer`` every ``CustomFactor`` callback costs time proportional
+    to the whole ``Values`` (DESIGN.md section 5): there the cost grew with the square of the poses;
+    here it is linear. Stops when an accepted step lowers the error by no more than ``tolerance``
+    relative (GTSAM's ``relativeErrorTol``), when a step changes it by rounding only
+    (:data:`fgcal.estimation.solve.COST_ROUNDING`), when no damping up to 1e5 lowers it, or after
+    ``max_iterations``.
+    """
     import gtsam
 
     import factors as fx
 
     g, values = nonlinear_graph(graph, state)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    params.setRelativeErrorTol(float(tolerance))
-    params.setAbsoluteErrorTol(0.0)
-    optimizer = gtsam.LevenbergMarquardtOptimizer(g, values, params)
-    solved = optimizer.optimize()
+    keys = list(values.keys())
+    dims = [values.atVector(k).shape[0] for k in keys]
+    # Without a robust loss the error is the linearisation's at zero (0.5 |b|^2): each trial point
+    # is linearised once, and an accepted one's linearisation is the next iteration's.
+    exact = graph.robust is None
+    zero = values.zeroVectors()
+    lin = g.linearize(values)
+    error = lin.error(zero) if exact else g.error(values)
+    lam, iterations, converged = 1e-5, 0, False  # GTSAM's lambdaInitial
+    while iterations < max_iterations and not converged:
+        iterations += 1
+        while True:
+            assert lin is not None  # None only once converged
+            damped = lin.clone()
+            model = {d: gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam)) for d in set(dims)}
+            for k, d in zip(keys, dims, strict=True):
+                damped.add(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), model[d]))
+            new = values.retract(damped.optimize())
+            new_lin = g.linearize(new) if exact else None
+            new_error = new_lin.error(zero) if new_lin is not None else g.error(new)
+            log.debug("LM %d: lambda %.1e error %.12g -> %.12g", iterations, lam, error, new_error)
+            if np.isfinite(new_error) and new_error <= error:
+                converged = error - new_error <= tolerance * max(error, 1e-300)
+                values, error, lam = new, new_error, max(lam / 10, 1e-12)
+                lin = new_lin if exact else (None if converged else g.linearize(values))
+                break
+            if np.isfinite(new_error) and new_error - error <= COST_ROUNDING * error:
+                converged = True  # the change is rounding: at the minimum (as the batch solve decides)
+                break
+            lam *= 10
+            if lam > 1e5:  # GTSAM's lambdaUpperBound
+                converged = True
+                break
     out = state.copy()
-    out.theta = np.asarray(solved.atVector(fx.theta_key()), dtype=float)
+    out.theta = np.asarray(values.atVector(fx.theta_key()), dtype=float)
     if graph.joint_vars:
-        out.q = np.array([solved.atVector(fx.joint_key(i)) for i in range(graph.n_poses)]).reshape(state.q.shape)
+        out.q = np.array([values.atVector(fx.joint_key(i)) for i in range(graph.n_poses)]).reshape(state.q.shape)
     if len(graph.ball_pose):
-        out.c = np.array([solved.atVector(fx.centre_key(j)) for j in range(len(graph.ball_pose))])
-    iterations = int(optimizer.iterations())
-    return out, iterations, iterations < max_iterations
+        out.c = np.array([values.atVector(fx.centre_key(j)) for j in range(len(graph.ball_pose))])
+    return out, iterations, converged
 
 
 def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):
@@ -152,20 +195,19 @@ def nonlinear_graph(graph: Graph, state: State):
             values.insert(fx.joint_key(i), np.asarray(state.q[i], dtype=float))
             if keep:
                 g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
-    for j, keep in enumerate(kept("kinematic", len(graph.ball_pose))):
+    for j in range(len(graph.ball_pose)):
         values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
-        if keep:
-            g.add(fx.ball_centre_factor(graph.index, graph.held, graph.ball_offset[j], sig.kinematic, t_key=t_key,
-                                        c_key=fx.centre_key(j), **qargs(graph.ball_pose[j])))
-    if graph.probes is not None:
+    if robust is None:  # grouped: one factor per pose's centres and one per pose's probes (same rows, fewer callbacks)
+        _grouped_ball_factors(g, graph, kept, qargs, t_key)
+    else:  # a robust loss is per row: one factor each
+        for j, keep in enumerate(kept("kinematic", len(graph.ball_pose))):
+            if keep:
+                g.add(fx.ball_centre_factor(graph.index, graph.held, graph.ball_offset[j], sig.kinematic, t_key=t_key,
+                                            c_key=fx.centre_key(j), **qargs(graph.ball_pose[j])))
+    if graph.probes is not None and robust is not None:
         for j, xyz, keep in zip(graph.probes[1], graph.probes[2], kept("probes", len(graph.probes[1]))):
-            if not keep:
-                continue
-            f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, robust)
-            if robust:
-                f = fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, None)
-                f = f.cloneWithNewNoiseModel(fx.noise_model([sig.probe], robust, k))
-            g.add(f)
+            if keep:
+                g.add(fx.probe_factor(fx.centre_key(int(j)), xyz, graph.radius, sig.probe, robust, k))
     # The set-up blocks (fixtures, planes) are the last entries of theta, as in the batch graph: a
     # contact's factor is on (theta, q_i) like any kinematic measurement's, so eliminating the
     # poses stays one small block each and theta's marginal is the batch covariance directly.
@@ -185,6 +227,36 @@ def nonlinear_graph(graph: Graph, state: State):
         for i in range(len(graph.setup.spec.distances)):
             g.add(distance_constraint_factor(graph.setup, i, graph.n_geo + graph.K, t_key))
     return g, values
+
+
+def _grouped_ball_factors(g, graph: Graph, kept, qargs, t_key: int) -> None:
+    """The kinematic rows of each pose's ball centres in one factor (one kinematics call for its
+    balls) and each pose's probe points in one factor; excluded rows are left out."""
+    import factors as fx
+
+    sig = graph.sigmas
+    keep_c = np.flatnonzero(kept("kinematic", len(graph.ball_pose)))
+    by_pose = keep_c[np.argsort(graph.ball_pose[keep_c], kind="stable")]
+    for js in np.split(by_pose, _cuts(graph.ball_pose[by_pose])):
+        if len(js):
+            g.add(fx.pose_centres_factor(graph.index, graph.held, graph.ball_offset[js], sig.kinematic, t_key=t_key,
+                                         c_keys=[fx.centre_key(int(j)) for j in js], **qargs(graph.ball_pose[js[0]])))
+    if graph.probes is None:
+        return
+    var, xyz = graph.probes[1], graph.probes[2]
+    keep_p = np.flatnonzero(kept("probes", len(var)))
+    pose_of = graph.ball_pose[var[keep_p]]
+    by_pose = keep_p[np.argsort(pose_of, kind="stable")]
+    for rows in np.split(by_pose, _cuts(graph.ball_pose[var[by_pose]])):
+        if len(rows):
+            balls, owner = np.unique(var[rows], return_inverse=True)
+            g.add(fx.pose_probes_factor([fx.centre_key(int(j)) for j in balls], owner.ravel(), xyz[rows], graph.radius,
+                                        sig.probe))
+
+
+def _cuts(sorted_owner) -> np.ndarray:
+    """Where a sorted array of owners changes: the split points of its groups."""
+    return np.flatnonzero(np.diff(sorted_owner)) + 1
 
 
 def distance_constraint_factor(setup, i: int, setup_column: int, t_key: int):

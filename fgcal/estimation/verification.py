@@ -92,6 +92,14 @@ class Verification:
     joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
     contacts: dict | None = None  # contacts: {"after": ..., "before": ...} of ContactConsistency.summary()
 
+    def save(self, path) -> None:
+        """Write :meth:`to_dict` as ``verify.json`` (``fgcal-verify/1``), atomically."""
+        import json
+
+        from fgcal.util.yamlio import atomic_write_text
+
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
+
     def to_dict(self) -> dict:
         d: dict[str, Any] = {"format": "fgcal-verify/1", "n_poses": int(len(self.pose_ids)), "reference": self.reference}
         if self.robot is not None:
@@ -284,6 +292,10 @@ def verify(result: CalibrationResult, ds: Dataset, model: RobotModel) -> Verific
         ds = _stations_to_world(result, ds)
     if ds.levels() and set(ds.levels()) <= {"contacts", "plane_contacts"}:
         return _verify_contacts(result, ds, model, slots)
+    if ds.levels() == ["pixels"]:  # camera data: the reprojection error of held-out images (px)
+        from fgcal.estimation.verify_pixels import verify_pixels
+
+        return verify_pixels(result, ds, model, slots)
     if not ({"probes", "centres", "poses"} & set(ds.levels())):  # another type: verified by its own metric
         kinds = kinematic_levels(ds.levels())
         if kinds:

@@ -13,18 +13,29 @@ import os
 import shutil
 import tempfile
 from array import array
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from fgcal.errors import DatasetError, FgcalError
-from fgcal.io.setup_io import read_fixtures, read_stations, stations_dict
-from fgcal.measurements.cells import MAX_DEG, ball_name, pose_id
+from fgcal.io.fast_tables import float_columns, int_column, read_columns
+from fgcal.io.setup_io import (
+    cameras_dict,
+    read_cameras,
+    read_fixtures,
+    read_pixels,
+    read_stations,
+    read_targets,
+    stations_dict,
+)
+from fgcal.measurements.cells import MAX_DEG, MAX_MM, ball_name, pose_id
 from fgcal.measurements.cells import integer as _integer
 from fgcal.measurements.cells import number as _number
 from fgcal.measurements.contact import CONTACT_COLUMNS, CONTACT_FILE, ContactObservations
 from fgcal.measurements.dataset import FORMAT, Dataset, Noise, PointObservations
+from fgcal.measurements.pixels import PIXEL_COLUMNS, PIXEL_FILE
 from fgcal.measurements.point import POINT
 from fgcal.measurements.setup import SetupSpec
 from fgcal.measurements.types import kinematic_types, noise_keys
@@ -101,6 +112,9 @@ def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations
     rows, small constant): probe files are the largest a dataset has."""
     names = list(balls)
     ball_index = {b: i for i, b in enumerate(names)}
+    fast = _fast_point_table(path, known_poses, ball_index)
+    if fast is not None:
+        return fast
     pose, ball, xyz, lines = array("q"), array("h"), array("d"), array("q")
     cols = None
     for line, header, cells in _table_records(path, POINT_COLUMNS):
@@ -122,6 +136,22 @@ def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations
     return PointObservations(np.frombuffer(pose, dtype=np.int64).astype(int), ball_names,
                              np.frombuffer(xyz, dtype=float).reshape(-1, 3).copy(),
                              np.frombuffer(lines, dtype=np.int64).astype(int))
+
+
+def _fast_point_table(path: Path, known_poses: set, ball_index: dict) -> PointObservations | None:
+    """:func:`_point_table` of a plain file whose every cell is valid, whole columns at once
+    (:mod:`fgcal.io.fast_tables`); None sends the file to the checked reader."""
+    cols = read_columns(path, POINT_COLUMNS)
+    if cols is None:
+        return None
+    pose = int_column(cols["pose"])
+    xyz = float_columns([cols[c] for c in POINT_COLUMNS[2:]], MAX_MM)
+    ball = [ball_index.get(b.strip()) for b in cols["ball"]]
+    if pose is None or xyz is None or None in ball or not np.isin(pose, list(known_poses)).all():
+        return None
+    names = np.array(list(ball_index), dtype=str)
+    return PointObservations(pose.astype(int), names[np.array(ball, dtype=int)], xyz,
+                             np.arange(2, len(pose) + 2))
 
 
 def _measurement_table(path: Path, kind, known_poses: set, balls: dict):
@@ -180,6 +210,19 @@ def _contact_tables(path: Path, kinds, known_poses: set, balls: dict, setup: Set
             for k, (p, b, f, ln) in rows.items() if p}
 
 
+def _pixel_table(path: Path, known_poses: set, setup: SetupSpec):
+    """``pixels.csv`` with the dataset's cameras and targets (DESIGN.md 8.4)."""
+    if not any(f.type == "camera" for f in setup.fixtures.values()):
+        raise DatasetError(f"{path}: dataset.yaml has no cameras: for its pixels")
+
+    def records():
+        for line, header, cells in _table_records(path, list(PIXEL_COLUMNS)):
+            record = dict(zip(header, cells, strict=True))
+            yield line, pose_id(record["pose"], f"{path}: line {line}", known_poses), record
+
+    return read_pixels(path, known_poses, dict(setup.fixtures), records())
+
+
 def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec, str | None]:
     data = read_yaml(path, error=DatasetError)
     if not isinstance(data, dict):
@@ -192,7 +235,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec
     if not isinstance(data["robot"], str) or not data["robot"]:
         raise DatasetError(f"{path}: robot must be a model name or a model file path")
     unknown = set(data) - {"format", "robot", "chain", "tool", "noise", "provenance", "fixtures", "constraints",
-                           "stations"}
+                           "stations", "cameras", "targets"}
     if unknown:
         raise DatasetError(f"{path}: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
     chain = data.get("chain")
@@ -209,7 +252,9 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec
         return float(value)
 
     tool = data["tool"]
-    if not isinstance(tool, dict) or "radius" not in tool or not isinstance(tool.get("balls"), dict) or not tool["balls"]:
+    ball_free = bool(data.get("cameras"))  # camera-only data need no tool ball (DESIGN.md 8.4)
+    if (not isinstance(tool, dict) or "radius" not in tool or not isinstance(tool.get("balls"), dict)
+            or not (tool["balls"] or ball_free)):
         raise DatasetError(f"{path}: tool must have radius and balls {{name: [x, y, z]}}")
     balls = {}
     for name, centre in tool["balls"].items():
@@ -241,7 +286,17 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec
     clash = set(stations) & set(setup.fixtures)
     if clash:
         raise DatasetError(f"{path}: {', '.join(sorted(clash))[:80]}: a name of both a station and a fixture")
-    setup = SetupSpec({**setup.fixtures, **stations}, setup.distances)
+    cameras = read_cameras(path, data, num, dict(noise.extra).get("pixel_sigma"))
+    targets = read_targets(path, data, num)
+    names = [*setup.fixtures, *stations, *cameras, *targets]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise DatasetError(f"{path}: {', '.join(twice)[:80]}: a name given to two of fixtures, stations, cameras, "
+                           "targets")
+    if cameras and dict(noise.extra).get("pixel_sigma") is None:  # the first camera's: the declared pixel noise
+        first = next(iter(cameras.values())).pixel_sigma
+        noise = replace(noise, extra=tuple(sorted(noise.extra + (("pixel_sigma", first),))))
+    setup = SetupSpec({**setup.fixtures, **stations, **cameras, **targets}, setup.distances)
     return data["robot"], tooling, noise, provenance, chain, setup, world
 
 
@@ -292,6 +347,9 @@ def read_joints(path) -> tuple[np.ndarray, np.ndarray]:
 def read_joints_and_stations(path):
     """:func:`read_joints` and the ``station`` column ``(N,)`` of str, or None without one."""
     joints_path = Path(path)
+    fast = _fast_joints(joints_path)
+    if fast is not None:
+        return fast
     rows = _read_table(joints_path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)] + ["station"])
     if not rows:
         raise DatasetError(f"{joints_path}: no poses")
@@ -316,6 +374,28 @@ def read_joints_and_stations(path):
             stations.append(r["station"])
     return (np.array(ids, dtype=int), np.array(q, dtype=float).reshape(len(ids), n_joints),
             np.array(stations, dtype=str) if has_station else None)
+
+
+def _fast_joints(path: Path):
+    """:func:`read_joints_and_stations` of a plain file whose every cell is valid, whole columns at
+    once (:mod:`fgcal.io.fast_tables`); None sends the file to the checked reader."""
+    cols = read_columns(path, ["pose", "q1"], optional=[f"q{i}" for i in range(2, MAX_JOINTS + 1)] + ["station"])
+    if cols is None:
+        return None
+    columns = joint_columns(sum(1 for c in cols if c not in ("pose", "station")))
+    if set(cols) - {"station"} != set(columns):
+        return None
+    ids = int_column(cols["pose"])
+    q = float_columns([cols[c] for c in columns[1:]], MAX_DEG)
+    if ids is None or q is None or len(np.unique(ids)) != len(ids):
+        return None
+    stations = None
+    if "station" in cols:
+        names = [c.strip() for c in cols["station"]]
+        if not all(names):
+            return None
+        stations = np.array(names, dtype=str)
+    return ids.astype(int), q, stations
 
 
 def load_dataset(directory) -> Dataset:
@@ -358,6 +438,8 @@ def load_dataset(directory) -> Dataset:
         if os.path.lexists(directory / name):
             for kind, obs in _contact_tables(directory / name, kinds, known, tooling.balls, setup).items():
                 setattr(ds, kind.level, obs)
+    if os.path.lexists(directory / PIXEL_FILE):
+        ds.pixels = _pixel_table(directory / PIXEL_FILE, known, setup)
     ds.split_station_centres()
     if ds.stations is not None and (ds.probes is not None or ds.poses is not None or ds.distances is not None):
         raise DatasetError(f"{directory}: several stations are supported for centres.csv (and contacts) only")
@@ -402,7 +484,9 @@ def check_joint_count(ds: Dataset, model: RobotModel) -> None:
 
 
 def _fmt(v: float | np.floating) -> str:
-    return repr(float(v))
+    from fgcal.util.numbers import format_number
+
+    return format_number(float(v))
 
 
 def write_csv(path, header, rows) -> None:
@@ -422,9 +506,10 @@ def _write_into(ds: Dataset, directory: Path) -> None:
                  "balls": {k: [float(c) for c in v] for k, v in ds.tooling.balls.items()}},
         "noise": ds.noise.items(),
         "provenance": ds.provenance,
-        **SetupSpec({n: f for n, f in ds.setup.fixtures.items() if f.type != "station"},
+        **SetupSpec({n: f for n, f in ds.setup.fixtures.items() if f.type not in ("station", "camera", "target")},
                     ds.setup.distances).to_dict(),
         **stations_dict(ds),
+        **cameras_dict(ds),
     }
     atomic_write_text(directory / "dataset.yaml", dump_yaml(meta))
     if ds.stations is None:

@@ -135,3 +135,181 @@ def stations_dict(ds: Dataset) -> dict:
                 spec["fixed"] = True
             out[n] = spec
     return {"stations": out}
+
+
+CAMERA_KEYS = {"mount", "width", "height", "intrinsics", "estimate", "pixel_sigma", "mount_pose", "sigma", "fixed"}
+TARGET_KEYS = {"mount", "points", "grid", "mount_pose", "sigma", "fixed"}
+
+
+def _mount_pose(where, spec, num, what):
+    """``mount_pose: [x, y, z, phi, theta, psi]`` (mm, deg) as entries (mm, rad), or None."""
+    if spec.get("mount_pose") is None:
+        return None
+    v = spec["mount_pose"]
+    if not isinstance(v, list) or len(v) != 6:
+        raise DatasetError(f"{where}: mount_pose must be [x, y, z, phi, theta, psi] (mm, deg)")
+    e = np.array([num(x, f"{what}.mount_pose") for x in v])
+    return np.concatenate([e[:3], np.radians(e[3:])])
+
+
+def _block_name(path, section, name):
+    where = f"{path}: {section}.{short_repr(name)}"
+    if not isinstance(name, str) or not name or "," in name or name != name.strip() or "." in name:
+        raise DatasetError(f"{where}: a name must be non-empty text without commas, dots or edge spaces")
+    return where
+
+
+def read_cameras(path: Path, data: dict, num, default_sigma: float | None) -> dict:
+    """``cameras:`` of ``dataset.yaml`` (DESIGN.md 8.4): name -> :class:`~fgcal.measurements.camera.CameraSpec`."""
+    from fgcal.measurements.camera import INTRINSICS, CameraSpec
+
+    raw = data.get("cameras") or {}
+    if not isinstance(raw, dict):
+        raise DatasetError(f"{path}: cameras must be a mapping {{NAME: {{mount: world|tool, width, height, ...}}}}")
+    out = {}
+    for name, c in raw.items():
+        where = _block_name(path, "cameras", name)
+        if not isinstance(c, dict):
+            raise DatasetError(f"{where}: must be a mapping with mount, width, height, intrinsics")
+        unknown = set(c) - CAMERA_KEYS
+        if unknown:
+            raise DatasetError(f"{where}: unknown key(s) {', '.join(sorted(map(str, unknown)))[:80]} "
+                               f"(a camera takes {', '.join(sorted(CAMERA_KEYS))})")
+        if c.get("mount") not in ("world", "tool"):
+            raise DatasetError(f"{where}: mount must be world (eye-to-hand) or tool (eye-in-hand)")
+        size = []
+        for key in ("width", "height"):
+            v = c.get(key)
+            if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
+                raise DatasetError(f"{where}: {key} must be a positive whole number of pixels")
+            size.append(v)
+        intr = c.get("intrinsics")
+        if not isinstance(intr, dict) or set(intr) - set(INTRINSICS) or not {"fx", "fy", "cx", "cy"} <= set(intr):
+            raise DatasetError(f"{where}: intrinsics must be a mapping with fx, fy, cx, cy (px) and optionally "
+                               "k1, k2, p1, p2, k3")
+        k = np.array([num(intr.get(n, 0.0), f"cameras.{name}.intrinsics.{n}") for n in INTRINSICS])
+        if k[0] <= 0 or k[1] <= 0:
+            raise DatasetError(f"{where}: fx and fy must be positive (px)")
+        est = c.get("estimate") or []
+        if isinstance(est, str) or not isinstance(est, list) or any(e not in INTRINSICS for e in est):
+            raise DatasetError(f"{where}: estimate must be a list of intrinsics among {', '.join(INTRINSICS)}")
+        sig = c.get("pixel_sigma", default_sigma)
+        sig = 0.5 if sig is None else num(sig, f"cameras.{name}.pixel_sigma", 0.0)
+        if sig <= 0:
+            raise DatasetError(f"{where}: pixel_sigma must be positive (px)")
+        pose = _mount_pose(where, c, num, f"cameras.{name}")
+        prior = None if c.get("sigma") is None else num(c["sigma"], f"cameras.{name}.sigma", 0.0)
+        fixed = c.get("fixed", False)
+        if not isinstance(fixed, bool) or ((fixed or prior is not None) and pose is None):
+            raise DatasetError(f"{where}: fixed (true/false) and sigma need the camera's mount_pose")
+        if prior is not None and prior <= 0 and not fixed:
+            raise DatasetError(f"{where}: sigma must be positive (or fixed: true for a known mount)")
+        value = np.concatenate([pose, k]) if (fixed or prior is not None) else None
+        out[name] = CameraSpec(name, "camera", value, prior, fixed, mount=c["mount"], width=size[0], height=size[1],
+                               intrinsics=k, estimate=tuple(e for e in INTRINSICS if e in est), pixel_sigma=sig,
+                               start_pose=pose)
+    return out
+
+
+def read_targets(path: Path, data: dict, num) -> dict:
+    """``targets:`` of ``dataset.yaml`` (DESIGN.md 8.4): name -> :class:`~fgcal.measurements.camera.TargetSpec`;
+    a ``grid: {rows, cols, square}`` has the points ``r{i}c{j}`` at ``(j square, i square, 0)``."""
+    from fgcal.measurements.camera import TargetSpec
+
+    raw = data.get("targets") or {}
+    if not isinstance(raw, dict):
+        raise DatasetError(f"{path}: targets must be a mapping {{NAME: {{mount: tool|world, points or grid}}}}")
+    out: dict = {}
+    owner: dict = {}
+    for name, t in raw.items():
+        where = _block_name(path, "targets", name)
+        if not isinstance(t, dict) or set(t) - TARGET_KEYS:
+            raise DatasetError(f"{where}: a target takes {', '.join(sorted(TARGET_KEYS))}")
+        if t.get("mount") not in ("tool", "world"):
+            raise DatasetError(f"{where}: mount must be tool (eye-to-hand) or world (eye-in-hand)")
+        if ("points" in t) == ("grid" in t):
+            raise DatasetError(f"{where}: give points: {{NAME: [x, y, z]}} or grid: {{rows, cols, square}}, "
+                               "one of them")
+        points = {}
+        if "grid" in t:
+            g = t["grid"]
+            whole = isinstance(g, dict) and all(isinstance(g.get(k), int) and not isinstance(g.get(k), bool)
+                                                and g[k] > 0 for k in ("rows", "cols"))
+            if not isinstance(g, dict) or set(g) != {"rows", "cols", "square"} or not whole:
+                raise DatasetError(f"{where}: grid must be {{rows: N, cols: M, square: MM}} (whole rows and cols)")
+            sq = num(g["square"], f"targets.{name}.grid.square", 0.0)
+            points = {f"r{i}c{j}": np.array([j * sq, i * sq, 0.0]) for i in range(g["rows"]) for j in range(g["cols"])}
+        else:
+            if not isinstance(t["points"], dict) or not t["points"]:
+                raise DatasetError(f"{where}: points must be a mapping {{NAME: [x, y, z]}} (mm)")
+            for p, xyz in t["points"].items():
+                if not isinstance(xyz, list) or len(xyz) != 3:
+                    raise DatasetError(f"{where}: points.{short_repr(p)} must be [x, y, z] (mm)")
+                points[str(p)] = np.array([num(v, f"targets.{name}.points.{p}") for v in xyz])
+        for p in points:
+            if p in owner:
+                raise DatasetError(f"{where}: point {p} is a point of target {owner[p]} too; name points once")
+            owner[p] = name
+        pose = _mount_pose(where, t, num, f"targets.{name}")
+        prior = None if t.get("sigma") is None else num(t["sigma"], f"targets.{name}.sigma", 0.0)
+        fixed = t.get("fixed", False)
+        if not isinstance(fixed, bool) or ((fixed or prior is not None) and pose is None):
+            raise DatasetError(f"{where}: fixed (true/false) and sigma need the target's mount_pose")
+        if prior is not None and prior <= 0 and not fixed:
+            raise DatasetError(f"{where}: sigma must be positive (or fixed: true for a known pose)")
+        value = pose if (fixed or prior is not None) else None
+        out[name] = TargetSpec(name, "target", value, prior, fixed, mount=t["mount"], points=points, start_pose=pose)
+    return out
+
+
+def cameras_dict(ds: Dataset) -> dict:
+    """``cameras:`` and ``targets:`` of ``ds`` as ``dataset.yaml`` writes them."""
+    out: dict = {}
+    for section, kind in (("cameras", "camera"), ("targets", "target")):
+        items = {n: {k: v for k, v in f.to_dict().items() if k != "type"}
+                 for n, f in ds.setup.fixtures.items() if f.type == kind}
+        if items:
+            out[section] = items
+    return out
+
+
+def read_pixels(path: Path, known_poses: set, specs: dict, records):
+    """``pixels.csv`` (``pose,camera,point,u,v``) as :class:`~fgcal.measurements.pixels.PixelObservations`;
+    ``records`` yields ``(line, header, cells)`` and ``pose_id(text, where, known)`` is read by the caller."""
+    from fgcal.measurements.pixels import PixelObservations
+
+    cams = {n for n, f in specs.items() if f.type == "camera"}
+    points = {p for f in specs.values() if f.type == "target" for p in f.points}
+    pose: list = []
+    cam: list = []
+    point: list = []
+    uv: list = []
+    lines: list = []
+    seen: dict = {}
+    for line, pid, record in records:
+        where = f"{path}: line {line}"
+        c, p = record["camera"], record["point"]
+        if c not in cams:
+            raise DatasetError(f"{where}: camera {short_repr(c)} is not in dataset.yaml's cameras: "
+                               f"({', '.join(sorted(cams))[:80] or 'none'})")
+        if p not in points:
+            raise DatasetError(f"{where}: point {short_repr(p)} is a point of no target in dataset.yaml's targets:")
+        try:
+            u, v = float(record["u"]), float(record["v"])
+        except ValueError:
+            raise DatasetError(f"{where}: u and v must be numbers (px)") from None
+        if not (np.isfinite(u) and np.isfinite(v)):
+            raise DatasetError(f"{where}: u and v must be finite (px)")
+        key = (pid, c, p)
+        if key in seen:
+            raise DatasetError(f"{where}: point {p} in camera {c} at pose {pid} is given already (line {seen[key]})")
+        seen[key] = line
+        pose.append(pid)
+        cam.append(c)
+        point.append(p)
+        uv.append((u, v))
+        lines.append(line)
+    if not pose:
+        return None
+    return PixelObservations.build(np.array(pose, dtype=int), cam, point, np.array(uv, dtype=float), specs,
+                                   np.array(lines, dtype=int))

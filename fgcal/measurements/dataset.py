@@ -13,6 +13,7 @@ import numpy as np
 
 from fgcal.measurements.contact import ContactObservations
 from fgcal.measurements.distance import DistanceObservations
+from fgcal.measurements.pixels import PixelObservations
 from fgcal.measurements.point import PointObservations
 from fgcal.measurements.pose import PoseObservations
 from fgcal.measurements.setup import SetupSpec
@@ -94,6 +95,8 @@ class Dataset:
         The tool ball at a fixture point, or on a plane (both in contacts.csv).
     station_centres : StationPointObservations or None
         Centres measured from a station other than the world's (DESIGN.md 8.3).
+    pixels : PixelObservations or None
+        Target points seen by cameras (``pixels.csv``, DESIGN.md 8.4).
     setup : SetupSpec
         The set-up's fixtures, stations and known distances (``fixtures:``, ``stations:``,
         ``constraints:``); a station's block has type ``station``.
@@ -124,6 +127,7 @@ class Dataset:
     contacts: ContactObservations | None = None
     plane_contacts: ContactObservations | None = None
     station_centres: StationPointObservations | None = None
+    pixels: PixelObservations | None = None
     setup: SetupSpec = field(default_factory=SetupSpec)
     stations: np.ndarray | None = None
     world_station: str | None = None

@@ -78,6 +78,10 @@ BLOCK_KINDS: dict = {
     "plane": BlockKind("plane", "plane", ("tilt_u", "tilt_v", "d"), (True, True, False)),
     "station": BlockKind("station", "station", ("phi", "theta", "psi", "px", "py", "pz"),
                          (True, True, True, False, False, False)),
+    # cameras and targets (DESIGN.md 8.4, fgcal.measurements.camera): the mount pose, translation first
+    "camera": BlockKind("camera", "camera", ("px", "py", "pz", "phi", "theta", "psi", "fx", "fy", "cx", "cy",
+                                             "k1", "k2", "p1", "p2", "k3"), (False,) * 3 + (True,) * 3 + (False,) * 9),
+    "target": BlockKind("target", "target", ("px", "py", "pz", "phi", "theta", "psi"), (False,) * 3 + (True,) * 3),
 }
 FIXTURE_TYPES = ("point", "plane")
 
@@ -137,6 +141,17 @@ class FixtureSpec:
     value: np.ndarray | None = None
     sigma: float | None = None
     fixed: bool = False
+
+    def entries_free(self, size: int) -> list:
+        """Which of the block's ``size`` entries are estimated (all unless fixed; a camera's known
+        intrinsics are not)."""
+        return [not self.fixed] * size
+
+    def entries_prior_sigma(self, kind: BlockKind) -> np.ndarray:
+        """The prior sigma (internal units) of each entry (inf: none)."""
+        if self.value is not None and self.sigma is not None and not self.fixed:
+            return kind.prior_sigma(self.sigma)
+        return np.full(kind.size, np.inf)
 
     def to_dict(self) -> dict:
         out: dict = {"type": self.type}
@@ -278,7 +293,7 @@ class SetupLayout:
             if aux is not None:
                 reference[name] = aux
             start += [float(v) for v in entries]
-            free += [not f.fixed] * kind.size
+            free += list(f.entries_free(kind.size))
         return cls(spec, offset, reference, np.array(start, dtype=float), np.array(free, dtype=bool))
 
     @property
@@ -309,10 +324,9 @@ class SetupLayout:
         """Mean and sigma ``(S_free,)`` of the free entries' priors (sigma inf: none)."""
         sig = np.full(self.size, np.inf)
         for name, f in self.spec.fixtures.items():
-            if f.value is not None and f.sigma is not None and not f.fixed:
-                kind = BLOCK_KINDS[f.type]
-                k = self.offset[name]
-                sig[k:k + kind.size] = kind.prior_sigma(f.sigma)
+            kind = BLOCK_KINDS[f.type]
+            k = self.offset[name]
+            sig[k:k + kind.size] = f.entries_prior_sigma(kind)
         return self.start[self.free], sig[self.free]
 
     def full(self, s_free) -> np.ndarray:
@@ -376,6 +390,11 @@ class SetupLayout:
             elif f.type == "station":
                 e = s[k:k + 6]
                 out[name] = {"type": "station", "pose": [float(v) for v in np.degrees(e[:3])] + [float(v) for v in e[3:]]}
+            elif f.type in ("camera", "target"):  # mount pose: mm, then deg (DESIGN.md 8.4)
+                e = s[k:k + BLOCK_KINDS[f.type].size]
+                out[name] = {"type": f.type, "pose": [float(v) for v in e[:3]] + [float(v) for v in np.degrees(e[3:6])]}
+                if f.type == "camera":
+                    out[name]["intrinsics"] = {c: float(v) for c, v in zip(BLOCK_KINDS["camera"].components[6:], e[6:])}
             elif f.type != "plane":
                 out[name] = {"type": f.type, "entries": [float(v) for v in s[k:k + BLOCK_KINDS[f.type].size]]}
             else:

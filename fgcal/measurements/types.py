@@ -11,6 +11,7 @@ from typing import Any
 
 from fgcal.measurements.contact import CONTACT, PLANE_CONTACT
 from fgcal.measurements.distance import DISTANCE
+from fgcal.measurements.pixels import PIXELS
 from fgcal.measurements.point import POINT
 from fgcal.measurements.pose import POSE
 from fgcal.measurements.station import STATION_POINT
@@ -28,7 +29,7 @@ __all__ = [
 ]
 
 # Plug-ins: a KinematicMeasurement, or a SetupMeasurement (with uses_setup): duck-typed, hence Any.
-KINEMATIC_TYPES: tuple[Any, ...] = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT)
+KINEMATIC_TYPES: tuple[Any, ...] = (POINT, POSE, DISTANCE, CONTACT, PLANE_CONTACT, STATION_POINT, PIXELS)
 BY_LEVEL: dict[str, Any] = {t.level: t for t in KINEMATIC_TYPES}
 LEVELS = ("probes",) + tuple(BY_LEVEL)  # the dataset's measurement levels, richest first
 

@@ -49,7 +49,9 @@ def figures(result: CalibrationResult, verification: dict | None = None, volume=
     for unit in ("mm", "deg"):
         if any(p.unit == unit for p in result.parameters):
             out[f"sigma_{'lengths' if unit == 'mm' else 'angles'}"] = plots.plot_sigmas(result, unit).figure
-    if len(result.parameters) > 1:
+    if any(n.startswith("map.") for n in result.names):
+        out["joint_error_map"] = plots.plot_joint_error_map(result).figure
+    if len(plots.correlation_names(result)) > 1:
         out["correlation"] = plots.plot_correlation(result).figure
     if result.tool_xyz:
         out["poses_3d"] = plots.plot_poses(result, volume).figure
@@ -75,7 +77,10 @@ def captions(names, tolerance: float | None = None, volume=None) -> dict[str, st
         "sigma_angles": "Standard deviation of every angle parameter: tall bars are the angles the data pin down "
                         "least.",
         "correlation": "Correlation between the parameter estimates: dark red or blue squares off the diagonal are "
-                       "pairs the data barely tell apart.",
+                       "pairs the data barely tell apart (a large joint error map's coefficients are left out: its own "
+                       "figure shows the map).",
+        "joint_error_map": "The fitted joint error map: the correction added to each joint's reading, over the "
+                           "range of readings it was fitted on (outside it the map is not valid), with +-1 sigma.",
         "poses_3d": "Where the tool was at the calibration poses, coloured by their order." + box,
     }
     for level, (what, unit) in plots.RESIDUAL_LEVELS.items():

@@ -12,9 +12,12 @@ from fgcal.estimation.result import CalibrationResult
 
 __all__ = [
     "RESIDUAL_LEVELS",
+    "correlation_names",
+    "joint_error_map_curves",
     "plot_convergence",
     "plot_correlation",
     "plot_error_distribution",
+    "plot_joint_error_map",
     "plot_poses",
     "plot_residuals",
     "plot_sigmas",
@@ -27,6 +30,19 @@ RESIDUAL_LEVELS = {"probes_mm": ("probe points: distance off the sphere", "mm"),
                    "poses_position_mm": ("poses: position (per coordinate)", "mm"),
                    "poses_rotation_deg": ("poses: rotation (per component)", "deg"),
                    "joints_deg": ("joints: estimate - reading", "deg")}
+
+
+LOG_RANGE = 30.0  # a log axis only where the values span more than this factor
+
+
+def _log_wide(ax, values, axis: str = "y") -> bool:
+    """Put ``axis`` on a log scale when the positive ``values`` span more than :data:`LOG_RANGE`; True if so."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    wide = bool(v.size) and float(v.max()) > LOG_RANGE * float(v.min())
+    if wide:
+        (ax.set_yscale if axis == "y" else ax.set_xscale)("log")
+    return wide
 
 
 def _axes(ax, projection=None, size=(6.4, 4.0)):
@@ -43,23 +59,86 @@ def plot_sigmas(result: CalibrationResult, unit: str = "mm", ax=None):
     if rows:
         names, sig = zip(*rows)
         ax.bar(range(len(sig)), sig, color="tab:blue" if unit == "mm" else "tab:orange")
-        ax.set_xticks(range(len(sig)), names, rotation=90, fontsize=8)
-        ax.set_yscale("log")
-    ax.set_ylabel(f"standard deviation ({unit}, log scale)")
+        ax.set_xticks(range(len(sig)), names, rotation=90, fontsize=8 if len(sig) <= 40 else 5)
+        wide = _log_wide(ax, sig)
+    else:
+        wide = False
+    ax.set_ylabel(f"standard deviation ({unit}{', log scale' if wide else ''})")
     ax.set_title(f"Standard deviation of the {'lengths' if unit == 'mm' else 'angles'}")
     return ax
 
 
+def correlation_names(result: CalibrationResult) -> list[str]:
+    """The parameters the correlation figure shows: all, but a large joint-error block (a map) left out.
+
+    A map's hundreds of coefficients would merge the labels into a smear; its own figure
+    (:func:`plot_joint_error_map`) shows it.
+    """
+    block = set(result.joint_errors.get("names") or ())
+    names = list(result.names)
+    return [n for n in names if n not in block] if len(names) > MAX_CORRELATION_LABELS and block else names
+
+
+MAX_CORRELATION_LABELS = 60  # more labels than this do not read
+
+
 def plot_correlation(result: CalibrationResult, ax=None):
-    """The parameters' correlation matrix."""
+    """The parameters' correlation matrix (:func:`correlation_names`: without a large joint-error block)."""
     ax = _axes(ax, size=(7.0, 6.0))
-    rho = result.correlation()
+    names = correlation_names(result)
+    keep = [result.names.index(n) for n in names]
+    rho = result.correlation()[np.ix_(keep, keep)]
     im = ax.imshow(rho, vmin=-1, vmax=1, cmap="RdBu_r")
-    n = len(result.names)
-    ax.set_xticks(range(n), result.names, rotation=90, fontsize=6)
-    ax.set_yticks(range(n), result.names, fontsize=6)
+    n = len(names)
+    size = 6 if n <= 40 else 4
+    ax.set_xticks(range(n), names, rotation=90, fontsize=size)
+    ax.set_yticks(range(n), names, fontsize=size)
     ax.figure.colorbar(im, ax=ax, shrink=0.8, label="correlation")
     ax.set_title("Correlation of the estimates")
+    return ax
+
+
+def joint_error_map_curves(result: CalibrationResult, n: int = 181) -> dict[int, tuple]:
+    """The fitted map of each joint: ``{joint: (q_deg (n,), correction_urad (n,), sigma_urad (n,))}``.
+
+    ``correction = sum_h s_h sin(h q) + c_h cos(h q)`` over the joint's fitted range
+    (``joint_ranges_deg``), with its standard deviation from the coefficients' covariance.
+    """
+    names = list(result.names)
+    ranges = result.joint_errors.get("joint_ranges_deg") or []
+    out: dict[int, tuple] = {}
+    for j in range(1, len(ranges) + 1):
+        terms = [(k, n_) for k, n_ in enumerate(names) if n_.startswith(f"map.j{j}.")]
+        if not terms:
+            continue
+        lo, hi = ranges[j - 1]
+        q = np.linspace(float(lo), float(hi), n)
+        G = np.zeros((n, len(terms)))
+        for c, (_, name) in enumerate(terms):
+            kind = name.rsplit(".", 1)[1]
+            h = int(kind[3:])
+            G[:, c] = np.sin(h * np.radians(q)) if kind.startswith("sin") else np.cos(h * np.radians(q))
+        idx = [k for k, _ in terms]
+        coef = np.array([result.parameters[k].estimate for k in idx])
+        C = np.asarray(result.covariance, dtype=float)[np.ix_(idx, idx)]
+        out[j] = (q, G @ coef, np.sqrt(np.maximum(np.einsum("ip,pq,iq->i", G, C, G), 0.0)))
+    return out
+
+
+def plot_joint_error_map(result: CalibrationResult, ax=None):
+    """The fitted joint error map, one curve per joint over the range it was fitted on, with +-1 sigma."""
+    ax = _axes(ax)
+    curves = joint_error_map_curves(result)
+    unit = next((p.unit for p in result.parameters if p.name.startswith("map.")), "urad")
+    for j, (q, corr, sig) in curves.items():
+        line, = ax.plot(q, corr, label=f"joint {j}")
+        ax.fill_between(q, corr - sig, corr + sig, color=line.get_color(), alpha=0.15)
+    ax.axhline(0, color="k", lw=0.6)
+    ax.set_xlabel("joint reading (deg)")
+    ax.set_ylabel(f"joint correction ({unit})")
+    if curves:
+        ax.legend(fontsize=7, ncol=2)
+    ax.set_title("Fitted joint error map (joint = reading + correction)")
     return ax
 
 
@@ -108,8 +187,9 @@ def plot_verification(verification: dict, quantity: str = "position", ax=None, t
     order = np.argsort(after)
     x = np.arange(1, len(poses) + 1)
     marker = "o" if len(poses) <= 60 else "."
-    ax.semilogy(x, before[order], marker, color="tab:red", ms=4, label="nominal model")
-    ax.semilogy(x, after[order], marker, color="tab:green", ms=4, label="calibrated model")
+    ax.plot(x, before[order], marker, color="tab:red", ms=4, label="nominal model")
+    ax.plot(x, after[order], marker, color="tab:green", ms=4, label="calibrated model")
+    wide = _log_wide(ax, np.concatenate([before, after]))
     if quantity == "position":
         _tolerance_line(ax, tolerance_mm)
     if 0 < len(poses) <= 40:
@@ -117,7 +197,7 @@ def plot_verification(verification: dict, quantity: str = "position", ax=None, t
         ax.set_xlabel("verification pose (id), sorted by calibrated error")
     else:
         ax.set_xlabel("verification poses, ranked by calibrated error")
-    ax.set_ylabel(f"{quantity} error ({unit}, log scale)")
+    ax.set_ylabel(f"{quantity} error ({unit}{', log scale' if wide else ''})")
     ax.legend(fontsize=8)
     ax.set_title(f"{quantity.capitalize()} error at the verification poses")
     return ax
@@ -133,9 +213,9 @@ def plot_error_distribution(verification: dict, ax=None, tolerance_mm=None):
         if e.size:
             ax.step(e, 100.0 * np.arange(1, e.size + 1) / e.size, where="post", color=colour, label=label)
     _tolerance_line(ax, tolerance_mm, horizontal=False)
-    ax.set_xscale("log")
+    wide = _log_wide(ax, [p[k] for p in poses for k in ("before_position_mm", "position_mm")], "x")
     ax.set_ylim(0, 101)
-    ax.set_xlabel("position error (mm, log scale)")
+    ax.set_xlabel(f"position error (mm{', log scale' if wide else ''})")
     ax.set_ylabel("verification poses within (%)")
     ax.legend(fontsize=8, loc="lower right")
     ax.set_title("Share of the verification poses within a given error")
@@ -224,15 +304,22 @@ def plot_convergence(n_poses, estimates, sigmas, names, truth=None, ax=None):
     est = np.asarray(estimates, dtype=float)
     sig = np.asarray(sigmas, dtype=float)
     ref = est[-1] if truth is None else np.asarray(truth, dtype=float)
+    # in units of each parameter's final sigma: one axis for mm and deg alike
+    unit = np.where(sig[-1] > 0, sig[-1], 1.0)
     for k, name in enumerate(names):
-        line, = ax.plot(n_poses, est[:, k] - ref[k], label=name)
-        ax.fill_between(n_poses, est[:, k] - ref[k] - sig[:, k], est[:, k] - ref[k] + sig[:, k],
-                        color=line.get_color(), alpha=0.15)
+        d = (est[:, k] - ref[k]) / unit[k]
+        line, = ax.plot(n_poses, d, label=name)
+        ax.fill_between(n_poses, d - sig[:, k] / unit[k], d + sig[:, k] / unit[k], color=line.get_color(), alpha=0.15)
     ax.axhline(0, color="k", lw=0.6)
-    # symmetric log: the first poses move by the prior's spread, the last by a fraction of sigma
-    ax.set_yscale("symlog", linthresh=max(float(np.min(sig[-1])), 1e-12))
+    # symmetric log, linear within +-1 final sigma: the first poses move by the prior's spread
+    ax.set_yscale("symlog", linthresh=1.0, linscale=1.0)
+    from matplotlib.ticker import FixedLocator
+
+    top = max(1.0, float(np.nanmax(np.abs((est - ref) / unit) + sig / unit)))
+    ticks = [0.0] + [s * 10.0 ** e for e in range(0, int(np.ceil(np.log10(top))) + 1) for s in (1.0, -1.0)]
+    ax.yaxis.set_major_locator(FixedLocator(sorted(ticks)))
     ax.set_xlabel("number of poses")
-    ax.set_ylabel("estimate - " + ("truth" if truth is not None else "final") + " (file units: mm, deg)")
+    ax.set_ylabel("(estimate - " + ("truth" if truth is not None else "final") + ") / final sigma")
     ax.legend(fontsize=7, ncol=2)
     ax.set_title("Estimates and +-1 sigma as poses arrive")
     return ax

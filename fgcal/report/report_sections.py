@@ -283,6 +283,11 @@ def _training_section(result: CalibrationResult) -> Section:
                                  "to absorb the readings' noise, and with the nominal geometry (base fitted). A "
                                  "pose's residuals are its probe points' distances off their spheres and its measured "
                                  "centres' and poses' position errors."))
+    if "pixels" in getattr(result, "levels", {}):  # camera data: a pose is an image (DESIGN.md 8.4)
+        only = set(result.levels) <= {"pixels", "prior", "joints", "constraints"}
+        sec.blocks.append(Block("p", "A camera's pose is an image: its residual is the RMS reprojection error of "
+                                     "its corners, in px" + (" (the columns below read px, not mm)." if only else
+                                     ", summed with the other instruments' mm in this table.")))
     if outliers:
         sec.blocks.append(Block("p", f"Outlier poses (residual at the readings more than {OUTLIER_Z:g} robust sigma "
                                      f"above the median): {_listed(outliers)}. Check their joint readings and "

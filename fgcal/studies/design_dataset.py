@@ -213,6 +213,8 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None, slots=None) -> Layout
     fitted to them (at the true geometry, a noiseless measurement's)."""
     model = with_dataset_tooling(ds, model)
     levels = tuple(ds.levels())  # every measurement type brings its own rows to the information
+    if "pixels" in levels:  # DESIGN.md 8.4: not yet
+        raise FgcalError(f"{ds.path or 'dataset'}: design for cameras (pixels.csv) is not available yet")
     if not levels:
         raise FgcalError(f"{ds.path or 'dataset'}: design needs measurements; this dataset has none")
     names = model.tooling.names if model.tooling is not None else []

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -77,7 +77,7 @@ def _sweep(name, field, values):
     return make
 
 
-def _design(trials=8, poses=12, seed=0, candidates=2000, random_sets=40, **_):
+def _design(trials=8, poses=12, seed=0, candidates=2000, random_sets=40, robot="puma560", **_):
     """Designed plans (one per index, planned once on the nominal robot) against random sets,
     each calibrated on ``trials`` truth draws: the answer to the paper's open question."""
     from fgcal.measurements.dataset import Noise
@@ -85,7 +85,7 @@ def _design(trials=8, poses=12, seed=0, candidates=2000, random_sets=40, **_):
     from fgcal.studies.design import INDICES, Candidates, candidate_pool, design_plan
     from fgcal.studies.plans import random_plan
 
-    model = load_model("puma560")
+    model = load_model(robot)
     rng = np.random.default_rng([seed, 9])
     pool = candidate_pool(model, candidates, rng)
     # The accuracy to predict is at poses drawn as the trials draw their verification poses.
@@ -126,12 +126,24 @@ STUDIES = {
 }
 
 
-def trials_for(study: str, **kw) -> list[Trial]:
-    """The trials of a named study; ``trials``, ``poses`` and ``seed`` override the defaults."""
+def trials_for(study: str, robot: str | None = None, **kw) -> list[Trial]:
+    """The trials of a named study; ``trials``, ``poses`` and ``seed`` override the defaults.
+
+    ``robot`` (a built-in name, model file or URDF with tooling balls; default the PUMA 560)
+    is the simulated robot of every trial; the paper's experiment plan is the PUMA 560's only.
+    """
     if study not in STUDIES:
         raise FgcalError(f"unknown study {study!r} ({', '.join(STUDIES)})")
     kw = {k: v for k, v in kw.items() if v is not None}
-    return STUDIES[study](**kw)
+    if robot is None or robot == "puma560":
+        return STUDIES[study](**kw)
+    if study == "experiment":
+        raise FgcalError("study experiment: the paper's 48-pose plan is for the PUMA 560 only (--robot puma560)")
+    model = _model(robot)
+    if model.tooling is None or not model.tooling.balls:
+        raise FgcalError(f"--robot {robot}: robot model {model.name} has no tooling balls to probe")
+    trials = STUDIES[study](robot=robot, **kw) if study == "design" else STUDIES[study](**kw)
+    return [replace(t, robot=robot) for t in trials]
 
 
 @lru_cache(maxsize=4)

@@ -166,8 +166,22 @@ def read_yaml(path, error=FgcalError):
         raise error(f"{path}: invalid YAML: nested too deep") from None
 
 
+class _Dumper(yaml.SafeDumper):
+    """Safe YAML whose floats are spelled by :func:`fgcal.util.numbers.clean_number` (no ``-0.0``, no float noise)."""
+
+
+def _float(dumper, value):
+    from fgcal.util.numbers import clean_number
+
+    return yaml.SafeDumper.represent_float(dumper, clean_number(value))
+
+
+_Dumper.add_representer(float, _float)
+
+
 def dump_yaml(data) -> str:
-    return yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    """YAML text of ``data`` (safe types only), keys in their order, numbers as every written file spells them."""
+    return yaml.dump(data, Dumper=_Dumper, sort_keys=False, default_flow_style=None, width=100)
 
 
 def _umask() -> int:

@@ -13,9 +13,12 @@ import os
 import stat
 from pathlib import Path
 
+from fgcal.api.selection import MAX_BATCH_ROWS, MAX_POSES, parameter_names
 from fgcal.errors import FgcalError
 
 __all__ = [
+    "MAX_BATCH_ROWS",
+    "MAX_POSES",
     "check_output_dir",
     "check_output_file",
     "dataset_inputs",
@@ -29,10 +32,6 @@ __all__ = [
 ]
 
 DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
-
-
-MAX_POSES = 200_000  # simulated poses or design candidates: beyond this, memory runs out
-MAX_BATCH_ROWS = 250_000  # measurement rows of one batch graph (calibrate, check) within about 1 GB
 
 
 def _float(text: str) -> float:
@@ -86,30 +85,6 @@ def nonnegative_int(text: str) -> int:
     return _int(text, 0)
 
 
-def parameter_names(model, text: str | None, option: str) -> tuple[str, ...]:
-    """The comma-separated parameter names of ``option``, each checked against ``model``.
-
-    ``--exclude`` names must be among the parameters estimated by default; ``--extra`` names
-    must be geometric slots of the model.
-    """
-    from fgcal.robots.model import SLOT_NAMES
-
-    if not text:
-        return ()
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    if not names:
-        raise FgcalError(f"{option} {text!r}: no parameter name")
-    known = list(getattr(model, "slot_names", SLOT_NAMES))
-    pool = model.identifiable_names() if option == "--exclude" else known
-    bad = [n for n in names if n not in pool]
-    if bad:
-        what = ("not among the estimated parameters" if option == "--exclude" and all(n in known for n in bad)
-                else "unknown parameter name(s)")
-        raise FgcalError(f"{option}: {', '.join(b[:30] for b in bad[:5])}: {what}; "
-                         f"{'estimated' if option == '--exclude' else 'known'}: {', '.join(pool)}")
-    return names
-
-
 def _same(a: Path, b: Path) -> bool:
     try:
         return os.path.samefile(a, b)
@@ -157,10 +132,12 @@ def _writable_dir(folder: Path, option: str, target: Path) -> None:
         raise FgcalError(f"{option} {target}: folder {folder} is not writable")
 
 
-def check_output_file(path, inputs=(), option: str = "--out") -> Path:
+def check_output_file(path, inputs=(), option: str = "--out", force: bool | None = None) -> Path:
     """Check that ``path`` can be written as a file and replaces none of ``inputs``.
 
     The folder must exist and be writable; ``path`` must not be a folder or a special file.
+    ``force``: False refuses to replace an existing file (the rule of every command with a
+    ``--force`` option), True replaces it, None leaves that to the caller.
     """
     path = Path(path)
     if str(path) in ("", ".") or path.name in ("", ".", ".."):
@@ -172,6 +149,9 @@ def check_output_file(path, inputs=(), option: str = "--out") -> Path:
         if not stat.S_ISREG(st.st_mode):
             raise FgcalError(f"{option} {path}: not a regular file (a device, FIFO or socket)")
     _writable_dir(path.parent, option, path)
+    if st is not None and force is False and not any(src is not None and os.path.lexists(src)
+                                                     and _same(path, Path(src)) for src in inputs):
+        raise FgcalError(f"{path}: already exists (use --force to replace it)")
     for src in inputs:
         if src is not None and os.path.lexists(src) and _same(path, Path(src)):
             raise FgcalError(f"{option} {path}: is an input of this run ({src}); refusing to overwrite it")

@@ -13,7 +13,7 @@ def _cmd_study(args) -> int:
     from fgcal.studies.study import trials_for
     from fgcal.studies.study_run import run_study, study_figures, summary, write_figures
 
-    trials = trials_for(args.name, trials=args.trials, poses=args.poses, seed=args.seed)
+    trials = trials_for(args.name, robot=args.robot, trials=args.trials, poses=args.poses, seed=args.seed)
     out = check_output_dir(args.out or Path(f"study-{args.name}"))
     t0 = __import__("time").perf_counter()
     rows = run_study(trials, out, workers=args.workers, scheduler=args.scheduler)

@@ -1,0 +1,236 @@
+"""Cost per equation of the measurement types of the third round against the point type.
+
+A built-in UR10 (its geometry perturbed by typical deviations) is measured four ways, each with
+about the same number of equations (rows of the least squares):
+
+* ``centres``: one tracker reflector, 3 rows a pose (the reference);
+* ``contacts``: the tool ball seated in the two sockets of plates at several placements, 3 rows a
+  contact, a known 50 mm distance between the sockets of a plate, every socket an unknown point;
+* ``plane_contacts``: the ball touching three unknown planes, 1 row a touch;
+* ``station_centres``: one reflector seen from three tracker stations, two of them unknown frames.
+
+Each dataset is written in fgcal's format and calibrated by :func:`fgcal.estimation.calibrate.calibrate`
+at the default options; the figure is process CPU time (user + system, best of ``--repeat``) per
+equation, and its ratio to the point type's. Contact poses are found by a damped least-squares IK
+on the perturbed model (not timed). Single-threaded BLAS.
+
+Run: ``python bench/bench_types.py [--rows 3000] [--repeat 3]``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+from scipy.optimize import least_squares  # noqa: E402
+
+BALL = np.array([10.0, -5.0, 60.0])  # the ball (or reflector) on the flange, mm
+RADIUS = 6.35
+SIGMA = 0.01  # mm
+STATIONS = {"B": [30.0, 2.0, -1.0, 800.0, -300.0, 50.0], "C": [-60.0, -1.5, 3.0, -200.0, 900.0, -20.0]}
+
+
+def _truth(model, rng):
+    from fgcal.robots.deviations import Deviations
+
+    x = model.nominal.copy()
+    names = model.identifiable_names()
+    sig = Deviations().sigmas(names)
+    for n, s in zip(names, sig):  # mm and rad, as the slots
+        x[model.slot(n)] += rng.normal() * s
+    return x
+
+
+def _centre(model, x, q):
+    T = model.forward(x, np.atleast_2d(q))
+    return np.einsum("nij,j->ni", T[:, :3, :3], BALL) + T[:, :3, 3]
+
+
+def _ik(model, x, q0, A, b):
+    """Joints near ``q0`` where the ball centre c satisfies ``A c = b`` (a point: A = I; a plane: its
+    normal), by a trust-region least squares from ``q0`` with the chain's analytic Jacobian."""
+    from fgcal.robots.kinematics import jacobians
+
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    chain = model.chain
+
+    def fun(q):
+        return A @ _centre(model, x, q)[0] - b
+
+    def jac(q):
+        J = jacobians(x, q[None], offsets=BALL[None, None], chain=chain).point_joints[0, 0]
+        return A @ J
+
+    sol = least_squares(fun, q0, jac=jac, bounds=(lo, hi), xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=100)
+    return sol.x, float(np.abs(fun(sol.x)).max())
+
+
+def _joints(model, rng, n):
+    lo, hi = np.maximum(model.joint_limits[:, 0], -2.8), np.minimum(model.joint_limits[:, 1], 2.8)
+    return rng.uniform(lo, hi, size=(n, model.n_joints))
+
+
+def _write(out: Path, model, q, *, centres=None, contacts=None, meta=None, station=None):
+    out.mkdir(parents=True)
+    ids = np.arange(1, len(q) + 1)
+    data = {"format": "fgcal-dataset/1", "robot": model.name,
+            "tool": {"radius": RADIUS, "balls": {"B": [float(v) for v in BALL]}},
+            "noise": {"cmm_sigma": SIGMA, "joint_resolution": 0.0}, "provenance": {"generator": "bench_types"}}
+    data.update(meta or {})
+    (out / "dataset.yaml").write_text(yaml.safe_dump(data))
+    qf = model.joints_to_file_units(q)
+    head = "pose," + ",".join(f"q{i + 1}" for i in range(q.shape[1])) + (",station" if station is not None else "")
+    rows = [f"{p}," + ",".join(repr(float(v)) for v in r) + (f",{station[k]}" if station is not None else "")
+            for k, (p, r) in enumerate(zip(ids, qf))]
+    (out / "joints.csv").write_text(head + "\n" + "\n".join(rows) + "\n")
+    if centres is not None:
+        (out / "centres.csv").write_text("pose,ball,x,y,z\n" + "\n".join(
+            f"{p},B," + ",".join(repr(float(v)) for v in c) for p, c in zip(ids, centres)) + "\n")
+    if contacts is not None:
+        (out / "contacts.csv").write_text("pose,ball,fixture\n" + "\n".join(
+            f"{p},B,{f}" for p, f in zip(ids, contacts)) + "\n")
+
+
+def make_centres(root, model, x, rng, rows):
+    q = _joints(model, rng, rows // 3)
+    c = _centre(model, x, q) + rng.normal(size=(len(q), 3)) * SIGMA
+    _write(root / "centres", model, q, centres=c)
+    return 3 * len(q)
+
+
+def make_stations(root, model, x, rng, rows):
+    from fgcal.robots.transforms import euler_zyx_trans
+
+    q = _joints(model, rng, rows // 3)
+    c = _centre(model, x, q)
+    names = np.array(["A", "B", "C"])[np.arange(len(q)) % 3]
+    m = c.copy()
+    for s, e in STATIONS.items():
+        T = euler_zyx_trans(*np.radians(e[:3]), *e[3:])
+        sel = names == s
+        m[sel] = (c[sel] - T[:3, 3]) @ T[:3, :3]  # the point in the station's frame
+    m += rng.normal(size=m.shape) * SIGMA
+    _write(root / "stations", model, q, centres=m, station=names, meta={"stations": ["A", "B", "C"]})
+    return 3 * len(q)
+
+
+def make_contacts(root, model, x, rng, rows, per_socket=15):
+    n_sockets = max(2, rows // 3 // per_socket // 2 * 2)
+    q_all, fixture, fixtures, distances = [], [], {}, []
+    for k in range(n_sockets // 2):
+        for _attempt in range(50):  # a plate: two sockets 50 mm apart at a reachable place
+            q0 = _joints(model, rng, 1)[0]
+            a = _centre(model, x, q0)[0]
+            u = rng.normal(size=3)
+            b = a + 50.0 * u / np.linalg.norm(u)
+            qs = []
+            for target in (a, b):
+                for _ in range(per_socket):
+                    start = np.clip(q0 + rng.normal(size=q0.shape) * 0.35, model.joint_limits[:, 0],
+                                    model.joint_limits[:, 1])
+                    qk, err = _ik(model, x, start, np.eye(3), target)
+                    if err < 1e-6:
+                        qs.append((qk, target))
+            if sum(1 for _, t in qs if t is a) >= 6 and sum(1 for _, t in qs if t is b) >= 6:
+                break
+        else:
+            raise RuntimeError("no reachable plate in 50 attempts")
+        for qk, t in qs:
+            q_all.append(qk)
+            fixture.append(f"plate{k}/hole_{0 if t is a else 1}")
+        fixtures[f"plate{k}/hole_0"] = {"type": "point"}
+        fixtures[f"plate{k}/hole_1"] = {"type": "point"}
+        distances.append([f"plate{k}/hole_0", f"plate{k}/hole_1", 50.0, 0.005])
+    q = np.array(q_all)
+    meta = {"fixtures": fixtures, "constraints": {"distances": distances},
+            "noise": {"cmm_sigma": SIGMA, "joint_resolution": 0.0, "contact_sigma": SIGMA}}
+    q_read = q + rng.normal(size=q.shape) * np.radians(0.002)  # the seating noise, through the joints
+    _write(root / "contacts", model, q_read, contacts=fixture, meta=meta)
+    return 3 * len(q) + len(distances)
+
+
+def make_planes(root, model, x, rng, rows):
+    q_all, fixture = [], []
+    planes = {}
+    for k in range(3):
+        q0 = _joints(model, rng, 1)[0]
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        d = float(n @ _centre(model, x, q0)[0]) - RADIUS  # the ball touches it at q0
+        planes[f"table{k}"] = (n, d)
+    names = list(planes)
+    for _attempt in range(20 * rows):
+        if len(q_all) >= rows:
+            break
+        name = names[len(q_all) % 3]
+        n, d = planes[name]
+        qk, err = _ik(model, x, _joints(model, rng, 1)[0], n[None], np.array([d + RADIUS]))
+        if err < 1e-6:
+            q_all.append(qk)
+            fixture.append(name)
+    q = np.array(q_all)
+    meta = {"fixtures": {n: {"type": "plane"} for n in names},
+            "noise": {"cmm_sigma": SIGMA, "joint_resolution": 0.0, "contact_sigma": SIGMA}}
+    q_read = q + rng.normal(size=q.shape) * np.radians(0.002)
+    _write(root / "planes", model, q_read, contacts=fixture, meta=meta)
+    return len(q)
+
+
+def cpu_of(path, repeat):
+    """Best process CPU time (s) of a default calibration of the dataset at ``path``."""
+    from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+    from fgcal.io.dataset_io import dataset_model, load_dataset
+
+    ds = load_dataset(path)
+    model = dataset_model(ds)
+    best, result = np.inf, None
+    for _ in range(repeat):
+        t0 = time.process_time()
+        result = calibrate(ds, model, CalibrationOptions())
+        best = min(best, time.process_time() - t0)
+    return best, result
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rows", type=int, default=3000, help="equations per dataset (about; default 3000)")
+    ap.add_argument("--repeat", type=int, default=3, help="runs per dataset, best taken (default 3)")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    from fgcal.robots.robot_file import load_model
+
+    model = load_model("ur10")
+    rng = np.random.default_rng(args.seed)
+    x = _truth(model, rng)
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        rows = {"centres": make_centres(root, model, x, rng, args.rows),
+                "stations": make_stations(root, model, x, rng, args.rows),
+                "contacts": make_contacts(root, model, x, rng, args.rows),
+                "planes": make_planes(root, model, x, rng, args.rows)}
+        print(f"UR10, about {args.rows} equations a type; CPU s best of {args.repeat}; single-threaded BLAS")
+        print("equations: the measurement rows; with joints: plus one row per joint reading (each pose's joints are")
+        print("variables with their own noise, so a type with fewer rows per pose pays more per measurement row)")
+        print(f"{'type':10s} {'poses':>6s} {'equations':>9s} {'CPU s':>7s} {'us/eq':>7s} {'ratio':>6s} "
+              f"{'with joints':>11s} {'us/row':>7s} {'ratio':>6s}  converged")
+        ref = ref_all = None
+        for name, n_rows in rows.items():
+            cpu, result = cpu_of(root / name, args.repeat)
+            all_rows = n_rows + result.n_poses * model.n_joints
+            per, per_all = cpu / n_rows * 1e6, cpu / all_rows * 1e6
+            ref = per if ref is None else ref
+            ref_all = per_all if ref_all is None else ref_all
+            print(f"{name:10s} {result.n_poses:6d} {n_rows:9d} {cpu:7.2f} {per:7.1f} {per / ref:6.2f} "
+                  f"{all_rows:11d} {per_all:7.1f} {per_all / ref_all:6.2f}  {result.converged}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

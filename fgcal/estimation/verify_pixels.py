@@ -1,0 +1,67 @@
+"""``verify`` on camera data (DESIGN.md 8.4): the reprojection error (px) of held-out images.
+
+After: the calibrated robot with the cameras and targets the calibration found
+(``result.setup.estimated``). Before: the nominal robot with the cameras and targets started
+from these images (per-image PnP and hand-eye at the nominal geometry), as a calibration would
+start. Per pose, the RMS over its corners of the pixel error's norm. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from fgcal.errors import FgcalError
+from fgcal.measurements.camera import INTRINSICS
+from fgcal.measurements.dataset import Dataset
+from fgcal.measurements.pixels import PIXELS
+from fgcal.measurements.setup import SetupLayout, SetupSpec
+from fgcal.robots.model import RobotModel
+
+__all__ = ["found_blocks", "verify_pixels"]
+
+
+def found_blocks(result, names) -> dict:
+    """The cameras' (15 entries) and targets' (6) values a result found, internal units (mm, rad)."""
+    found = (result.setup or {}).get("estimated", {})
+    out = {}
+    for n in names:
+        e = found.get(n)
+        if e is None or e.get("type") not in ("camera", "target"):
+            raise FgcalError(f"the calibration found no camera or target {n!r}: verify with its cameras and targets")
+        pose = np.concatenate([np.asarray(e["pose"][:3], float), np.radians(e["pose"][3:6])])
+        out[n] = np.concatenate([pose, [e["intrinsics"][c] for c in INTRINSICS]]) if e["type"] == "camera" else pose
+    return out
+
+
+def _errors(model, slots, obs, q, ids, values) -> np.ndarray:
+    """Per pose (len(ids),) the RMS reprojection error (px) at ``slots`` with block values ``values``."""
+    spec = SetupSpec({n: replace(obs.specs[n], value=None) for n in PIXELS.all_blocks(obs)})
+    layout = SetupLayout.build(spec, values)
+    row = {int(p): i for i, p in enumerate(ids)}
+    terms = PIXELS.terms(obs, None, row, layout)
+    every = np.arange(len(model.slot_names))
+    e = PIXELS.setup_error(slots, q[terms.pose], terms.data, layout.start, every, slots, model.chain)[0]
+    _, _, _, _, _, weight = terms.data
+    d2 = np.sum((e / weight[:, None]) ** 2, axis=1)  # px of each corner's own camera
+    return np.sqrt(np.bincount(terms.pose, weights=d2, minlength=len(ids)) / np.bincount(terms.pose,
+                                                                                       minlength=len(ids)))
+
+
+def verify_pixels(result, ds: Dataset, model: RobotModel, slots):
+    """A :class:`~fgcal.estimation.verification.Verification` of ``ds.pixels`` (px per pose)."""
+    from fgcal.estimation.verification import Comparison, Verification
+
+    obs = ds.pixels
+    if obs is None:
+        raise FgcalError(f"{ds.path or 'dataset'}: no pixels to verify")
+    ids = np.array([int(p) for p in ds.pose_ids if np.any(obs.pose == p)], dtype=int)
+    q = model.joints_to_internal(ds.joints_deg[ds.row_of(ids)])
+    row = {int(p): i for i, p in enumerate(ids)}
+    pose = np.asarray([row[int(p)] for p in obs.pose.tolist()], dtype=int)
+    after = _errors(model, slots, obs, q, ids, found_blocks(result, PIXELS.all_blocks(obs)))
+    starts, _ = PIXELS.start_poses(obs, model.forward(model.nominal, q[pose]))
+    before = _errors(model, model.nominal, obs, q, ids, starts)
+    return Verification(ids, Comparison(after, None), Comparison(before, None),
+                        reference="reprojection error of held-out images (px)", robot=model.name,
+                        joints_deg=np.asarray(ds.joints_deg[ds.row_of(ids)], dtype=float))
