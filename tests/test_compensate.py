@@ -58,9 +58,16 @@ def test_refuses_a_solution_off_the_commanded_branch(ur10, ur10_result):
     assert not c.reachable.any()
     assert all("leaves the commanded configuration" in r for r in c.reasons)
     assert np.isnan(c.q).all()
-    # no commanded joints and no closed form for this arm: named, not guessed on some branch
-    c = compensate_targets(ur10, x, T)
+    # no commanded joints and no closed form for this arm (a 7-joint Panda): named, not guessed
+    from pathlib import Path
+
+    from fgcal.robots.robot_file import load_model
+
+    panda = load_model(Path(__file__).parent / "data" / "urdf" / "panda.urdf", chain={"tip": "panda_link8"})
+    T7 = forward(panda.nominal, np.zeros((3, 7)) + 0.3, chain=panda.chain)
+    c = compensate_targets(panda, panda.nominal, T7)
     assert all(r.startswith("no seed joints") for r in c.reasons) and np.isnan(c.q).all()
+    assert any("no closed-form IK" in note for note in c.notes)
 
 
 def test_cli_partial_success_writes_the_reachable_targets(ur10, ur10_result, tmp_path):

@@ -14,6 +14,7 @@ from fgcal.estimation.build import _sigmas
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate, split_held
 from fgcal.estimation.holding import holding_cost, unseen_parameters
 from fgcal.estimation.joint_errors import ModelKind
+from fgcal.estimation.model_noise import OWN_NOTE
 from fgcal.estimation.model_select import REUSED, REUSED_NOTE, compare_models
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.measurements.dataset import Noise
@@ -148,7 +149,7 @@ def test_online_on_a_single_reflector_matches_the_batch(reflector60, engine):
     assert ratio.min() > 1 / 1.5 and ratio.max() < 1.5, (ratio.min(), ratio.max())
 
 
-# --- 4. the model comparison reuses each noise component of the geometric fit -------------------------
+# --- 4. the model comparison: each noise component of the model's own fit -----------------------
 
 def test_model_comparison_reuses_the_rotation_sigma_not_the_position_factor(ur10):
     # poses measured with 0.03 mm and 0.002 deg, declared as 0.01 mm and 0.01 deg: the geometric
@@ -163,13 +164,17 @@ def test_model_comparison_reuses_the_rotation_sigma_not_the_position_factor(ur10
     assert geo.noise_mode == "estimated"
     assert abs(pos.used / 0.03 - 1) < 0.25 and abs(rot.used / 0.002 - 1) < 0.25  # the simulated noise
     assert (pos.used / pos.declared) / (rot.used / rot.declared) > 5  # the two factors differ
-    for name in ("poses_rotation", "poses", "joints"):  # each component with its own factor
-        assert comp.noise[name].used == pytest.approx(geo.noise[name].used, rel=1e-9), name
-    for name in ("poses_rotation", "poses", "joints"):
+    # the compliance model at its own noise (issue 24): no compliance in these data, so each
+    # component within a few per cent of the geometric fit's, each with its own factor
+    assert comp.noise_mode == "estimated" and comp.options["noise"] == "estimated"
+    for name in ("poses_rotation", "poses"):
+        assert comp.noise[name].used == pytest.approx(geo.noise[name].used, rel=0.05), name
         assert comp.noise[name].declared == pytest.approx(geo.noise[name].declared, rel=1e-12)
-        assert comp.noise[name].note == REUSED_NOTE
-    assert comp.noise_mode == REUSED and comp.options["noise"] == REUSED
+        assert comp.noise[name].note == OWN_NOTE
+        assert comp.noise[name].estimated == pytest.approx(comp.noise[name].used, rel=0.02)  # settled
+    assert REUSED_NOTE != OWN_NOTE and REUSED == "reused"
     # the noise the graph is built with, from the written noise_scale
-    sig = _sigmas(ds, ur10, CalibrationOptions(), scale=geo.options["noise_scale"])
+    sig = _sigmas(ds, ur10, CalibrationOptions(), scale=comp.options["noise_scale"])
+    rot, pos = comp.noise["poses_rotation"], comp.noise["poses"]
     assert np.degrees(sig.pose_rotation) == pytest.approx(rot.used, rel=1e-9)
     assert sig.pose_position == pytest.approx(pos.used, rel=1e-9)

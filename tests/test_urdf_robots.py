@@ -157,3 +157,56 @@ def test_calibrates_a_perturbed_urdf_to_the_noise_limit(robot, full_pose, tmp_pa
     predicted = np.sqrt(np.trace(J @ cov @ J.T) / len(q_test))
     assert realised < 1.5 * predicted, (realised, predicted)
     assert realised < 0.05  # the perturbation alone leaves millimetres
+
+
+def test_7r_with_a_guessed_reflector_matches_an_independent_least_squares(tmp_path):
+    """Issue 24: a Panda URDF perturbed by 0.5 mm / 0.05 deg per joint origin (simulated with
+    yourdfpy), one reflector whose offset the user guessed 4.6 mm off, 200 poses. The
+    typical-deviation prior (0.5 mm about the guess) on the weakly seen ``tool.pz`` pulled the fit
+    toward the guess: 0.0047 mm at new poses against 0.00415 for scipy's least squares over every
+    parameter from the same start (1.13x). Decided at the solution, the data carry it: 1.00x."""
+    from scipy.optimize import least_squares
+
+    from fgcal.estimation.calibrate import solve_calibration
+
+    rng = np.random.default_rng(7)
+    model = _model("panda")
+    name, chain = ROBOTS["panda"]
+    actual = _perturbed_urdf((DATA / name).read_text(), rng)
+    q_train, q_test = _joints(model, 200, rng), _joints(model, 200, rng)
+    base = model.extra["urdf"]["base"]
+    W = _placement()
+    T_train = W @ _urdf_fk(actual, model, q_train, base, chain["tip"], tmp_path)
+    T_test = W @ _urdf_fk(actual, model, q_test, base, chain["tip"], tmp_path)
+    sigma, guess = 0.01, np.array([0.0, 0.0, 50.0])
+    reflector = guess + np.array([2.0, -1.0, 4.0])
+    ids = np.arange(1, len(q_train) + 1)
+    meas = T_train[:, :3, :3] @ reflector + T_train[:, :3, 3] + rng.normal(0, sigma, (len(ids), 3))
+    ds = Dataset(robot=str(DATA / name), provenance={"test": "urdf"}, pose_ids=ids,
+                 joints_deg=model.joints_to_file_units(q_train), chain=chain, tooling=Tooling(0.0, {"R": guess}),
+                 noise=Noise(cmm_sigma=sigma, joint_resolution=0.0),
+                 centres=PointObservations(ids, ["R"] * len(ids), meas))
+    target = T_test[:, :3, :3] @ reflector + T_test[:, :3, 3]
+
+    def predict(slots, q):
+        T = model.forward(slots, q)
+        return T[:, :3, :3] @ guess + T[:, :3, 3]
+
+    def rms(slots):
+        return float(np.sqrt(np.mean(np.sum((predict(slots, q_test) - target) ** 2, axis=1))))
+
+    result = calibrate(ds, model)
+    sol = solve_calibration(ds, model, CalibrationOptions(), decide_held=False)
+    start = sol.graph.params.full(sol.theta_start, sol.graph.held)
+    idx = model.parameters().index
+
+    def residual(theta):
+        s = start.copy()
+        s[idx] = theta
+        return ((predict(s, q_train) - meas) / sigma).ravel()
+
+    ref = start.copy()
+    ref[idx] = least_squares(residual, start[idx], method="lm", x_scale="jac").x
+    ours, theirs = rms(result.slot_vector(model)), rms(ref)
+    assert ours <= 1.05 * theirs, (ours, theirs)  # measured 0.00414 against 0.00415 (the issue's bound: 1.5x)
+    assert "tool.pz" in result.options.get("priors_dropped_at_solution", {})

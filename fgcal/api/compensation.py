@@ -10,7 +10,7 @@ from fgcal.api.notes import note, warn
 from fgcal.api.selection import as_result
 from fgcal.errors import FgcalError
 
-__all__ = ["Commands", "compensate", "parse_branch", "parse_tcp"]
+__all__ = ["Commands", "compensate", "parse_branch", "parse_seed_joints", "parse_tcp"]
 
 
 @dataclass
@@ -29,6 +29,8 @@ class Commands:
         The solver's record (residuals, joint changes from the seeds, branch).
     columns : list of str
         ``pose, q1..qn``.
+    position_only : bool
+        The targets were positions only (their orientation kept at the seed's).
     """
 
     ids: np.ndarray
@@ -36,6 +38,7 @@ class Commands:
     reasons: list[str]
     solution: Any
     columns: list[str]
+    position_only: bool = False
 
     @property
     def reachable(self) -> np.ndarray:
@@ -81,15 +84,31 @@ def parse_branch(text):
     raise FgcalError(f"--branch {text!r}: one of {', '.join(map(str, BRANCHES))}")
 
 
+def parse_seed_joints(value, model):
+    """``"q1,..,qn"`` or a sequence (deg; mm for prismatic joints) to internal units (rad, mm), or None."""
+    if value is None:
+        return None
+    try:
+        v = [float(t) for t in (value.split(",") if isinstance(value, str) else value)]
+    except (TypeError, ValueError):
+        v = []
+    if len(v) != model.n_joints or not np.all(np.isfinite(v)):
+        raise FgcalError(f"--seed-joints {value!r}: give {model.n_joints} joint values "
+                         f"({','.join(model.joint_names)}; {', '.join(sorted(set(model.joint_units)))})")
+    return model.joints_to_internal(np.array(v))
+
+
 def compensate(result, targets, *, frame: str = "instrument", tcp=None, branch=None,
-               max_change: float = 10.0) -> Commands:
+               max_change: float = 10.0, seed_joints=None) -> Commands:
     """Solve each target on the calibrated model in the configuration commanded.
 
     Parameters
     ----------
     result : path or CalibrationResult
     targets : path
-        CSV ``pose,x,y,z,qw,qx,qy,qz[,q1..qn]`` (mm; seed joints in deg, the commands for the nominal model).
+        CSV ``pose,x,y,z,qw,qx,qy,qz[,q1..qn]`` (mm; seed joints in deg, the commands for the nominal
+        model), or ``pose,x,y,z[,q1..qn]`` for positions only (a reflector's calibration: the position
+        is reached, the orientation kept at the seed's).
     frame : {"instrument", "base"}
         Frame of the targets: the measuring instrument's, or the robot's own base frame placed by
         the calibrated base.
@@ -99,6 +118,9 @@ def compensate(result, targets, *, frame: str = "instrument", tcp=None, branch=N
         Configuration of targets without seed joints (PUMA-type arms); default: the one reaching most.
     max_change : float
         Refuse a solution moving a joint further than this from its seed, deg.
+    seed_joints : str or sequence, optional
+        ``q1,..,qn`` (deg; mm for prismatic joints): where the numerical IK starts for targets
+        without seed joints on an arm with no closed form (PUMA- and UR-type arms have one).
 
     Returns
     -------
@@ -122,11 +144,16 @@ def compensate(result, targets, *, frame: str = "instrument", tcp=None, branch=N
         raise FgcalError(f"--frame {frame!r}: instrument or base")
     result = as_result(result)
     model = result.model()
-    ids, T, seeds = read_targets(targets, model.n_joints)
+    ids, T, seeds, position_only = read_targets(targets, model.n_joints)
     if seeds is not None:
         seeds = model.joints_to_internal(seeds)
+    start = parse_seed_joints(seed_joints, model)
+    if position_only and tcp_T is not None:
+        raise FgcalError(f"{targets}: positions only (no qw,qx,qy,qz) with --tcp: a TCP's position is "
+                         "reached through its orientation; give full poses")
     c = compensate_targets(model, result.slot_vector(model), T, seeds, frame=Frame(frame), tcp=tcp_T,
-                           branch=chosen, max_change_deg=max_change)
+                           branch=chosen, max_change_deg=max_change, start=start,
+                           position_only=np.full(len(ids), position_only))
     for message in c.notes:
         note(message)
     ok = c.reachable
@@ -139,4 +166,5 @@ def compensate(result, targets, *, frame: str = "instrument", tcp=None, branch=N
         q[ok] = commands_for(result, q[ok])
     joints = np.full_like(q, np.nan)
     joints[ok] = model.joints_to_file_units(q[ok])
-    return Commands(np.asarray(ids, dtype=int), joints, list(c.reasons), c, joint_columns(model.n_joints))
+    return Commands(np.asarray(ids, dtype=int), joints, list(c.reasons), c, joint_columns(model.n_joints),
+                    bool(position_only))

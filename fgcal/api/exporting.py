@@ -1,13 +1,15 @@
 """``fgcal.export``: a calibrated model as a robot model file, a URDF and a table of deltas (``fgcal export``)."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from fgcal.api.notes import note
 from fgcal.api.selection import as_result
 from fgcal.errors import FgcalError
 
-__all__ = ["calibrated_model", "export", "export_camera_info", "export_deltas", "export_model", "export_urdf"]
+__all__ = ["calibrated_model", "export", "export_camera_info", "export_deltas", "export_model", "export_ur_kinematics",
+           "export_urdf"]
 
 
 def _refuse_existing(path, force: bool) -> None:
@@ -37,12 +39,17 @@ def export_urdf(result, path=None, *, force: bool = False) -> str:
 
     For a contact calibration the link ``tool`` is at the centre of the ball that made the contacts.
     """
+    from dataclasses import replace
+
     from fgcal.robots.urdf import export_urdf as to_text
     from fgcal.util.yamlio import atomic_write_text
 
     _refuse_existing(path, force)
     result = as_result(result)
     model, slots = calibrated_model(result)
+    names = _dataset_joint_names(result, model)
+    if names:  # the joint names the data were imported with, for a model without its own
+        model = replace(model, joint_names=names)
     # a contact calibration: the link tool at the contact ball's centre (DESIGN.md 8.2)
     point = result.tool_point()
     text = to_text(model, slots, tool_point=point)
@@ -74,6 +81,68 @@ def export_camera_info(result, urdf_path, *, force: bool = False) -> list[Path]:
         atomic_write_text(info, camera_info_yaml(n, c["width"], c["height"], c["k"]))
         written.append(info)
     return written
+
+
+def export_ur_kinematics(result, path, *, hash: str | None = None, result_name: str = "a result",
+                         force: bool = False) -> tuple[Path, str]:
+    """Write ur_description's ``kinematics:`` file of a calibrated Universal Robots arm (DESIGN.md 8.5).
+
+    Parameters
+    ----------
+    hash : str, optional
+        The file's ``hash`` (letters, digits, ``_-.``); default ``fgcal_`` and a digest of the values,
+        which the driver reports as not the controller's own calibration (it is not).
+
+    Returns
+    -------
+    path : Path
+    hash : str
+        The hash written.
+
+    Warns
+    -----
+    FgcalNote
+        The calibrated tool frame where no joint origin can hold it (the TCP to set on the
+        controller), and a factory file's hash.
+    """
+    import numpy as np
+
+    from fgcal.robots.transforms import so3_log
+    from fgcal.robots.ur_kinematics import is_ur, kinematics_text, ur_kinematics
+    from fgcal.util.yamlio import atomic_write_text
+
+    if hash is not None and not re.fullmatch(r"[A-Za-z0-9_.-]{1,80}", hash):
+        raise FgcalError(f"--ur-hash {hash[:40]!r}: letters, digits, '_', '-' and '.' only (e.g. calib_123)")
+    _refuse_existing(path, force)
+    result = as_result(result)
+    model, slots = calibrated_model(result)
+    if not is_ur(model):
+        raise FgcalError(f"--ur-kinematics: {result_name}: robot {model.name} is not a Universal Robots arm (the "
+                         "built-in ur10/ur5, a table with the UR's structure, or a URDF with ur_description's "
+                         "joint names)")
+    factory = model.extra.get("ur_kinematics", {}).get("hash")
+    kin = ur_kinematics(model, slots, hash=hash)
+    tcp = kin.tcp
+    rv = so3_log(tcp[:3, :3])
+    tcp_text = ", ".join(f"{v:.6f}" for v in (*(tcp[:3, 3] / 1000.0), *rv))
+    why = ("as given" if hash else
+           "fgcal_ and a digest of these values, not the controller's calibration checksum: the driver warns")
+    comment = (f"UR kinematics calibrated by fgcal ({result_name}), for ur_description's kinematics_params_file:\n"
+               "joint origins in metres and URDF rpy (R = Rz(yaw) Ry(pitch) Rx(roll)); base_link is the mounting "
+               "face,\nbase_link_inertia = Rz(pi) the controller's Base frame; the chain ends at tool0 (the flange).\n"
+               f"hash: {why}.\n"
+               f"calibrated tool frame in tool0 (the TCP to set: x, y, z m, rx, ry, rz rotation vector rad): "
+               f"[{tcp_text}]")
+    atomic_write_text(path, kinematics_text(kin, comment))
+    if factory and not hash:
+        note(f"the factory file's hash was {factory}; --ur-hash {factory} silences the driver's check, but "
+             "the controller still computes its own poses with its factory calibration")
+    off = np.linalg.norm(tcp[:3, 3])
+    if off > 1e-9 or np.linalg.norm(rv) > 1e-12:
+        note(f"the calibrated tool frame is {off:.3g} mm and {np.degrees(np.linalg.norm(rv)):.3g} deg from "
+             f"tool0, which no joint origin can hold: set it as the controller's TCP [{tcp_text}] "
+             "(x, y, z m, rotation vector rad; in the file as fgcal.tool_in_tool0)")
+    return Path(path), kin.hash
 
 
 def export_model(result, path, *, force: bool = False) -> Path:
@@ -114,8 +183,10 @@ def export_deltas(result, path, *, force: bool = False) -> Path:
     return Path(path)
 
 
-def export(result, *, model=None, urdf=None, deltas=None, force: bool = False) -> list[tuple[Path, str]]:
-    """What ``fgcal export`` writes: any of a model file, a URDF and the deltas, and the joint-error table.
+def export(result, *, model=None, urdf=None, deltas=None, ur_kinematics=None, ur_hash: str | None = None,
+           force: bool = False) -> list[tuple[Path, str]]:
+    """What ``fgcal export`` writes: any of a model file, a URDF, the deltas and a UR kinematics file
+    (:func:`export_ur_kinematics`), and the joint-error table.
 
     A result with a joint-error block (compliance, map) also gets ``FILE.joint_errors.csv`` beside
     the first file, since neither format can hold it.
@@ -132,15 +203,19 @@ def export(result, *, model=None, urdf=None, deltas=None, force: bool = False) -
     """
     from fgcal.io.dataset_io import write_csv
 
-    if model is None and urdf is None and deltas is None:
-        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
-    outputs = [Path(p).absolute() for p in (model, urdf, deltas) if p is not None]
+    if model is None and urdf is None and deltas is None and ur_kinematics is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE, --deltas FILE and/or --ur-kinematics FILE")
+    outputs = [Path(p).absolute() for p in (model, urdf, deltas, ur_kinematics) if p is not None]
     if len(set(outputs)) < len(outputs):
-        raise FgcalError("export: --model, --urdf and --deltas must be different files")
-    for path in (model, urdf, deltas):
+        raise FgcalError("export: --model, --urdf, --deltas and --ur-kinematics must be different files")
+    for path in (model, urdf, deltas, ur_kinematics):
         _refuse_existing(path, force)
+    result_name = str(result) if isinstance(result, (str, Path)) else "the result"
     result = as_result(result)
     written = []
+    if ur_kinematics is not None:  # first: it refuses a robot that is not a UR before anything is written
+        path, digest = export_ur_kinematics(result, ur_kinematics, hash=ur_hash, result_name=result_name, force=True)
+        written.append((path, f"UR kinematics, hash {digest}"))
     if model is not None:
         written.append((export_model(result, model, force=True), "fgcal-robot/1"))
     if urdf is not None:
@@ -159,7 +234,7 @@ def export(result, *, model=None, urdf=None, deltas=None, force: bool = False) -
         written.append((Path(deltas), f"{len(result.parameters)} identified, {len(result.held)} held"))
     names = result.joint_errors.get("names")
     if names:  # what neither format can hold goes beside them as a table
-        table = Path(str(urdf or model or deltas) + ".joint_errors.csv")
+        table = Path(str(urdf or model or deltas or ur_kinematics) + ".joint_errors.csv")
         write_csv(table, ["name", "unit", "estimate", "sigma"],
                   [[p.name, p.unit, p.estimate, p.sigma] for p in result.parameters if p.name in set(names)])
         written.append((table, f"the {len(names)} joint-error parameters, which a "
@@ -186,3 +261,25 @@ def _cameras(result) -> dict:
         out[n] = {"mount": f["mount"], "T": pose_matrix(pose), "width": f["width"], "height": f["height"],
                   "k": [e["intrinsics"][c] for c in INTRINSICS]}
     return out
+
+
+def _dataset_joint_names(result, model) -> tuple[str, ...] | None:
+    """The joint columns the result's dataset was imported with (``import csv --joints``, ``import tum``),
+    for a model whose joints have only the default names ``q1..qn``; None when unknown."""
+    if "urdf" in model.extra or model.joint_names != tuple(f"q{k}" for k in range(1, model.n_joints + 1)):
+        return None
+    if not isinstance(result.dataset, str):
+        return None
+    from fgcal.util.yamlio import read_yaml
+
+    try:
+        provenance = read_yaml(Path(result.dataset) / "dataset.yaml").get("provenance") or {}
+    except (FgcalError, OSError, AttributeError):
+        return None
+    columns = provenance.get("columns") if isinstance(provenance.get("columns"), dict) else provenance
+    names = columns.get("joints") if isinstance(columns, dict) else None
+    if (not isinstance(names, list) or len(names) != model.n_joints or len(set(map(str, names))) != len(names)
+            or not all(re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}", str(n)) for n in names)
+            or {"base", "tool"} & set(map(str, names))):
+        return None
+    return tuple(str(n) for n in names)

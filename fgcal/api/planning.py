@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -40,12 +41,17 @@ class Plan:
     joints_deg: np.ndarray
     values: dict
     lines: list[str] = field(default_factory=list)
-    design: object = None
+    design: Any = None  # a DatasetDesign or the random-candidates design
 
     def save(self, path) -> None:
         """Write the plan as a ``joints.csv``-like file ``pose,q1..qn`` (deg), atomically."""
         from fgcal.io.dataset_io import joint_columns, write_csv
 
+        if getattr(self.design, "stations", None) is not None:  # each pose's station too (DESIGN.md 8.3)
+            from fgcal.studies.design_dataset import save_plan
+
+            save_plan(self.design, path)
+            return
         write_csv(path, joint_columns(self.joints_deg.shape[1]),
                   [[int(i), *map(float, q)] for i, q in zip(self.pose_ids, self.joints_deg, strict=True)])
 

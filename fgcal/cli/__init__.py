@@ -219,9 +219,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     c2 = sub.add_parser("compensate", help="joint commands that bring the calibrated robot to target poses")
     c2.add_argument("result", type=Path, help="result file of fgcal calibrate (fgcal-result/1)")
-    c2.add_argument("targets", type=Path, help="CSV: pose,x,y,z,qw,qx,qy,qz[,q1..qn seed joints in deg]")
+    c2.add_argument("targets", type=Path, help="CSV: pose,x,y,z,qw,qx,qy,qz (mm, unit quaternion) or pose,x,y,z "
+                                               "(positions only: the orientation is kept at the seed's), with "
+                                               "optional seed joints q1..qn (the commanded joints, deg)")
     c2.add_argument("--out", type=Path, default=None,
-                    help="CSV of pose,q1..qn (deg) of the reachable targets; standard output if omitted. The "
+                    help="CSV of pose,q1..qn (deg; mm for prismatic joints) of the reachable targets; standard "
+                         "output if omitted. The "
                          "unreachable ones are named on standard error and the exit status is 3")
     c2.add_argument("--frame", choices=("instrument", "base"), default=_d(compensate, "frame"),
                     help="frame of the targets: the measuring instrument's (default) or the robot's own base frame "
@@ -230,8 +233,12 @@ def build_parser() -> argparse.ArgumentParser:
     c2.add_argument("--tcp", default=None, metavar="X,Y,Z[,RX,RY,RZ]",
                     help="the targets are for this TCP, given in the model's tool frame (the flange for the "
                          "built-in robots): mm, and deg as R = Rz(RZ) Ry(RY) Rx(RX)")
-    c2.add_argument("--branch", default=None, help="configuration of targets without seed joints (PUMA-type arms), "
-                                                   "e.g. righty/up/noflip; default: the one reaching most targets")
+    c2.add_argument("--branch", default=None, help="configuration of targets without seed joints (PUMA- and UR-type "
+                                                   "arms: closed-form IK of the nominal model), e.g. righty/up/noflip; "
+                                                   "default: the one reaching most targets")
+    c2.add_argument("--seed-joints", default=None, metavar="Q1,..,QN",
+                    help="start of the numerical IK for targets without seed joints (any arm; deg, mm for prismatic "
+                         "joints): the nominal model is solved from it, then the calibrated one from that command")
     c2.add_argument("--max-change", type=positive_deg, default=_d(compensate, "max_change"), metavar="DEG",
                     help="refuse a solution moving a joint further than this from its seed, deg")
     c2.add_argument("--force", action="store_true", help="replace OUT if it exists")
@@ -244,6 +251,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--deltas", type=Path, default=None,
                    help="CSV of the identified parameters: name,unit,nominal,estimate,delta,sigma (and held ones)")
     e.add_argument("--force", action="store_true", help="replace the files if they exist")
+    e.add_argument("--ur-kinematics", type=Path, default=None, metavar="FILE.yaml",
+                   help="a UR's kinematics file, as ur_description reads it (kinematics_params_file): base_link "
+                        "(the mounting face) to tool0 reproduce the calibrated chain")
+    e.add_argument("--ur-hash", default=None,
+                   help="the kinematics file's hash (the driver compares it with the controller's calibration "
+                        "checksum, calib_..., and warns when they differ); default fgcal_ and a digest of the values")
     e.set_defaults(func=_cmd_export)
 
     o = sub.add_parser("online", help="incremental calibration as poses arrive (iSAM2, iterated EKF, UKF)")

@@ -22,15 +22,17 @@ from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, setup_size, tool_is_free, world_is_fixed
 from fgcal.estimation.graph import Graph, Sigmas, State
-from fgcal.estimation.holding import held_parameters, holding_cost, typical_geometry
+from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
 from fgcal.estimation.noise import (
     NoiseMode,
     OutlierMode,
     components,
     find_outliers,
     fit_test,
+    included_leverage,
     level_noise,
     name_outliers,
+    readmissible,
     scaled_inverse,
     update_sigmas,
 )
@@ -70,6 +72,7 @@ def __getattr__(name):
 log = logging.getLogger(__name__)
 
 MAX_NOISE_ROUNDS = 40
+MAX_READMISSIONS = 3  # passes re-admitting exclusions that pass at the final noise (a fixed point, bounded)
 WARM_DAMPING = 1e-9  # Levenberg-Marquardt's first damping from a start near the optimum (see levenberg_marquardt)
 
 
@@ -203,6 +206,7 @@ class Solution:
     theta_start: np.ndarray | None = None  # the start (nominal chain, base fitted) in internal units
     priors: dict = field(default_factory=dict)  # weakly identifiable parameters: their prior sigma (internal)
     refused: list = field(default_factory=list)  # rows refused before the solve (fgcal.estimation.admit)
+    data_decided: dict = field(default_factory=dict)  # prior dropped at the solution: the data's sigma (internal)
 
 
 def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None):
@@ -269,13 +273,16 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     _check_equations(ds, levels, len(names) + setup_size(ds, levels))
 
     priors = dict(priors or {})
+    new_priors: set = set()
     graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
     redundant = held_parameters(graph, state, _unidentifiable) if decide_held else {}
     if redundant:
         # What these poses cannot separate at the nominal geometry: held where it is redundant at any
         # geometry, else estimated with a prior of its typical deviation (the data decide where
         # they can; holding it at a guess would leave its deviation in every prediction).
+        given = set(priors)
         redundant, priors = split_held(model, names, redundant, ds, options, priors)
+        new_priors = set(priors) - given  # typical-deviation priors (not the caller's)
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
             held_info.append({"name": n, "value": float(model.slots_to_file_units(graph.held)[model.slot(n)]),
@@ -292,17 +299,33 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         noise_mode = NoiseMode.DECLARED
     state, iterations, converged, rounds, declared = _solve_rounds(graph, state, options, damping, noise_mode,
                                                                    outlier_mode)
+    dropped = priors_the_data_decide(graph, state, {n: priors[n] for n in priors if n in new_priors}) \
+        if decide_held else {}
+    if dropped:
+        # Identifiability at the solution: where the data determine a parameter better than its
+        # typical-deviation prior, the prior goes (it pulled toward the nominal guess) and the
+        # solve goes on from here without it.
+        for n, s in dropped.items():
+            log.info("%s: the data determine it at the solution (sigma %.3g) better than its typical-deviation "
+                     "prior (%.3g): estimated without the prior", n, s, priors[n])
+        priors = {n: s for n, s in priors.items() if n not in dropped}
+        warm = graph.params.full(state.theta, graph.held)
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=warm, priors=priors)
+        state, it2, converged, rounds2, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
+                                                                 outlier_mode)
+        iterations, rounds = iterations + it2, rounds + rounds2
     return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start, priors, refused)
+                    outlier_mode, held_info, theta_start, priors, refused, dropped)
 
 
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
                   outlier_mode: OutlierMode):
     """The solve, then noise estimation and outlier exclusion alternated with re-solves until neither
-    changes: ``(state, iterations, converged, rounds, declared sigmas)``."""
+    changes, then the exclusions retested at the final noise (:func:`~fgcal.estimation.noise.readmissible`;
+    at most :data:`MAX_READMISSIONS` times): ``(state, iterations, converged, rounds, declared sigmas)``."""
     state, iterations, converged = _solve(graph, state, options, damping=damping)
     declared = graph.sigmas
-    rounds = 0
+    rounds = readmitted = 0
     for rounds in range(1, MAX_NOISE_ROUNDS + 1):  # noqa: B007 (the count is returned)
         lin = graph.linearise(state)
         h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
@@ -315,6 +338,16 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
         if noise_mode is NoiseMode.ESTIMATED:
             graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared)
             changed |= moved
+        if not changed and outlier_mode is OutlierMode.EXCLUDE and readmitted < MAX_READMISSIONS:
+            # Settled: every exclusion is tested again at this (final) noise and solution; those
+            # within the limit come back, and the rounds go on to a fixed point.
+            h_in = included_leverage(graph, state) if graph.excluded else None
+            for level, ks in readmissible(graph, lin, h, h_in).items():
+                graph.excluded[level][ks] = False
+                log.info("%s: %d measurement(s) excluded at an earlier round's noise pass the test at the "
+                         "final noise: re-admitted", level, len(ks))
+                changed = True
+            readmitted += changed
         if not changed:
             break
         # From the last optimum: lightly damped (a full damping here took 6 steps for what 2-3 do)
@@ -397,7 +430,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     noise_table = level_noise(components(graph, lin, h), graph.sigmas, declared, noise_mode)
     ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())
     red_total = sum(n.redundancy for n in noise_table.values())
-    outliers = name_outliers(graph, lin, h, ds, pose_ids)
+    outliers = name_outliers(graph, lin, h, ds, pose_ids,
+                             included_leverage(graph, state) if any(m.any() for m in graph.excluded.values()) else None)
     costly = [h_ for h_ in held_info if h_["reason"] not in (GAUGE_REASON, TOOL_GAUGE_REASON)]  # a choice of frame
     if costly:
         cost = holding_cost(model, slots, final.names[:graph.n_geo], [h_["name"] for h_ in costly], graph.readings,
@@ -411,6 +445,9 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     if sol.priors:  # weakly identifiable: estimated with a prior of their typical deviation (file units)
         opts["typical_deviation_priors"] = {n: float(np.degrees(s) if model.slot_is_angle[model.slot(n)] else s)
                                        for n, s in sol.priors.items()}
+    if sol.data_decided:  # weak at the nominal geometry, determined by the data at the solution (file units)
+        opts["priors_dropped_at_solution"] = {n: float(np.degrees(s) if model.slot_is_angle[model.slot(n)] else s)
+                                              for n, s in sol.data_decided.items()}
     raw = lin.raw
     residuals = {}
     if "probes" in raw:

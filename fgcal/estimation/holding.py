@@ -21,7 +21,7 @@ from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
 
-__all__ = ["held_parameters", "holding_cost", "typical_geometry", "unseen_parameters"]
+__all__ = ["held_parameters", "holding_cost", "priors_the_data_decide", "typical_geometry", "unseen_parameters"]
 
 log = logging.getLogger(__name__)
 
@@ -138,3 +138,33 @@ def typical_geometry(model: RobotModel, seed: int = 0) -> np.ndarray:
     slots[[model.slot(n) for n in ident]] += np.random.default_rng(seed).normal(size=len(ident)) * \
         Deviations().sigmas(ident)
     return slots
+
+
+def priors_the_data_decide(graph, state, priors: dict, lin=None) -> dict[str, float]:
+    """Of the typical-deviation ``priors`` ({name: sigma}, internal units) those the data determine better.
+
+    At the solution ``state``, each prior'd parameter's marginal sigma from the graph's information
+    without its own prior (the others kept): where it is below the prior's sigma, the data decide it
+    and the prior only pulls it toward the nominal, which for a set-up guess (a reflector's offset
+    guessed 5 mm off) is a guess, not a typical robot. A simulated local grid with one reflector:
+    the prior (0.5 mm) on ``tool.pz`` about guesses 6-8 mm off cost 10-14% at held-out poses; an
+    all-free least squares from the same start was start-independent. Returns ``{name: the data's
+    sigma}`` (internal units) of those whose prior is to be dropped.
+    """
+    names = list(graph.params.names)
+    S = graph.parameter_information(state, lin)
+    out = {}
+    for n, sd in priors.items():
+        if n not in names or not np.isfinite(sd) or sd <= 0:
+            continue
+        i = names.index(n)
+        info = S.copy()
+        info[i, i] -= 1.0 / sd**2
+        d = np.sqrt(np.maximum(np.abs(np.diag(info)), 1e-300))
+        ev, vec = np.linalg.eigh(info / np.outer(d, d))
+        if ev[0] <= 1e-12 * ev[-1]:  # without its prior the information is singular: the prior is needed
+            continue
+        var = float(np.sum(vec[i] ** 2 / ev) / d[i] ** 2)
+        if np.isfinite(var) and var < sd**2:
+            out[n] = float(np.sqrt(var))
+    return out

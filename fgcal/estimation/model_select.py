@@ -21,7 +21,7 @@ import numpy as np
 from fgcal.estimation.build import build_graph
 from fgcal.estimation.calibrate import calibrate
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
-from fgcal.estimation.noise import NoiseMode, fit_test
+from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
@@ -44,10 +44,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 HARMONICS_GRID = (1, 2, 3, 4, 6, 8, 10, 12, 15, 18, 22, 26, 30)
+MAX_GRID_GROWTH = 6  # steps the map prior's grid grows by while the optimum is on its edge
 CORRELATION_LIMIT = 0.9
 COMPLIANCE_RESOLUTION = 1.0  # urad/Nm: a compliance known no better than this is not identified (arms: ~5-20)
-REUSED = "reused"  # a compared model's noise mode: the geometric fit's noise, not re-estimated
-REUSED_NOTE = "estimated by the geometric fit and reused"
 SIGMA_GRID = tuple(float(s) for s in np.geomspace(1e-6, 3e-4, 8))  # rad
 
 
@@ -220,7 +219,10 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
     -------
     dict
         ``{"geometric": (err (N,), spec_kw), "compliance": ..., "compliance+map": ...}``; ``spec_kw``
-        holds the chosen ``harmonics`` and ``map_sigma`` for the map.
+        holds the chosen ``harmonics`` and ``map_sigma`` for the map, and ``at_edge``: sentences
+        naming where the optimum stopped at the edge of the grid. The prior's grid grows (x3 a step,
+        at most :data:`MAX_GRID_GROWTH` steps) while its optimum is on the upper edge; the harmonics'
+        cannot (the linearisation holds the largest only) and ``at_edge`` says so.
     """
     fold = _folds(prob.groups, folds, rng, order)
     sums = _FoldSums(prob, fold, folds)
@@ -231,16 +233,36 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
     out: dict[str, tuple[np.ndarray, dict]] = {ModelKind.GEOMETRIC.value: (sums.held_out_errors(geo, inf), {}),
            ModelKind.COMPLIANCE.value: (sums.held_out_errors(geo + comp, inf + comp_sigma), {})}
     best = None
+    maps = {}
     for h in harmonics_grid:
         mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and _harmonic(n) <= h]
-        if not mp:
-            continue
-        for s in sigma_grid:
-            e = sums.held_out_errors(geo + comp + mp, inf + comp_sigma + [s] * len(mp))
-            if best is None or e.mean() < best[0].mean():
-                best = (e, {"harmonics": int(h), "map_sigma": float(s)})
+        if mp:
+            maps[int(h)] = mp
+    sigmas = sorted(float(s) for s in sigma_grid)
+    tried: set = set()
+    for _ in range(MAX_GRID_GROWTH + 1):
+        for h, mp in maps.items():
+            for s in sigmas:
+                if (h, s) in tried:
+                    continue
+                tried.add((h, s))
+                e = sums.held_out_errors(geo + comp + mp, inf + comp_sigma + [s] * len(mp))
+                if best is None or e.mean() < best[0].mean():
+                    best = (e, {"harmonics": h, "map_sigma": s})
+        # The prior's grid grows (x3 a step) while the optimum sits on its upper edge (on the lower
+        # one the map is shrunk away: the compliance model, an optimum inside what the grid means).
+        if best is None or len(sigmas) < 2 or best[1]["map_sigma"] != sigmas[-1]:
+            break
+        sigmas.append(sigmas[-1] * 3.0)
     if best is not None:
-        out[ModelKind.COMPLIANCE_MAP.value] = best
+        edge = []
+        if len(sigmas) > 1 and best[1]["map_sigma"] == sigmas[-1]:
+            edge.append(f"the map's prior at the edge of its grid ({best[1]['map_sigma'] * 1e6:.3g} urad after "
+                        f"{MAX_GRID_GROWTH} steps of growth)")
+        if len(maps) > 1 and best[1]["harmonics"] == max(maps):
+            edge.append(f"the map's size at the largest number of harmonics tried ({max(maps)}): the optimum may "
+                        "lie beyond it")
+        out[ModelKind.COMPLIANCE_MAP.value] = (best[0], {**best[1], "at_edge": edge})
     return out
 
 
@@ -282,34 +304,6 @@ def _identifiability(result, torques, q_deg) -> tuple[dict, list]:
     return out, warnings
 
 
-def _reused_noise(result, geometric):
-    """``result`` (a model calibrated at ``geometric``'s noise) saying where its noise came from.
-
-    The calibration itself sees only fixed factors on the declared noise and would call them
-    ``declared``; what they are is the geometric fit's noise (estimated where its redundancy
-    allowed), reused. Nothing is re-estimated: each component's ``used`` sigma is the geometric
-    fit's.
-    """
-    if geometric.noise_mode != NoiseMode.ESTIMATED.value:
-        return result  # the geometric fit had the declared noise: so has this one, truly
-    result.noise_mode = REUSED
-    result.options["noise"] = REUSED
-    result.options["noise_scale"] = dict(geometric.options.get("noise_scale") or {})
-    for name, n in result.noise.items():
-        g = geometric.noise.get(name)
-        if g is None:
-            continue
-        n.note = REUSED_NOTE if g.note == "estimated" else f"as in the geometric fit ({g.note})"
-        if g.declared > 0 and n.declared > 0:  # the calibration saw the reused sigma as declared: undo
-            n.variance_factor *= (n.declared / g.declared) ** 2
-            n.declared = g.declared
-            n.p_value = fit_test(n.variance_factor * n.redundancy, n.redundancy)
-    statistic = sum(n.variance_factor * n.redundancy for n in result.noise.values())
-    result.fit_test = {**result.fit_test, "statistic": float(statistic),
-                       "p_value": fit_test(statistic, result.fit_test.get("redundancy", 0.0))}
-    return result
-
-
 def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
                    up_to: ModelKind = ModelKind.COMPLIANCE_MAP, verification: Dataset | None = None,
                    folds: int = 5, rng=None, payload: Payload = Payload(), harmonics_grid=HARMONICS_GRID,
@@ -344,6 +338,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     from fgcal.estimation.verification import verify
 
     up_to = ModelKind(up_to)
+    at_edge: list = []
     rng = np.random.default_rng(0) if rng is None else rng
     if folds < 2 or folds > ds.n_poses:
         from fgcal.errors import FgcalError
@@ -374,9 +369,10 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         log.info("cross-validation: %s", {k: round(float(v[0].mean()), 4) for k, v in cv.items()})
         specs[ModelKind.COMPLIANCE.value] = JointErrorSpec(compliance=joints, payload=payload)
         if ModelKind.COMPLIANCE_MAP.value in cv:
+            kw = dict(cv[ModelKind.COMPLIANCE_MAP.value][1])
+            at_edge = kw.pop("at_edge", [])
             specs[ModelKind.COMPLIANCE_MAP.value] = JointErrorSpec(compliance=joints, payload=payload,
-                                                                   map_joints=map_joints,
-                                                                   **cv[ModelKind.COMPLIANCE_MAP.value][1])
+                                                                   map_joints=map_joints, **kw)
         unit = prob.unit
     else:
         geo_names = list(geo.names)
@@ -385,13 +381,11 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         prob = cv_problem(ds, model, geo, JointErrorSpec(), options)
         cv = cross_validate(prob, folds, rng, (), sigma_grid, fold_order)
         unit = prob.unit
-    # The added models are weighted as the cross-validation weighted them: with the geometric
-    # model's noise estimate (re-estimating it would change the map's prior strength relative to the data).
-    fixed = replace(options, estimate_noise=False, noise=NoiseMode.DECLARED,
-                    noise_scale=geo.options.get("noise_scale") or options.noise_scale)
+    # The added models: fitted as the cross-validation weighted them (the geometric fit's noise),
+    # then each at its own noise with the map prior scaled alike (fgcal.estimation.model_noise).
     for kind, spec in specs.items():
         if spec is not None:
-            results[kind] = _reused_noise(calibrate(ds, model, replace(fixed, joint_errors=spec)), geo)
+            results[kind] = fit_model(ds, model, options, spec, geo)
             log.info("calibrated %s (%d parameters)", kind, len(results[kind].parameters))
     errors = {k: v[0] for k, v in cv.items() if k in specs}
     recommended, reason = _recommend(errors)
@@ -404,6 +398,8 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
                            condition_number=float(res.condition_number))
         if specs[kind] is not None:
             score.correlations, score.warnings = _identifiability(res, torques, np.degrees(q))
+            if kind == ModelKind.COMPLIANCE_MAP.value:
+                score.warnings += [f"cross-validation: {w}" for w in at_edge]
             for w in score.warnings:
                 log.warning("%s", w)
         if verification is not None:

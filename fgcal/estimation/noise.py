@@ -38,6 +38,8 @@ __all__ = [
     "components",
     "find_outliers",
     "fit_test",
+    "included_leverage",
+    "readmissible",
     "robust_scale",
     "scaled_inverse",
     "update_sigmas",
@@ -211,14 +213,19 @@ def _row_sigma(graph, level) -> np.ndarray:
     return np.asarray(kind.sigma(graph.sigmas), dtype=float)
 
 
-def _row_statistics(graph, lin, h, level):
+def _row_statistics(graph, lin, h, level, h_in=None):
     """Per factor of ``level``: each row's squared whitened residual over its redundancy number.
 
     Returns ``(pose (K,), w2 (K, width), excluded (K,))``. Each row's ``w2`` is chi-square(1) times
     the level's variance factor when the noise model holds (Baarda's w-test), however the rows of
     a factor are correlated; their sum is not chi-square(width) when they are (a measured centre's
     three coordinates share a pose's joint variables), which made good centres look gross.
-    Excluded factors carry zero in ``lin.r``: their rows are recomputed from the raw errors.
+    Excluded factors carry zero in ``lin.r``: their rows are recomputed from the raw errors. Their
+    residual ``r`` is then the one of the solution without them, whose variance is the row's
+    noise plus the prediction's (the parameters' and the pose's joint variables'): with ``h_in``
+    (N, m), the leverage with every measurement included (:func:`included_leverage`), ``r**2 (1 -
+    h_in)`` is the statistic the row would have if it were included (``r_in = (1 - h_in) r``, the
+    leave-one-out identity); without it the prediction's variance is left out (conservative).
     """
     pose, rows = graph.factor_rows(level)
     r = lin.r[pose[:, None], rows]
@@ -226,30 +233,74 @@ def _row_statistics(graph, lin, h, level):
     excluded = graph.excluded.get(level, np.zeros(len(pose), dtype=bool))
     if excluded.any():
         r[excluded] = lin.raw[level][0][excluded] / _row_sigma(graph, level)
+        red[excluded] = 1.0
+        if h_in is not None:
+            red[excluded] = 1.0 / np.maximum(1.0 - h_in[pose[excluded][:, None], rows[excluded]], 1e-9)
     return pose, r**2 / red, excluded
 
 
-def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.ndarray]:
-    """Gross errors to exclude next: at most one per pose, the worst beyond the test's limit.
+def included_leverage(graph, state) -> np.ndarray:
+    """The rows' leverage (N, m) at ``state`` as if no measurement were excluded (see :func:`_row_statistics`)."""
+    kept, graph.excluded = graph.excluded, {}
+    try:
+        lin = graph.linearise(state)
+        return graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
+    finally:
+        graph.excluded = kept
 
-    A factor's statistic is its largest row's ``w2`` (:func:`_row_statistics`) over the level's
-    robust scale of the rows, tested against chi-square(1) at ``alpha`` or at
-    :data:`FAMILY_ALPHA` over the level's rows, whichever is stricter. Returns ``{level: indices
-    of its factors}`` (only new ones). A level where more than :data:`MAX_OUTLIER_FRACTION` would
-    be excluded is left alone (logged): its residuals are heavy-tailed rather than a few gross errors.
+
+def _column_scales(level, w2, kept) -> np.ndarray:
+    """The robust scale (:func:`robust_scale`) of each of a level's rows (width,), per variance component.
+
+    A level's components (a measured pose's position and rotation rows) are scaled apart: one
+    scale over all rows of a level judged the position rows of a pose in units of a mix of both,
+    and where the declared ratio of the two sigmas was wrong (3x on real tracker data) good
+    positions were excluded in the first round. Columns of no component share the level's scale.
+    """
+    scales = np.full(w2.shape[1], robust_scale(w2[kept].ravel(), 1))
+    for lv, cols, *_ in component_table().values():
+        if lv == level and np.sum(kept) >= 10:
+            part = w2[kept][:, cols]
+            if part.size:
+                scales[cols] = robust_scale(part.ravel(), 1)
+    return scales
+
+
+def _ratios(graph, lin, h, level, alpha: float = OUTLIER_ALPHA, h_in=None):
+    """Per factor of ``level``: its statistic over the test's limit (beyond 1: gross), and which are excluded.
+
+    The statistic is the largest row's ``w2`` (:func:`_row_statistics`) in units of its
+    component's robust scale of the kept rows (:func:`_column_scales`); the limit is the
+    chi-square(1) quantile of ``alpha`` or of :data:`FAMILY_ALPHA` over the level's rows,
+    whichever is stricter. An excluded factor's residual is its distance from the solution
+    without it (its redundancy number taken as 1: its own noise only, a little conservative).
+    Returns ``(pose (K,), ratio (K,) or None when the level is too small to test, excluded (K,))``.
+    """
+    pose, w2, excluded = _row_statistics(graph, lin, h, level, h_in)
+    if np.sum(~excluded) < 10:
+        return pose, None, excluded
+    scales = _column_scales(level, w2, ~excluded)
+    if not np.all(scales > 0):
+        return pose, None, excluded
+    ratio = (w2 / scales).max(axis=1) / special.chdtri(1, min(alpha, FAMILY_ALPHA / w2.size))
+    return pose, ratio, excluded
+
+
+def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.ndarray]:
+    """Gross errors to exclude next: at most one per pose, the worst beyond the test's limit (:func:`_ratios`).
+
+    Returns ``{level: indices of its factors}`` (only new ones). A level where more than
+    :data:`MAX_OUTLIER_FRACTION` would be excluded is left alone (logged): its residuals are
+    heavy-tailed rather than a few gross errors.
     """
     best: dict[int, tuple[float, str, int]] = {}  # pose -> (ratio, level, index)
     for level in all_levels():
         if level not in graph.row:
             continue
-        pose, w2, excluded = _row_statistics(graph, lin, h, level)
-        if np.sum(~excluded) < 10:
+        pose, ratio, excluded = _ratios(graph, lin, h, level, alpha)
+        if ratio is None:
             continue
-        scale = robust_scale(w2[~excluded].ravel(), 1)
-        if not scale > 0:
-            continue
-        ratio = w2.max(axis=1) / scale / special.chdtri(1, min(alpha, FAMILY_ALPHA / w2.size))
-        ratio[excluded] = 0.0
+        ratio = np.where(excluded, 0.0, ratio)
         if np.sum(excluded) + np.sum(ratio > 1) > MAX_OUTLIER_FRACTION * len(pose):
             log.info("%s: %d residuals beyond the outlier limit: heavy tails, none excluded", level,
                      int(np.sum(ratio > 1)))
@@ -263,22 +314,44 @@ def find_outliers(graph, lin, h, alpha: float = OUTLIER_ALPHA) -> dict[str, np.n
     return {lv: np.array(sorted(ks), dtype=int) for lv, ks in out.items()}
 
 
-def name_outliers(graph, lin, h, ds, pose_ids) -> list[Outlier]:
-    """The excluded measurements with their pose, ball and line in the file."""
+def readmissible(graph, lin, h, h_in=None, alpha: float = OUTLIER_ALPHA) -> dict[str, np.ndarray]:
+    """Excluded measurements that pass the outlier test at the current noise and solution: ``{level: indices}``.
+
+    An exclusion is decided at the noise of its round (the declared one in the first); once the
+    noise is estimated each one is tested again, with the same statistic and limit as
+    :func:`find_outliers`, and those within the limit are measurements like the others. ``h_in``:
+    the leverage with every measurement included (:func:`included_leverage`).
+    """
+    out = {}
+    for level, mask in graph.excluded.items():
+        if not mask.any():
+            continue
+        _, ratio, excluded = _ratios(graph, lin, h, level, alpha, h_in)
+        if ratio is None:
+            back = np.nonzero(excluded)[0]  # too few measurements left to test any: keep them all
+        else:
+            back = np.nonzero(excluded & (ratio <= 1))[0]
+        if back.size:
+            out[level] = back
+    return out
+
+
+def name_outliers(graph, lin, h, ds, pose_ids, h_in=None) -> list[Outlier]:
+    """The excluded measurements with their pose, ball and line in the file (``h_in``: see :func:`readmissible`)."""
     out = []
     for level, mask in graph.excluded.items():
         if not mask.any():
             continue
-        pose, w2, _ = _row_statistics(graph, lin, h, level)
+        pose, w2, _ = _row_statistics(graph, lin, h, level, h_in)
         kept = ~mask
-        scale = robust_scale(w2[kept].ravel(), 1) if kept.any() else 1.0
+        scales = _column_scales(level, w2, kept) if kept.any() else np.ones(w2.shape[1])
         e = lin.raw[level][0]
         obs = getattr(ds, level)
         for k in np.nonzero(mask)[0]:
             resid = float(np.abs(e[k, 0])) if level == "probes" else float(np.linalg.norm(
                 e[k, 3:] if level == "poses" else e[k]))
             out.append(Outlier(level, int(pose_ids[pose[k]]), str(obs.ball[k]) if level != "poses" else None,
-                               int(k), int(obs.line[k]), resid, "mm", float(np.sqrt(w2[k].max() / scale))))
+                               int(k), int(obs.line[k]), resid, "mm", float(np.sqrt((w2[k] / scales).max()))))
     return sorted(out, key=lambda o: (o.pose, o.level, o.index))
 
 

@@ -98,7 +98,8 @@ class StationPoint(SetupMeasurement):
         for k in np.unique(start):
             rows = np.nonzero(start == k)[0]
             R, p, dR = station_transform(s[k:k + 6])
-            local = xyz[rows] + p
+            # a design's noiseless centre (xyz None) is where the station sees the predicted one
+            local = xyz[rows] + p if xyz is not None else p_fk[rows] @ R
             e[rows] = p_fk[rows] - local @ R.T
             J_s[rows, :, :3] = -np.einsum("aij,nj->nia", dR, local)
             J_s[rows, :, 3:] = -R
@@ -108,14 +109,19 @@ class StationPoint(SetupMeasurement):
     def design_data(self, forward, offsets, fixture=None, setup=None, radius: float = 0.0) -> tuple:
         """The payload of M noiseless centres from the stations ``fixture`` (M,), with the set-up
         vector: ``(offsets, xyz in each station's frame, block starts, s)``; ``forward`` (M, 4, 4)
-        the tool poses, ``setup`` the layout (its start: the stations at the geometry designed for)."""
-        if fixture is None or setup is None or forward is None:
-            raise FgcalError("design for centres from several stations is not available yet: design on a "
-                             "dataset of one station")
+        the tool poses, ``setup`` the layout (its start: the stations at the geometry designed for).
+        Without ``forward`` (the design's information, :mod:`fgcal.studies.design_info`) xyz is None:
+        :meth:`setup_error` takes each centre where its station sees the predicted one (error zero,
+        the Jacobians of a noiseless measurement there)."""
+        if fixture is None or setup is None:
+            raise FgcalError("design for centres from several stations needs each pose's station "
+                             "(design on the dataset's own poses)")
         fixture = np.asarray(fixture, dtype=str).reshape(-1)
         offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
-        world = tool_points(forward, offsets[:, None, :])[:, 0]
         start = np.array([setup.offset[f] for f in fixture.tolist()], dtype=int)
+        if forward is None:
+            return offsets, None, start, setup.start
+        world = tool_points(forward, offsets[:, None, :])[:, 0]
         local = np.empty_like(world)
         for k in np.unique(start):
             rows = start == k
@@ -125,6 +131,13 @@ class StationPoint(SetupMeasurement):
 
     def observations(self, pose, ball, values, line=None):
         raise NotImplementedError("station centres are split from centres.csv by joints.csv's station column")
+
+    def block_observations(self, pose, ball, block, values) -> StationPointObservations:
+        """Centres from the stations ``block`` (M,): pose ids (M,), balls (M,), ``values`` (M, 3) mm in
+        each station's frame (as the online engines hold them, :attr:`fgcal.online.records.PoseData.block_rows`)."""
+        return StationPointObservations(np.asarray(pose, dtype=int).reshape(-1),
+                                        np.asarray(ball, dtype=str).reshape(-1),
+                                        np.asarray(values, dtype=float).reshape(-1, 3), block)
 
     def rows(self, obs: Any):
         return ([int(p), b, *map(float, x)] for p, b, x in zip(obs.pose, obs.ball, obs.xyz))

@@ -151,7 +151,8 @@ class _Engine:
                 return None, reason
             parts += [(self.ds.tooling.balls[b], c, cov) for b, c, cov in good]
         parts += [(self.ds.tooling.balls[b], xyz, np.eye(3) * sig.centre**2) for b, xyz in rec.centres]
-        if not parts and rec.T is None and not rec.distances and not rec.contacts and not rec.generic:
+        if not parts and rec.T is None and not rec.distances and not rec.contacts and not rec.generic \
+                and not rec.block_rows:
             return None, "no measurements"
         taken = {k: v for k, v in (("flip", list(flip)), ("search", search)) if v}
         setup = self.setup.propose(self, rec, self._current()[:len(self.params)])

@@ -6,9 +6,11 @@ from typing import Any
 import numpy as np
 
 import factors as fx
+from fgcal.errors import FgcalError
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.measurements.distance import DISTANCE
 from fgcal.measurements.pose import POSE
+from fgcal.measurements.setup import BLOCK_KINDS
 from fgcal.online.base import _Engine
 from fgcal.online.measurement import UpdateReport
 from fgcal.online.records import PoseData
@@ -20,6 +22,7 @@ __all__ = ["ISAM2Engine"]
 # ~(1 m)(3e-4)^2 = 1e-4 mm, 1% of the CMM's noise; measured over 400 poses: the running estimate
 # within 0.0025 sigma of the one at 1e-5 rad, for 42% less CPU (fewer Python factor callbacks).
 Q_RELINEARISE = 3e-4
+BLOCK_SYMBOLS = "suvwxyz"  # the set-up blocks' variables, one symbol per block size (3 entries: s)
 
 
 class ISAM2Engine(_Engine):
@@ -54,11 +57,20 @@ class ISAM2Engine(_Engine):
         # A set-up block (a point's x, y, z or a plane's two tilts and offset): the angles' threshold
         # on the first two entries (a point's x and y are relinearised more often: they are cheap).
         thresholds.insert(("s", np.array([theta_threshold[1], theta_threshold[1], theta_threshold[0]])))
+        # A block of another size (a station's three angles and position) has a symbol of its own,
+        # with the thresholds of its kind's angles and lengths.
+        self._block_symbols: dict[int, str] = {3: "s"}
+        for kind in BLOCK_KINDS.values():
+            if kind.size not in self._block_symbols and len(self._block_symbols) < len(BLOCK_SYMBOLS):
+                c = BLOCK_SYMBOLS[len(self._block_symbols)]
+                self._block_symbols[kind.size] = c
+                thresholds.insert((c, np.where(kind.angles, theta_threshold[1], theta_threshold[0])))
         p.setRelinearizeThreshold(thresholds)
         p.relinearizeSkip = 1
         self._isam_params = p
         self.t_key = fx.theta_key()
-        self._s_keys: dict[str, int] = {}  # free set-up block -> its variable (Vector 3), in the order started
+        self._s_keys: dict[str, int] = {}  # free set-up block -> its variable, in the order started
+        self._s_sizes: dict[str, int] = {}  # free set-up block -> its size
         self._tree(None)
         self._started = False
 
@@ -91,7 +103,7 @@ class ISAM2Engine(_Engine):
 
     def _state_keys(self):
         """The state's variables in its order: the parameters, then each free set-up block."""
-        return [self.t_key, *self._s_keys.values()], [len(self.params), *[3] * len(self._s_keys)]
+        return [self.t_key, *self._s_keys.values()], [len(self.params), *[self._s_sizes[n] for n in self._s_keys]]
 
     def _add(self, rec: PoseData, m, f: float) -> None:
         """Add an accepted pose's factors (``m``: its measurement), its noise scaled by the factor ``f``."""
@@ -170,12 +182,18 @@ class ISAM2Engine(_Engine):
         for name in prop.started:
             if layout.spec.fixtures[name].fixed:
                 continue
-            key = gtsam.symbol("s", len(self._s_keys))
+            size = BLOCK_KINDS[layout.spec.fixtures[name].type].size
+            symbol = self._block_symbols.get(size)
+            if symbol is None:
+                raise FgcalError(f"set-up block {name}: the iSAM2 engine takes blocks of "
+                                 f"{', '.join(map(str, sorted(self._block_symbols)))} entries, not {size}")
+            key = gtsam.symbol(symbol, sum(1 for n in self._s_keys if self._s_sizes[n] == size))
             self._s_keys[name] = key
-            values.insert(key, prop.mean[k:k + 3])
-            graph.add(gtsam.PriorFactorVector(key, prop.mean[k:k + 3],
-                                              gtsam.noiseModel.Diagonal.Sigmas(prop.sigma[k:k + 3])))
-            k += 3
+            self._s_sizes[name] = size
+            values.insert(key, prop.mean[k:k + size])
+            graph.add(gtsam.PriorFactorVector(key, prop.mean[k:k + size],
+                                              gtsam.noiseModel.Diagonal.Sigmas(prop.sigma[k:k + size])))
+            k += size
         x = prop.augment(*now)[0]
         chain = self.model.chain
         for _e, _J, Jq, group in prop.rows(self, x):

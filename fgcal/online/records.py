@@ -54,6 +54,9 @@ class PoseData:
     distances: list[tuple[str, float]] = field(default_factory=list)  # (ball, ballbar length mm)
     # (level, ball, fixture): the ball at a set-up block (a measurement type with ``uses_setup``)
     contacts: list[tuple[str, str, str]] = field(default_factory=list)
+    # (level, ball, block, values (k,)): a measurement of a set-up type that carries values, as the
+    # type's ``block_observations`` takes them (a centre (3,) mm measured from a station, its frame)
+    block_rows: list[tuple[str, str, str, np.ndarray]] = field(default_factory=list)
     # (level, ball or "", values (k,)): a measurement of a type of :func:`generic_types`, its values as
     # the type's ``observations`` takes them
     generic: list[tuple[str, str, np.ndarray]] = field(default_factory=list)
@@ -62,7 +65,7 @@ class PoseData:
 
     def measured(self) -> bool:
         return bool(self.probes or self.centres or self.T is not None or self.distances or self.contacts
-                    or self.generic)
+                    or self.generic or self.block_rows)
 
 
 def _rows_by_pose(obs, pose_ids):
@@ -79,11 +82,24 @@ def _rows_by_pose(obs, pose_ids):
 READ_LEVELS = ("probes", "centres", "poses", "distances")  # the built-in levels pose_records reads
 
 
+def carries_values(kind) -> bool:
+    """Whether a set-up type's rows carry measured values (a station's centres) besides the block
+    they depend on (a contact: only the fixture); such rows are kept in :attr:`PoseData.block_rows`."""
+    return hasattr(kind, "block_observations")
+
+
+def online_setup(kind) -> bool:
+    """Whether the online engines take a set-up type: contacts to fixture points or planes (the
+    block alone), or a type whose rows carry values and whose blocks start from a fit of them
+    (:func:`carries_values`: a station's centres); not yet a camera's pixels."""
+    return getattr(kind, "fixture_type", None) in ("point", "plane") or carries_values(kind)
+
+
 def read_levels() -> tuple:
-    """What :func:`pose_records` reads: the built-in levels and the registered types on fixture points or
-    planes (a station's block is not started online yet), and every other registered type (taken through
-    the measurement protocol, :func:`generic_types`); ``fgcal online`` refuses the rest."""
-    return (READ_LEVELS + tuple(k.level for k in setup_types() if getattr(k, "fixture_type", None) in ("point", "plane"))
+    """What :func:`pose_records` reads: the built-in levels, the registered set-up types the online
+    engines take (:func:`online_setup`: fixture points, planes, stations) and every other
+    registered type (taken through the measurement protocol, :func:`generic_types`)."""
+    return (READ_LEVELS + tuple(k.level for k in setup_types() if online_setup(k))
             + tuple(k.level for k in generic_types()))
 
 
@@ -94,10 +110,11 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
     ``model`` converts the readings (prismatic joints are mm); all revolute without it.
     """
     levels = ds.levels() if levels is None else list(levels)
-    unsupported = [lv for lv in levels if getattr(BY_LEVEL.get(lv), "fixture_type", None) not in (None, "point", "plane")]
-    if unsupported:  # a station's block needs a rigid fit of three centres before it can start
-        raise FgcalError(f"{ds.path or 'dataset'}: the online engines do not take {', '.join(unsupported)} yet "
-                         "(centres from several stations): use fgcal calibrate")
+    unsupported = [lv for lv in levels if lv in BY_LEVEL and getattr(BY_LEVEL[lv], "uses_setup", False)
+                   and not online_setup(BY_LEVEL[lv])]
+    if unsupported:
+        raise FgcalError(f"{ds.path or 'dataset'}: the online engines do not take {', '.join(unsupported)} yet: "
+                         "use fgcal calibrate")
     ids = np.asarray(ds.pose_ids, dtype=int)
     keep = np.ones(len(ids), bool) if poses is None else np.isin(ids, np.fromiter(poses, dtype=int))
     ids = ids[keep]
@@ -131,7 +148,11 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
         for level, rows in setup_rows.items():
             obs = getattr(ds, level)
             blocks = BY_LEVEL[level].blocks_of(obs)
-            rec.contacts += [(level, str(obs.ball[i]), str(blocks[i])) for i in rows[pid]]
+            if carries_values(BY_LEVEL[level]):
+                values = _values(obs)
+                rec.block_rows += [(level, str(obs.ball[i]), str(blocks[i]), values[i]) for i in rows[pid]]
+            else:
+                rec.contacts += [(level, str(obs.ball[i]), str(blocks[i])) for i in rows[pid]]
         for level, (rows, balls, values) in generic_rows.items():
             rec.generic += [(level, str(balls[i]), values[i]) for i in rows[pid]]
         out.append(rec)
@@ -147,6 +168,13 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
     q = np.array([r.q for r in records]).reshape(len(records), -1)
     setup_levels = {}
     for kind in setup_types():
+        if carries_values(kind):
+            vrows = [(r.pose, b, f, v) for r in records for lv, b, f, v in r.block_rows if lv == kind.level]
+            if vrows:
+                setup_levels[kind.level] = kind.block_observations(
+                    np.array([p for p, _, _, _ in vrows], dtype=int), np.array([b for _, b, _, _ in vrows]),
+                    np.array([f for _, _, f, _ in vrows]), np.array([v for _, _, _, v in vrows], dtype=float))
+            continue
         contact_rows = [(r.pose, b, f) for r in records for lv, b, f in r.contacts if lv == kind.level]
         if contact_rows:
             setup_levels[kind.level] = kind.observations(np.array([p for p, _, _ in contact_rows], dtype=int),
@@ -176,10 +204,24 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
                                                  np.array([b for _, b, _ in distances], dtype=str),
                                                  np.array([v for _, _, v in distances], dtype=float))
                   if distances else None,
-                  path=meta.path, chain=meta.chain, setup=meta.setup)
+                  path=meta.path, chain=meta.chain, setup=meta.setup, world_station=meta.world_station,
+                  stations=_stations(meta, records))
     for level, obs in setup_levels.items():
         setattr(out, level, obs)
     return out
+
+
+def _stations(meta: Dataset, records: list[PoseData]):
+    """The station of each of ``records`` (N,): that of a pose measured from a station, else the
+    world's; None when ``meta`` has no stations."""
+    if meta.world_station is None:
+        return None
+    of = {} if meta.stations is None else dict(zip(np.asarray(meta.pose_ids).tolist(), meta.stations.tolist()))
+    for r in records:
+        for _, _, block, _ in r.block_rows:
+            if meta.setup.kind_of(block) == "station":
+                of[r.pose] = block
+    return np.array([of.get(r.pose, meta.world_station) for r in records], dtype=str)
 
 
 def _variant(rec: PoseData, taken: dict) -> PoseData:
@@ -188,7 +230,8 @@ def _variant(rec: PoseData, taken: dict) -> PoseData:
         return rec
     j, k = taken["drop"]
     out = PoseData(rec.pose, rec.q, list(rec.probes), list(rec.centres), rec.T, list(rec.distances),
-                   list(rec.contacts), list(rec.generic), None if rec.fits is None else dict(rec.fits))
+                   list(rec.contacts), list(rec.block_rows), list(rec.generic),
+                   None if rec.fits is None else dict(rec.fits))
     ball, pts = rec.probes[j]
     out.probes[j] = (ball, np.delete(pts, k, axis=0))
     return out
@@ -199,6 +242,8 @@ def record_to_json(rec: PoseData) -> dict:
            "centres": [[b, c.tolist()] for b, c in rec.centres], "T": None if rec.T is None else rec.T.tolist(),
            "distances": [[b, float(v)] for b, v in rec.distances],
            "contacts": [[lv, b, f] for lv, b, f in rec.contacts]}
+    if rec.block_rows:  # (level, ball, block, values) of the set-up types that carry values
+        out["block_rows"] = [[lv, b, f, np.asarray(v, dtype=float).tolist()] for lv, b, f, v in rec.block_rows]
     if rec.generic:  # (level, ball, values) of the types taken through the protocol
         out["generic"] = [[lv, b, np.asarray(v, dtype=float).tolist()] for lv, b, v in rec.generic]
     return out
@@ -211,4 +256,5 @@ def record_from_json(d: dict) -> PoseData:
                     None if d["T"] is None else np.array(d["T"], dtype=float),
                     [(b, float(v)) for b, v in d.get("distances", [])],
                     [(str(lv), str(b), str(f)) for lv, b, f in d.get("contacts", [])],
+                    [(str(lv), str(b), str(f), np.array(v, dtype=float)) for lv, b, f, v in d.get("block_rows", [])],
                     [(str(lv), str(b), np.array(v, dtype=float)) for lv, b, v in d.get("generic", [])])

@@ -15,6 +15,13 @@ were first seen (a new block is appended: the columns of the others do not move)
   normal, a prior of :data:`WIDE_PRIOR_MM` on the offset and of the same over a 1 m lever on the
   tilts), and the pending contacts enter with the pose that completed it. A plane with a given
   normal and offset starts from them at once.
+* A station's frame (``station.NAME.*``, DESIGN.md 8.3) cannot be started from one centre either:
+  the centres measured from it are kept pending until at least :data:`FIT_MIN_ROWS` of them,
+  spread by :data:`PLANE_MIN_SPREAD_MM` across a line, give the rigid fit of the robot's predicted
+  centres (at the current estimate) to the measured ones (the type's ``block_starts``, as the
+  batch starts it); it starts there with a prior of :data:`WIDE_PRIOR_MM` on its position and of
+  the same over a 1 m lever on its angles, and the pending centres enter with the pose that
+  completed it. A station with a given pose starts from it at once.
 * A known distance between two fixture points (``constraints.distances``) enters with the pose
   whose contact brings the second of them into the state.
 
@@ -30,34 +37,44 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.errors import FgcalError
-from fgcal.measurements.setup import SetupLayout, SetupSpec, distance_error
+from fgcal.measurements.setup import BLOCK_KINDS, SetupLayout, SetupSpec, distance_error
 from fgcal.online.records import PoseData, setup_types
 
-__all__ = ["PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup", "SetupProposal"]
+__all__ = ["FIT_MIN_ROWS", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup",
+           "SetupProposal"]
 
 log = logging.getLogger(__name__)
 
 WIDE_PRIOR_MM = 100.0  # a new unknown block's prior sigma (mm; a plane's tilts: this over a 1 m lever)
 PLANE_MIN_CONTACTS = 3
 PLANE_MIN_SPREAD_MM = 10.0  # RMS distance of the contacts from their best line, for a plane fit
+FIT_MIN_ROWS = 3  # measurements of a block started by a fit of several (a station: a rigid fit of its centres)
 
 
 @dataclass
 class Pending:
-    """A contact to a plane not started yet: its pose's id and joints, level, ball and plane."""
+    """A measurement of a block not started yet (a contact to a plane, a centre from a station):
+    its pose's id and joints, level, ball, block and measured values (None for a contact)."""
 
     pose: int
     q: np.ndarray
     level: str
     ball: str
     fixture: str
+    values: np.ndarray | None = None
+
+    @property
+    def touch(self) -> tuple:
+        return (self.level, self.ball, self.fixture, self.values)
 
     def to_json(self) -> list:
-        return [self.pose, self.q.tolist(), self.level, self.ball, self.fixture]
+        out = [self.pose, self.q.tolist(), self.level, self.ball, self.fixture]
+        return out if self.values is None else out + [np.asarray(self.values, dtype=float).tolist()]
 
     @classmethod
     def from_json(cls, d) -> Pending:
-        return cls(int(d[0]), np.array(d[1], dtype=float), str(d[2]), str(d[3]), str(d[4]))
+        values = np.array(d[5], dtype=float) if len(d) > 5 else None
+        return cls(int(d[0]), np.array(d[1], dtype=float), str(d[2]), str(d[3]), str(d[4]), values)
 
 
 @dataclass
@@ -104,6 +121,8 @@ class SetupProposal:
     def rows(self, engine, x):
         """The set-up rows at state ``x``: ``[(e (m,), J_x (m, len(x)), J_q (m, n) or None, group)]``
         (a constraint's group is None); their declared sigmas come from :meth:`sigmas`."""
+        if self.layout is None:  # every measurement pending: no block in the state yet
+            return []
         P = len(engine.params)
         theta = np.asarray(x[:P], dtype=float)
         s = self.layout.full(np.asarray(x[P:], dtype=float))
@@ -170,23 +189,27 @@ class OnlineSetup:
 
     def propose(self, engine, rec: PoseData, theta) -> SetupProposal | None:
         """What taking ``rec`` would do to the blocks at the robot's estimate ``theta`` (P,); None
-        when the pose has no contacts."""
-        if not rec.contacts:
+        when the pose measures no set-up block."""
+        touches = [(lv, b, n, None) for lv, b, n in rec.contacts] + list(rec.block_rows)
+        if not touches:
             return None
         kinds = {k.level: k for k in setup_types()}
         order, starts, started = list(self.order), dict(self.starts), []
-        for level, ball, name in rec.contacts:
+        for level, ball, name, _ in touches:
             f = self.spec.fixtures.get(name)
             if f is None or level not in kinds:
-                raise FgcalError(f"pose {rec.pose}: fixture {name!r} is not in dataset.yaml's fixtures")
+                raise FgcalError(f"pose {rec.pose}: {name!r} is not in dataset.yaml's fixtures or stations")
             if name in order:
                 continue
             if f.value is None and f.type == "point":
                 starts[name] = _centres(engine, theta, [(rec.q, ball)])[0][0]
             elif f.value is None:
-                touches = [(p.q, p.ball) for p in self.pending if p.fixture == name]
-                touches += [(rec.q, b) for lv, b, n in rec.contacts if n == name]
-                fit = _plane_fit(*_centres(engine, theta, touches), engine.ds.tooling.radius)
+                mine = [(p.q, p.ball, p.values) for p in self.pending if p.fixture == name]
+                mine += [(rec.q, b, v) for lv, b, n, v in touches if n == name]
+                if f.type == "plane":
+                    fit = _plane_fit(*_centres(engine, theta, [(q, b) for q, b, _ in mine]), engine.ds.tooling.radius)
+                else:
+                    fit = _fitted_start(engine, theta, kinds[level], name, mine)
                 if fit is None:
                     continue
                 starts[name] = fit
@@ -196,18 +219,17 @@ class OnlineSetup:
         n_before = self.n_free
         mean = layout.start[layout.free][n_before:] if layout is not None else np.zeros(0)
         prior = layout.prior()[1][n_before:] if layout is not None else np.zeros(0)
-        wide = np.concatenate([[WIDE_PRIOR_MM] * 3 if self.spec.fixtures[n].type == "point"
-                               else [WIDE_PRIOR_MM / 1000.0] * 2 + [WIDE_PRIOR_MM]
-                               for n in started if not self.spec.fixtures[n].fixed] or [[]])
+        wide = np.concatenate([BLOCK_KINDS[self.spec.fixtures[n].type].prior_sigma(WIDE_PRIOR_MM)
+                               for n in started if not self.spec.fixtures[n].fixed] or [np.zeros(0)])
         sigma = np.where(np.isfinite(prior), prior, wide)
         groups = []
-        here = [(lv, b, n) for lv, b, n in rec.contacts if layout is not None and n in layout.offset]
+        here = [t for t in touches if layout is not None and t[2] in layout.offset]
         groups += _groups(kinds, here, rec.q, engine.ds.tooling, layout, current=True)
         for p in self.pending:
             if p.fixture in started:
-                groups += _groups(kinds, [(p.level, p.ball, p.fixture)], p.q, engine.ds.tooling, layout, False)
+                groups += _groups(kinds, [p.touch], p.q, engine.ds.tooling, layout, False)
         pending = [p for p in self.pending if p.fixture not in started]
-        pending += [Pending(rec.pose, rec.q.copy(), lv, b, n) for lv, b, n in rec.contacts
+        pending += [Pending(rec.pose, rec.q.copy(), lv, b, n, v) for lv, b, n, v in touches
                     if layout is None or n not in layout.offset]
         before = set(self.order)
         constraints = [c for c in self.spec.distances if {c.a, c.b} <= set(order) and not {c.a, c.b} <= before]
@@ -231,7 +253,7 @@ class OnlineSetup:
         self.starts = {}
         for name, f in layout.spec.fixtures.items():
             k = layout.offset[name]
-            self.starts[name] = layout.start[k:k + 3].copy() if f.type == "point" else \
+            self.starts[name] = layout.block(layout.start, name).copy() if f.type != "plane" else \
                 (layout.reference[name].copy(), float(layout.start[k + 2]))
         self.pending = [p for p in self.pending if p.fixture not in layout.offset]
 
@@ -242,7 +264,7 @@ class OnlineSetup:
 
     def restore(self, d: dict) -> None:
         self.order = list(d.get("order", []))
-        self.starts = {n: (np.array(v, dtype=float) if self.spec.fixtures[n].type == "point"
+        self.starts = {n: (np.array(v, dtype=float) if self.spec.fixtures[n].type != "plane"
                            else (np.array(v[0], dtype=float), float(v[1]))) for n, v in d.get("starts", {}).items()}
         self.layout = self._layout(self.order, self.starts)
         self.pending = [Pending.from_json(p) for p in d.get("pending", [])]
@@ -254,17 +276,49 @@ class OnlineSetup:
         return {**self.layout.spec.to_dict(), "estimated": self.layout.describe(self.layout.full(values))}
 
 
-def _groups(kinds, contacts, q, tooling, layout, current: bool) -> list:
-    """One :class:`SetupGroup` per level of ``contacts`` ((level, ball, fixture), one pose's)."""
+def _observations(kind, balls, blocks, values):
+    """The type's observations of one pose's rows (pose id 0): ``values`` None for a contact (the
+    block alone), else the measured values (M, k) of a type that carries them."""
+    pose = np.zeros(len(balls), dtype=int)
+    if values is None:
+        return kind.observations(pose, np.array(balls), np.array(blocks))
+    return kind.block_observations(pose, np.array(balls), np.array(blocks), np.array(values, dtype=float))
+
+
+def _groups(kinds, touches, q, tooling, layout, current: bool) -> list:
+    """One :class:`SetupGroup` per level of ``touches`` ((level, ball, block, values or None), one pose's)."""
     out = []
-    for level in dict.fromkeys(lv for lv, _, _ in contacts):
-        rows = [(b, n) for lv, b, n in contacts if lv == level]
+    for level in dict.fromkeys(t[0] for t in touches):
+        rows = [t for t in touches if t[0] == level]
         kind = kinds[level]
-        obs = kind.observations(np.zeros(len(rows), dtype=int), np.array([b for b, _ in rows]),
-                                np.array([n for _, n in rows]))
+        values = None if rows[0][3] is None else [t[3] for t in rows]
+        obs = _observations(kind, [t[1] for t in rows], [t[2] for t in rows], values)
         out.append(SetupGroup(np.asarray(q, dtype=float), kind, kind.terms(obs, tooling, {0: 0}, layout).data,
-                              len(rows), current, [n for _, n in rows]))
+                              len(rows), current, [t[2] for t in rows]))
     return out
+
+
+def _fitted_start(engine, theta, kind, name, rows):
+    """The start of block ``name`` from its measurements ``rows`` ((q, ball, values), ...) at the
+    robot's estimate ``theta`` by the type's ``block_starts`` (a station: the rigid fit of the
+    predicted centres to the measured ones), or None while they are fewer than :data:`FIT_MIN_ROWS`
+    or their values lie within :data:`PLANE_MIN_SPREAD_MM` of one line."""
+    from fgcal.robots.kinematics import forward
+
+    if len(rows) < FIT_MIN_ROWS:
+        return None
+    values = np.array([v for _, _, v in rows], dtype=float).reshape(len(rows), -1)
+    if values.shape[1] >= 3:
+        sv = np.linalg.svd(values[:, :3] - values[:, :3].mean(axis=0), compute_uv=False)
+        if sv[1] / np.sqrt(len(rows)) < PLANE_MIN_SPREAD_MM:
+            return None
+    T = forward(engine.params.full(theta, engine.held), np.array([q for q, _, _ in rows]), engine.model.chain)
+    obs = _observations(kind, [b for _, b, _ in rows], [name] * len(rows), values)
+    try:
+        return kind.block_starts(obs, T, engine.ds.tooling, {name}, "online")[name]
+    except FgcalError as exc:
+        log.info("block %s not started yet: %s", name, exc)
+        return None
 
 
 def _centres(engine, theta, touches) -> tuple[np.ndarray, np.ndarray]:

@@ -1,9 +1,9 @@
 """GTSAM factors of the set-up blocks for the iSAM2 engine: a contact (the measurement type's
 ``setup_error``, with its analytic Jacobians in the parameters, the joints and the block), a known
 distance between two fixture points, and a Gaussian over several vector variables (the marginal
-that starts a new tree). One Vector 3 variable per free block (a point's x, y, z; a plane's tilts
-and offset); a fixed block is a constant. Keep a reference to every factor: the closures capture
-their arguments."""
+that starts a new tree). One vector variable per free block (a point's x, y, z; a plane's tilts
+and offset; a station's three angles and position); a fixed block is a constant. Keep a
+reference to every factor: the closures capture their arguments."""
 from __future__ import annotations
 
 import numpy as np
@@ -25,6 +25,7 @@ def contact_factor(kind, data, layout, name, noise, index, held, chain, *, t_key
     index, held = np.array(index, dtype=int), np.array(held, dtype=float)
     q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
     k = layout.offset[name]
+    size = len(layout.block(layout.start, name))
     s0 = layout.start.copy()
     keys = [t_key] + ([q_key] if q_key is not None else []) + ([s_key] if s_key is not None else [])
 
@@ -32,7 +33,7 @@ def contact_factor(kind, data, layout, name, noise, index, held, chain, *, t_key
         q = q_const if q_key is None else values.atVector(q_key)[None]
         s = s0.copy()
         if s_key is not None:
-            s[k:k + 3] = values.atVector(s_key)
+            s[k:k + size] = values.atVector(s_key)
         e, J_t, J_q, J_s, _ = kind.setup_error(values.atVector(t_key), q, data, s, index, held, chain)
         if H is not None:
             H[0] = J_t[0]

@@ -16,6 +16,8 @@ One record a line, comma-separated (lines starting with # and blank lines are ig
   joints,POSE,q1,...,qn              joint readings (deg; mm for prismatic joints); starts pose POSE
   probe,POSE,BALL,x,y,z              a probe point (mm, world)
   centre,POSE,BALL,x,y,z             a ball centre (mm, world)
+  centre,POSE,BALL,x,y,z,STATION     a ball centre measured from STATION (mm, in its frame; a
+                                     station of dataset.yaml's stations: other than the first)
   pose,POSE,x,y,z,qw,qx,qy,qz        a measured tool pose (mm, unit quaternion)
   distance,POSE,BALL,length          a ballbar length from the pivot (world origin) to BALL (mm)
   contact,POSE,BALL,FIXTURE          BALL seated at fixture point FIXTURE, or touching plane FIXTURE
@@ -39,6 +41,7 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
     n_joints = 6 if model is None else model.n_joints
     widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "contact": 4, "end": 2}
     by_kind = {getattr(k, "fixture_type", None): k.level for k in setup_types()}
+    stations = [n for n, f in getattr(setup, "fixtures", {}).items() if f.type == "station"]
     for n, raw in enumerate(lines, start=1):
         if isinstance(raw, bytes):
             try:
@@ -54,8 +57,13 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
         try:
             if tag not in widths:
                 raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, contact, end)")
+            station = f.pop() if tag == "centre" and len(f) == widths[tag] + 1 else None
             if len(f) != widths[tag]:
-                raise ValueError(f"{tag} takes {widths[tag] - 1} fields, got {len(f) - 1}")
+                raise ValueError(f"{tag} takes {widths[tag] - 1} fields"
+                                 f"{' (and a station)' if tag == 'centre' else ''}, got {len(f) - 1}")
+            if station is not None and (station not in stations or "station" not in by_kind):
+                raise ValueError(f"unknown station {station!r} (dataset.yaml's stations after the first: "
+                                 f"{', '.join(stations[:6]) or 'none'}; a centre from the first takes no station)")
             pose = int(f[1])
             if not 0 <= pose <= MAX_ID:
                 raise ValueError(f"pose id {f[1][:30]} out of range (0 to 2^62)")
@@ -84,6 +92,8 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
             pts = dict(current.probes)
             pts[f[2]] = np.vstack([pts.get(f[2], np.zeros((0, 3))), values])
             current.probes = list(pts.items())
+        elif tag == "centre" and station is not None:
+            current.block_rows.append((by_kind["station"], f[2], station, np.array(values)))
         elif tag == "centre":
             current.centres.append((f[2], np.array(values)))
         elif tag == "distance":

@@ -251,9 +251,11 @@ class RobotModel:
     # ------------------------------------------------------------------ parameters
     @property
     def parallel_axes(self) -> np.ndarray:
-        """``(n-1,)`` bool: link k's axes k and k+1 are nominally parallel (alpha_k = 0 or 180 deg)."""
+        """``(n-1,)`` bool: link k's axes k and k+1 are nominally parallel (alpha_k = 0 or 180 deg; within
+        2.9 deg, where a calibrated model or URDF taken as the nominal tilts them by alpha and beta)."""
         alphas = np.array([self.nominal[self.slot(f"{j}.alpha")] for j in self.link_names])
-        return np.abs(np.sin(alphas)) < 1e-9
+        betas = np.array([self.nominal[self.slot(f"{j}.beta")] for j in self.link_names])
+        return (np.abs(np.sin(alphas)) < 0.05) & ((np.abs(np.sin(alphas)) < 1e-9) | (np.abs(betas) < 0.05))
 
     def _rule_names(self) -> list[str]:
         """The paper's rule: base 6; link k: theta (k > 1), beta where parallel else d (k > 1), a, alpha;

@@ -123,7 +123,7 @@ def _joints(data, n: int, source: str):
 def model_from_dict(data, source: str = "<model>") -> RobotModel:
     """Build a :class:`RobotModel` from a parsed model file; ``ModelError`` names ``source``."""
     top = ("format", "name", "description", "convention", "base", "links", "tool", "tool_offset", "joint_limits",
-           "joints", "coupling", "tooling", "volume", "paper_box", "inertials", "urdf", "mounting")
+           "joints", "coupling", "tooling", "volume", "paper_box", "inertials", "urdf", "mounting", "ur_kinematics")
     if isinstance(data, dict) and "format" not in data:
         raise ModelError(f"{source}: not an {FORMAT} model file (no format key)")
     data = _mapping(data, top, source, required=("format", "base", "links", "tool", "joint_limits"))
@@ -199,7 +199,7 @@ def model_from_dict(data, source: str = "<model>") -> RobotModel:
 
     link_names = joint_names[:-1] if joint_names else ()
     nominal = np.concatenate([base, np.array([[r[f] for f in LINK_FIELDS] for r in rows]).reshape(-1), tool])
-    extra = {k: data[k] for k in ("inertials", "urdf") if data.get(k) is not None}
+    extra = {k: data[k] for k in ("inertials", "urdf", "ur_kinematics") if data.get(k) is not None}
     if not np.allclose(mounting, np.eye(4), rtol=0.0, atol=1e-12):
         extra["mounting"] = euler_dict(mounting)
     if "urdf" in extra:
@@ -312,7 +312,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
         b = getattr(model, key)
         if b is not None:
             out[key] = {"min": [float(c) for c in b[0]], "max": [float(c) for c in b[1]]}
-    out.update({k: v for k, v in model.extra.items() if k in ("inertials", "urdf", "mounting")})
+    out.update({k: v for k, v in model.extra.items() if k in ("inertials", "urdf", "mounting", "ur_kinematics")})
     return out
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
 
-__all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "rpy", "to_urdf"]
+__all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "origin_element", "rpy", "to_urdf", "ur_to_urdf"]
 
 
 def rpy(R) -> tuple[float, float, float]:
@@ -66,6 +66,11 @@ def _origin(T) -> str:
     return f'<origin xyz="{xyz}" rpy="{angles}"/>'
 
 
+def origin_element(T) -> str:
+    """``<origin xyz=... rpy=.../>`` of a transform ``T`` (4, 4; mm): metres and URDF rpy, no negative zero."""
+    return _origin(T)
+
+
 def _at_point(tool_point) -> np.ndarray:
     """Trans(tool_point) (4, 4): the tool link moved from the tool frame to a ball centre (mm)."""
     T = np.eye(4)
@@ -78,9 +83,19 @@ def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) 
     """A URDF document (string) of the chain with geometry ``slots`` (S,) mm/rad; its ``tool`` link at
     ``tool_point`` (3,) mm in the tool frame (the tool frame itself by default).
 
-    Effort and velocity limits are not part of a model file; they are written as 1e6 (effectively
-    unlimited) rather than 0, which URDF consumers (MoveIt, Gazebo) read as "cannot move".
+    ``base_link`` is the robot's own base frame (:func:`fgcal.robots.compensate.base_transform`: a
+    table's base frame, at the mounting face), placed in the ``world`` (the measuring instrument's
+    frame) by the calibrated base; the first joint's origin is what loading folded into the base.
+    Joints carry the model's names. A UR (:func:`fgcal.robots.ur_kinematics.is_ur`) is written in
+    ur_description's frames and names instead (:func:`ur_to_urdf`). Effort and velocity limits are
+    not part of a model file; they are written as 1e6 (effectively unlimited) rather than 0, which
+    URDF consumers (MoveIt, Gazebo) read as "cannot move".
     """
+    from fgcal.robots.compensate import base_transform, mounting
+    from fgcal.robots.ur_kinematics import is_ur
+
+    if is_ur(model):
+        return ur_to_urdf(model, slots, name, tool_point)
     name = name or model.name
     origins = chain_origins(model, slots)
     joint_names = list(model.joint_names)
@@ -88,16 +103,18 @@ def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) 
     mounts = [_unique(m, joint_names) for m in ("base_mount", "tool_mount")]
     lines = ['<?xml version="1.0"?>', f"<robot name={quoteattr(name)}>",
              "  <!-- written by fgcal: joint origins carry the calibrated geometry; lengths in metres;"
-             " effort and velocity limits unknown to fgcal (1e6) -->",
+             " effort and velocity limits unknown to fgcal (1e6). base_link is the robot's own base frame"
+             " (the model table's base frame, at the mounting face), placed in world (the measuring instrument's"
+             " frame) by the calibrated base; tool is the calibrated tool frame -->",
              '  <link name="world"/>', '  <link name="base_link"/>',
              f'  <joint name={quoteattr(mounts[0])} type="fixed"><parent link="world"/><child link="base_link"/>'
-             f"{_origin(origins[0])}</joint>"]
+             f"{_origin(base_transform(model, slots))}</joint>"]
     parent = "base_link"
     limits = model.joint_limits.copy()
     prismatic = ~model.joint_is_angle
     limits[prismatic] /= 1000.0
-    for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
-        M = np.eye(4) if k == 0 else origins[k]
+    for k, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types, strict=True)):
+        M = mounting(model) if k == 0 else origins[k]
         lo, hi = limits[k]
         child = child_names[k]
         lines.append(f"  <link name={quoteattr(child)}/>")
@@ -110,6 +127,26 @@ def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) 
                  f"{_origin(origins[-1] @ model.tool_offset_matrix @ _at_point(tool_point))}</joint>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
+
+
+def ur_to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) -> str:
+    """A UR's calibrated chain in ur_description's frames and joint names (:func:`fgcal.robots.ur_kinematics.ur_urdf`),
+    with a ``world`` root (the measuring instrument's frame) placing ``base_link`` (the mounting face)
+    by the calibrated base, and a ``tool`` link on ``tool0`` (the calibrated tool frame, or the ball
+    centre ``tool_point`` (3,) mm in it)."""
+    from fgcal.robots.compensate import base_transform
+    from fgcal.robots.ur_kinematics import ur_kinematics, ur_urdf
+
+    kin = ur_kinematics(model, slots)
+    text = ur_urdf(kin, name or model.name, model.joint_limits, tool=kin.tcp @ _at_point(tool_point))
+    # base_link in the instrument frame: the robot's own base frame (the UR's Base for a table) is kin.own_base in it
+    placement = base_transform(model, slots) @ np.linalg.inv(kin.own_base)
+    head, rest = text.split('  <link name="base_link"/>', 1)
+    world = ('  <link name="world"/>\n  <link name="base_link"/>\n  <joint name="world-base_link" type="fixed">'
+             f'<parent link="world"/><child link="base_link"/>{_origin(placement)}</joint>')
+    head = head.replace("lengths in metres -->", "world is the measuring instrument's frame (placed by the calibrated "
+                        "base); tool the calibrated tool frame; lengths in metres -->")
+    return head + world + rest
 
 
 def _joint_frames(model: RobotModel, slots) -> list[np.ndarray]:

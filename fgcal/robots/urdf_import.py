@@ -31,6 +31,7 @@ __all__ = ["UrdfJoint", "load_urdf_model", "model_from_urdf", "parse_urdf", "rpy
 log = logging.getLogger(__name__)
 
 MAX_URDF_BYTES = 20 * 1024 * 1024
+NEAR_PARALLEL = 0.05  # |z_k x z_k+1| below which consecutive axes are rebuilt with Hayati's beta (2.9 deg)
 _MOVING = {"revolute": JointType.REVOLUTE, "continuous": JointType.REVOLUTE, "prismatic": JointType.PRISMATIC}
 
 
@@ -207,20 +208,31 @@ def model_from_urdf(text: str, source: str = "<urdf>", base: str | None = None, 
     for k in range(n - 1):
         zk, zn = F[:3, 2], z[k + 1]
         xk, pk = F[:3, 0], F[:3, 3]
-        if np.linalg.norm(np.cross(zk, zn)) < 1e-9:  # parallel: Hayati, d = 0 and beta = 0 nominal
-            d = 0.0
-            v = (o[k + 1] - pk) - ((o[k + 1] - pk) @ zk) * zk
+        if np.linalg.norm(np.cross(zk, zn)) < NEAR_PARALLEL and abs(zk @ zn) > 0:
+            # (nearly) parallel: Hayati, d = 0; the next frame is where axis k+1 meets the xy plane of
+            # this one, tilted by alpha, beta (0 for exactly parallel axes): no d of metres
+            t = -(zk @ (o[k + 1] - pk)) / (zk @ zn)
+            foot_next = o[k + 1] + t * zn
+            v = foot_next - pk
             a = float(np.linalg.norm(v))
-            x_new = v / a if a > 1e-9 else xk
-            foot_next = pk + v
+            x_mid = v / a if a > 1e-9 else xk
             if a <= 1e-9:
                 a = 0.0
-        else:
-            c1, c2, d = _feet(pk, zk, o[k + 1], zn)
-            x_new = np.cross(zk, zn)
-            x_new /= np.linalg.norm(x_new)
-            a = float((c2 - c1) @ x_new)
-            foot_next = c2
+            theta = _signed_angle(xk, x_mid, zk)
+            u = np.column_stack([x_mid, np.cross(zk, x_mid), zk]).T @ zn
+            beta = float(np.arcsin(np.clip(u[0], -1.0, 1.0)))
+            alpha = float(np.arctan2(-u[1], u[2]))
+            x_local = np.array([np.cos(beta), np.sin(alpha) * np.sin(beta), -np.cos(alpha) * np.sin(beta)])
+            x_new = np.column_stack([x_mid, np.cross(zk, x_mid), zk]) @ x_local
+            rows.append((theta, 0.0, beta, a, alpha))
+            F = _frame(np.column_stack([x_new, np.cross(zn, x_new), zn]), foot_next)
+            frames.append(F)
+            continue
+        c1, c2, d = _feet(pk, zk, o[k + 1], zn)
+        x_new = np.cross(zk, zn)
+        x_new /= np.linalg.norm(x_new)
+        a = float((c2 - c1) @ x_new)
+        foot_next = c2
         theta = _signed_angle(xk, x_new, zk)
         alpha = _signed_angle(zk, zn, x_new)
         rows.append((theta, float(d), 0.0, a, alpha))

@@ -80,6 +80,9 @@ class DatasetDesign:
     noise : dict of str to (float, float, str)
         Per variance component: declared and designed-for sigma and unit (see :class:`DesignNoise`).
     noise_mode : NoiseMode
+    stations : ndarray of str, shape (n,), or None
+        The station each pose is to be measured from (a dataset with a ``station`` column,
+        DESIGN.md 8.3); None for one station.
     """
 
     pose_ids: np.ndarray
@@ -94,6 +97,7 @@ class DatasetDesign:
     dropped: dict = field(default_factory=dict)
     noise: dict = field(default_factory=dict)
     noise_mode: NoiseMode = NoiseMode.DECLARED
+    stations: np.ndarray | None = None
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
@@ -113,6 +117,9 @@ class DatasetDesign:
                 f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
         if self.dropped:
             lines.append(f"  not identifiable from these candidates, not designed for: {', '.join(self.dropped)}")
+        if self.stations is not None:
+            names, counts = np.unique(self.stations, return_counts=True)
+            lines.append("  poses from each station: " + ", ".join(f"{n} {c}" for n, c in zip(names, counts, strict=True)))
         return lines
 
 
@@ -241,6 +248,9 @@ def dataset_layout(ds: Dataset, model: RobotModel, q=None, slots=None) -> Layout
             x = model.nominal if slots is None else np.asarray(slots, dtype=float)
             setup = _setup_layout(ds, model, setup_kinds, x, model.joints_to_internal(ds.joints_deg), row)
         return Layout(levels, balls, ppb, contacts, setup)
+    if ds.stations is not None:
+        raise FgcalError(f"{ds.path or 'dataset'}: centres from several stations are designed from the dataset's own "
+                         "poses (each from its station); candidates given as joints name no station")
     if setup_kinds and len(setup_kinds) == len(levels):
         raise FgcalError(f"{ds.path or 'dataset'}: contacts are designed from the dataset's own poses (each at "
                          "its fixture); candidates given as joints only touch no fixture")
@@ -328,8 +338,9 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
                     progress=progress, groups=groups)
     rand = np.array([random_design_values(prep, n_poses, rng, groups)[1]["pred"] for _ in range(random_sets)])
+    stations = ds.stations[d.chosen] if ds.stations is not None and candidates is None else None
     return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
-                         int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode)
+                         int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode, stations)
 
 
 def placement_of(layout: Layout, spec) -> np.ndarray:
@@ -346,9 +357,15 @@ def placement_of(layout: Layout, spec) -> np.ndarray:
 
 
 def save_plan(plan: DatasetDesign, path) -> None:
-    """Write the plan as a ``joints.csv``-like file: ``pose,q1..`` (deg), the candidates' ids."""
-    write_csv(path, joint_columns(plan.joints_deg.shape[1]),
-              [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg)])
+    """Write the plan as a ``joints.csv``-like file: ``pose,q1..`` (deg), the candidates' ids, and the
+    ``station`` each pose is to be measured from when the dataset has several."""
+    if plan.stations is None:
+        write_csv(path, joint_columns(plan.joints_deg.shape[1]),
+                  [[int(i), *map(float, q)] for i, q in zip(plan.pose_ids, plan.joints_deg, strict=True)])
+        return
+    write_csv(path, [*joint_columns(plan.joints_deg.shape[1]), "station"],
+              [[int(i), *map(float, q), str(st)]
+               for i, q, st in zip(plan.pose_ids, plan.joints_deg, plan.stations, strict=True)])
 
 
 def load_plan(path) -> tuple[np.ndarray, np.ndarray]:

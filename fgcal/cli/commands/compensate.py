@@ -20,14 +20,16 @@ def _cmd_compensate(args) -> int:
     if args.out:
         check_output_file(args.out, [args.result, args.targets], force=args.force)
     commands = call(compensate, args.result, args.targets, frame=args.frame, tcp=args.tcp, branch=args.branch,
-                    max_change=args.max_change, notes_to=sys.stderr)
+                    max_change=args.max_change, seed_joints=getattr(args, "seed_joints", None), notes_to=sys.stderr)
     c, ok, ids = commands.solution, commands.reachable, commands.ids
     rows = commands.rows()
     if args.out:
         commands.save(args.out)
         if ok.any():
+            angle = ("positions only, the orientation kept at the seed's" if commands.position_only else
+                     f"{np.nanmax(c.orientation_error_deg):.2g} deg")
             print(f"wrote {args.out}: {len(rows)} of {len(ids)} joint commands; the calibrated model reaches them "
-                  f"within {np.nanmax(c.position_error_mm):.2g} mm and {np.nanmax(c.orientation_error_deg):.2g} deg, "
+                  f"within {np.nanmax(c.position_error_mm):.2g} mm and {angle}, "
                   f"every joint within {np.nanmax(c.joint_change_deg):.2g} deg of its seed (same configuration)")
         else:
             print(f"wrote {args.out}: no target was reachable")

@@ -13,8 +13,12 @@ log = logging.getLogger("fgcal")
 
 
 def _cmd_export(args) -> int:
-    if args.model is None and args.urdf is None and args.deltas is None:
-        raise FgcalError("export: give --model FILE, --urdf FILE and/or --deltas FILE")
+    ur_file = getattr(args, "ur_kinematics", None)
+    if args.model is None and args.urdf is None and args.deltas is None and ur_file is None:
+        raise FgcalError("export: give --model FILE, --urdf FILE, --deltas FILE and/or --ur-kinematics FILE")
+    if ur_file:
+        check_output_file(ur_file, [args.result, args.model, args.urdf, args.deltas], option="--ur-kinematics",
+                          force=args.force)
     if args.model:
         check_output_file(args.model, [args.result], option="--model", force=args.force)
     if args.urdf:
@@ -30,7 +34,7 @@ def _cmd_export(args) -> int:
                           [args.result, args.model, args.urdf, args.deltas], option="joint-error table",
                           force=args.force)
     for path, what in call(export, args.result, model=args.model, urdf=args.urdf, deltas=args.deltas,
-                           force=args.force):
+                           ur_kinematics=ur_file, ur_hash=getattr(args, "ur_hash", None), force=args.force):
         print(f"wrote {path}{': ' if what.startswith('the ') else ' ('}{what}{'' if what.startswith('the ') else ')'}")
     return 0
 

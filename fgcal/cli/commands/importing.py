@@ -187,6 +187,45 @@ def add_import_parser(sub) -> None:
     mk.add_argument("--force", action="store_true", help="replace OUT if it exists")
     mk.set_defaults(func=_cmd_import_mukca)
 
+    ur = formats.add_parser("ur-kinematics", help="a UR's kinematics file (ur_calibration's, ur_description's "
+                                                 "kinematics_params_file) as a robot model file")
+    ur.add_argument("file", type=Path, metavar="FILE.yaml", help="kinematics: shoulder .. wrist_3 (m, rad), hash")
+    ur.add_argument("out", type=Path, metavar="OUT.yaml", help="fgcal-robot/1 model file to write")
+    ur.add_argument("--name", default=None, help="the model's name (default: the file's stem)")
+    ur.add_argument("--angles", choices=("urdf", "eigen"), default="urdf",
+                    help="how roll, pitch, yaw compose: urdf Rz(yaw) Ry(pitch) Rx(roll), as ur_description reads "
+                         "the file (default); eigen Rx(roll) Ry(pitch) Rz(yaw), as ur_calibration computed them")
+    ur.add_argument("--like", default=None, metavar="ROBOT",
+                    help="built-in model or model file to take joint limits, tooling and volume from")
+    ur.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    ur.set_defaults(func=_cmd_import_ur)
+
+
+def _cmd_import_ur(args) -> int:
+    """``fgcal import ur-kinematics``: a UR's factory calibration as the nominal model (or a start)."""
+    from dataclasses import replace
+
+    from fgcal.cli.commands.checks import check_output_file
+    from fgcal.robots.robot_file import load_model, save_model
+    from fgcal.robots.ur_kinematics import model_from_kinematics, parse_kinematics
+    from fgcal.util.yamlio import read_yaml
+
+    if args.out.exists() and not args.force:
+        raise FgcalError(f"OUT {args.out}: exists; give --force to replace it")
+    check_output_file(args.out, [args.file], option="OUT")
+    kin = parse_kinematics(read_yaml(args.file), str(args.file), angles=args.angles)
+    like = load_model(args.like) if args.like else None
+    if like is not None and like.n_joints != 6:
+        raise FgcalError(f"--like {args.like}: {like.n_joints} joints, a UR has 6")
+    model = model_from_kinematics(kin, name=args.name or args.file.stem,
+                                  joint_limits=None if like is None else like.joint_limits, source=str(args.file))
+    if like is not None:  # not the inertials: they are given in the other model's link frames
+        model = replace(model, tooling=like.tooling, volume=like.volume)
+    save_model(model, args.out)
+    print(f"wrote {args.out}: {model.name}, ur_description's chain base_link -> tool0 from {args.file} "
+          f"(hash {kin.hash or 'none'}); joints {', '.join(model.joint_names)}")
+    return 0
+
 
 def _cmd_import_mukca(args) -> int:
     """``fgcal import mukca``: the two-socket tool's placements as contacts at unknown fixture points."""
