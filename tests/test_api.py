@@ -48,7 +48,7 @@ def data(tmp_path_factory):
 
 
 def test_calibrate_command_equals_function(data, tmp_path, capsys):
-    code, out, _ = run(["calibrate", data / "ds", "--out", tmp_path / "cli.json", "--poses", "odd"], capsys)
+    code, out, _ = run(["calibrate", data / "ds", "--out", tmp_path / "cli.json", "--select", "odd"], capsys)
     assert code == 0
     result = fgcal.calibrate(data / "ds", poses="odd")
     result.save(tmp_path / "api.json")

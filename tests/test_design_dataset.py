@@ -188,12 +188,12 @@ def test_one_reflector_ends_and_says_what_it_cannot_do(one_reflector, tmp_path):
     probes = _cli("design", "--robot", one_reflector, "--poses", 12, "--candidates", 300, "--out", out)
     assert probes.returncode == 2 and "radius" in probes.stderr
     assert len(probes.stderr.strip().splitlines()) == 1
-    few = _cli("design", "--robot", one_reflector, "--level", "centres", "--poses", 6, "--candidates", 300,
+    few = _cli("design", "--robot", one_reflector, "--levels", "centres", "--poses", 6, "--candidates", 300,
                "--out", out)
     assert few.returncode == 2 and "Traceback" not in few.stderr
     errors = [line for line in few.stderr.splitlines() if line.startswith("fgcal: error")]
     assert len(errors) == 1 and "at least 9 poses needed" in errors[0]
-    ok = _cli("design", "--robot", one_reflector, "--level", "centres", "--poses", 15, "--candidates", 300,
+    ok = _cli("design", "--robot", one_reflector, "--levels", "centres", "--poses", 15, "--candidates", 300,
               "--out", out)
     assert ok.returncode == 0, ok.stderr
     # a point at the flange origin sees nothing of the tool's orientation: named, not designed for

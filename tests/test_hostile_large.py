@@ -55,6 +55,6 @@ def test_batch_size_limit_refuses_calibrate_and_bounds_check(puma, tmp_path, cap
     for command in (calibrate_command, check_command):  # 6 poses x 3 balls x 4 points = 72 rows
         monkeypatch.setattr(command, "MAX_BATCH_ROWS", 50)
     code, _, err = call(["calibrate", tmp_path / "ds", "--out", tmp_path / "r.json"], capsys)
-    one_line_error(code, err, "72 measurement rows (6 poses)", "--poses")
+    one_line_error(code, err, "72 measurement rows (6 poses)", "--select")
     code, out, err = call(["check", tmp_path / "ds"], capsys)
     assert code == 0 and "72 rows are more than the 50" in out and "rank 30 of 30" in out

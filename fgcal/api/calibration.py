@@ -174,7 +174,7 @@ def calibrate(dataset, *, poses: str | Sequence[int] | None = None, levels: str 
     rows = measurement_rows(ds)
     if rows > MAX_BATCH_ROWS:
         raise FgcalError(f"{where}: {rows} measurement rows ({ds.n_poses} poses) are more than a batch "
-                         f"calibration holds in memory ({MAX_BATCH_ROWS}); choose poses with --poses, or use "
+                         f"calibration holds in memory ({MAX_BATCH_ROWS}); choose poses with --select, or use "
                          "fgcal online")
     level_names = tuple(levels.split(",")) if isinstance(levels, str) else (tuple(levels) if levels else None)
     options = CalibrationOptions(

@@ -45,18 +45,18 @@ def parse_pose_selection(text: str | None, available) -> np.ndarray:
     if text in ("odd", "even"):
         parity = available[available % 2 == (1 if text == "odd" else 0)]
         if not len(parity):
-            raise FgcalError(f"--poses {text}: the dataset has no {text} pose ids")
+            raise FgcalError(f"--select {text}: the dataset has no {text} pose ids")
         return parity
     for prefix in ("first:", "last:"):
         if text.startswith(prefix):
             try:
                 n = int(text[len(prefix):])
             except ValueError:
-                raise FgcalError(f"--poses {text!r}: expected {prefix}N") from None
+                raise FgcalError(f"--select {text!r}: expected {prefix}N") from None
             if n < 1:
-                raise FgcalError(f"--poses {text!r}: N must be at least 1")
+                raise FgcalError(f"--select {text!r}: N must be at least 1")
             if n > len(available):
-                raise FgcalError(f"--poses {text!r}: the dataset has only {len(available)} poses")
+                raise FgcalError(f"--select {text!r}: the dataset has only {len(available)} poses")
             return available[:n] if prefix == "first:" else available[-n:]
     chosen: list[int] = []
     for part in text.split(","):
@@ -65,17 +65,17 @@ def parse_pose_selection(text: str | None, available) -> np.ndarray:
             a, b = part.split("-", 1) if "-" in part[1:] and not part.startswith("-") else (part, part)
             lo, hi = int(a), int(b)
         except ValueError:
-            raise FgcalError(f"--poses {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
+            raise FgcalError(f"--select {text!r}: expected odd, even, first:N, last:N or ranges like 1-21,30") from None
         if hi < lo:
-            raise FgcalError(f"--poses: range {lo}-{hi} is empty (write it as {hi}-{lo})")
+            raise FgcalError(f"--select: range {lo}-{hi} is empty (write it as {hi}-{lo})")
         if hi - lo >= len(available):
-            raise FgcalError(f"--poses: range {lo}-{hi} spans more ids than the {len(available)} poses of the dataset")
+            raise FgcalError(f"--select: range {lo}-{hi} spans more ids than the {len(available)} poses of the dataset")
         chosen.extend(range(lo, hi + 1))
     missing = sorted(set(chosen) - set(available.tolist()))
     if missing:
-        raise FgcalError(f"--poses: pose(s) {', '.join(map(str, missing[:10]))} not in the dataset")
+        raise FgcalError(f"--select: pose(s) {', '.join(map(str, missing[:10]))} not in the dataset")
     if not chosen:
-        raise FgcalError(f"--poses {text!r}: selects no pose")
+        raise FgcalError(f"--select {text!r}: selects no pose")
     return np.array(sorted(set(chosen)), dtype=int)
 
 

@@ -28,6 +28,7 @@ from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
 from fgcal.cli.commands.options import (
+    RenamedOption,
     count,
     nonnegative_deg,
     nonnegative_mm,
@@ -144,7 +145,12 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--free-radius", action="store_true", help="fit each ball's radius too")
     m.add_argument("--threshold", type=positive_mm, default=None,
                    help="RMS sphere-fit residual (mm) that flags a ball; default from the CMM noise")
-    m.add_argument("--tolerance", type=positive_mm, default=None, help="eqs. 19-21 tolerance for --method paper, mm")
+    m.add_argument("--orthogonality-tolerance", dest="tolerance", type=positive(), default=None,
+                   help="with --method paper: the largest error of the rotation's columns (their length, "
+                        "n = o x a, o = a x n: eqs. 19-21), unitless; default 10 x the centres' noise over the "
+                        "balls' spacing")
+    m.add_argument("--tolerance", dest="tolerance", type=positive(), action=RenamedOption,
+                   new="--orthogonality-tolerance (unitless; report's --tolerance is in mm)")
     m.add_argument("--show", type=count(0), default=10, help="flagged rows to print (default 10)")
     m.add_argument("--force", action="store_true", help="replace OUT if it exists")
     m.set_defaults(func=_cmd_measure)
@@ -155,8 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "stations, each dataset a station named after its directory (the first is the world)")
     k.add_argument("--out", type=Path, required=True, help="result file (JSON, fgcal-result/1)")
     k.add_argument("--force", action="store_true", help="replace OUT if it exists")
-    k.add_argument("--poses", default=_d(calibrate, "poses"),
+    k.add_argument("--select", dest="poses", default=_d(calibrate, "poses"),
                    help="poses to use: odd, even, first:N, last:N or ranges like 1-21 (default: all)")
+    k.add_argument("--poses", dest="poses", action=RenamedOption,
+                   new="--select (a selection; --poses is a count in simulate, design and study)")
     k.add_argument("--levels", default=_d(calibrate, "levels"),
                    help="comma-separated levels to use (default: all present)")
     k.add_argument("--robust", choices=("huber", "cauchy"), default=_d(calibrate, "robust"),
@@ -198,7 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
     v = sub.add_parser("verify", help="the paper's VERIFY: errors of a result at the poses of a dataset")
     v.add_argument("result", type=Path, help="result file of fgcal calibrate (fgcal-result/1)")
     v.add_argument("dataset", type=Path, help="dataset directory of the same robot (held-out poses)")
-    v.add_argument("--poses", default=_d(verify, "poses"), help="poses to use (as for calibrate; default: all)")
+    v.add_argument("--select", dest="poses", default=_d(verify, "poses"),
+                   help="poses to use (as calibrate's --select; default: all)")
+    v.add_argument("--poses", dest="poses", action=RenamedOption,
+                   new="--select (a selection; --poses is a count in simulate, design and study)")
     v.add_argument("--out", type=Path, default=None, help="write verify.json (fgcal-verify/1)")
     v.add_argument("--force", action="store_true", help="replace OUT if it exists")
     v.set_defaults(func=_cmd_verify)
@@ -303,8 +314,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="design for this dataset's robot, tool, measurement type and noise; its poses are the "
                          "candidates unless --candidates FILE")
     de.add_argument("--robot", default=_d(design, "robot"), help="without --dataset: the robot to plan for")
-    de.add_argument("--level", choices=("probes", "centres", "poses"), default=_d(design, "level"),
-                    help="without --dataset: what is measured at a pose (default probes on 3 balls)")
+    de.add_argument("--levels", dest="level", choices=("probes", "centres", "poses"), default=_d(design, "level"),
+                    help="without --dataset: the level measured at a pose, one of probes, centres, poses "
+                         "(default probes on 3 balls)")
+    de.add_argument("--level", dest="level", choices=("probes", "centres", "poses"), action=RenamedOption,
+                    new="--levels (as simulate and calibrate spell it)")
     de.add_argument("--poses", type=count(1, MAX_POSES), default=_d(design, "poses"), help="number of poses to plan")
     de.add_argument("--per-placement", action="store_true",
                     help="with --dataset of contacts: --poses at each placement (fixtures linked by known "

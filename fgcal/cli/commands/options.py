@@ -21,6 +21,7 @@ __all__ = [
     "MASS_KG_MAX",
     "SEED_MAX",
     "Checked",
+    "RenamedOption",
     "count",
     "finite",
     "fraction",
@@ -163,3 +164,20 @@ def payload_spec(text: str) -> str:
     except argparse.ArgumentTypeError as exc:
         raise argparse.ArgumentTypeError(f"KG or KG,X,Y,Z (kg, mm): {exc}") from None
     return str(text)
+
+
+class RenamedOption(argparse.Action):
+    """The old spelling of an option renamed so that one name means one thing across the commands
+    (``calibrate --poses`` selected poses where ``simulate --poses`` counts them): still read, with a
+    warning on standard error that names the new spelling. Its help is hidden."""
+
+    def __init__(self, option_strings, dest, new: str, **kwargs):
+        kwargs.setdefault("help", argparse.SUPPRESS)
+        super().__init__(option_strings, dest, **kwargs)
+        self.new = new
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import sys
+
+        print(f"warning: {option_string} is now {self.new} ({parser.prog}); the old name will go", file=sys.stderr)
+        setattr(namespace, self.dest, values)
