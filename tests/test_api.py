@@ -113,7 +113,8 @@ def test_option_defaults_are_the_functions():
     for command, (function, argv) in commands.items():
         ns = vars(parser.parse_args([command, *argv]))
         for name, p in inspect.signature(function).parameters.items():
-            if p.kind is not p.KEYWORD_ONLY or name in ("out", "force", "dataset", "progress", "title", "robot_ref"):
+            if p.kind is not p.KEYWORD_ONLY or name in ("out", "force", "dataset", "progress", "title", "robot_ref",
+                                                        "setup"):  # setup: built from the contact and station options
                 continue
             if name == "exact_joints":
                 assert ns[name] is p.default is False
@@ -188,3 +189,20 @@ def test_simulate_keeps_the_simulators_own_call(puma):
     truth = puma.slots_from_file_units(np.array([ds.truth[n] for n in puma.slot_names]))
     again, _ = fgcal.simulate(puma, np.random.default_rng(4), settings, truth=truth)
     assert again.truth == ds.truth and not np.array_equal(again.joints_deg, ds.joints_deg)
+
+
+def test_simulate_command_equals_function_with_contacts(tmp_path, capsys):
+    """``fgcal simulate`` with two-socket plates and a tool ball writes what ``fgcal.simulate`` writes
+    with the same :class:`~fgcal.studies.simulate_setup.SetupSimulation`: file for file."""
+    from fgcal.studies.simulate_setup import SetupSimulation
+
+    code, out, _ = run(["simulate", tmp_path / "cli", "--robot", "ur10", "--tool-ball", "0,0,40,5",
+                        "--sockets", 1, "--configs", 6, "--seed", 7, "--joint-resolution", 0], capsys)
+    assert code == 0 and "12 contacts" in out
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", fgcal.FgcalNote)
+        ds = fgcal.simulate("ur10", tool_ball="0,0,40,5", setup=SetupSimulation(placements=1, configs=6), seed=7,
+                            joint_resolution=0.0, out=tmp_path / "api")
+    assert len(ds.contacts) == 12
+    for name in ("dataset.yaml", "joints.csv", "contacts.csv", "truth.yaml"):
+        assert (tmp_path / "cli" / name).read_text() == (tmp_path / "api" / name).read_text(), name

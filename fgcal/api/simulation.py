@@ -23,7 +23,7 @@ def simulate(robot="puma560", rng=None, settings=None, *, poses: int | None = No
              probes_per_ball: int = 4, levels: str | tuple | None = None, length_sigma: float = 0.5,
              angle_sigma: float = 0.05, base_length_sigma: float = 5.0, base_angle_sigma: float = 0.5,
              chain: str | dict | None = None, reflector=None, truth=None, out=None, force: bool = False,
-             robot_ref: str | None = None):
+             robot_ref: str | None = None, tool_ball=None, setup=None):
     """Simulate a robot measured by a CMM (or a tracker): the dataset ``fgcal simulate`` writes.
 
     Parameters
@@ -63,6 +63,13 @@ def simulate(robot="puma560", rng=None, settings=None, *, poses: int | None = No
         ``truth.yaml`` of another simulation: the same actual robot (a verification set).
     out : path, optional
         Write the dataset there (a folder that must be new unless ``force``).
+    tool_ball : sequence of 3 or 4 float or str, optional
+        ``X,Y,Z[,RADIUS]`` (mm, tool frame): the one ball that touches fixtures and planes, replacing
+        the model's tooling.
+    setup : SetupSimulation, optional
+        Contacts and stations to simulate (:class:`fgcal.studies.simulate_setup.SetupSimulation`:
+        two-socket placements, a datum, a plane, several stations; DESIGN.md 8.2, 8.3). Contact
+        levels are written besides ``levels`` (only them when ``levels`` is None).
 
     Returns
     -------
@@ -84,12 +91,13 @@ def simulate(robot="puma560", rng=None, settings=None, *, poses: int | None = No
                          seed=seed or None, truth=None if truth is None else np.asarray(truth, dtype=float))
     ds = _simulate(robot, poses, seed, plan, cmm_sigma, joint_resolution, repeatability, outliers, outlier_size,
                    balls, probes_per_ball, levels, (length_sigma, angle_sigma, base_length_sigma, base_angle_sigma),
-                   chain, reflector, truth, out, force)
+                   chain, reflector, truth, out, force, tool_ball, setup)
     return ds
 
 
 def _simulate(robot, poses, seed, plan, cmm_sigma, joint_resolution, repeatability, outliers, outlier_size, balls,
-              probes_per_ball, levels, deviations, chain, reflector, truth, out, force) -> Dataset:
+              probes_per_ball, levels, deviations, chain, reflector, truth, out, force, tool_ball=None,
+              setup=None) -> Dataset:
     from dataclasses import replace
 
     from fgcal.io.dataset_io import save_dataset
@@ -113,18 +121,26 @@ def _simulate(robot, poses, seed, plan, cmm_sigma, joint_resolution, repeatabili
             raise FgcalError(f"--chain: expected BASE,TIP (URDF link names), got {chain!r}")
         chain = {"base": parts[0], "tip": parts[1]}
     model = robot if isinstance(robot, RobotModel) else load_model(str(robot), chain=chain)
+    if reflector is not None and tool_ball is not None:
+        raise FgcalError("--reflector and --tool-ball: give one tool (a reflector, or a ball that touches)")
     if reflector is not None:
         model = replace(model, tooling=Tooling(0.0, {"R": _floats(reflector, 3, "--reflector")}))
         levels = levels or "centres"
+    if tool_ball is not None:
+        model = replace(model, tooling=_tool_ball(tool_ball))
+    contact_levels = () if setup is None else tuple(
+        lv for lv, on in (("contacts", setup.placements or setup.datum), ("plane_contacts", setup.plane)) if on)
     robot_ref = model.name if isinstance(robot, RobotModel) else str(robot)
     if out is not None and not isinstance(robot, RobotModel) and (Path(robot_ref).suffix or "/" in robot_ref):
         robot_ref = os.path.relpath(Path(robot_ref).resolve(), Path(out).resolve())  # relative to the dataset
-    levels = tuple(levels.split(",")) if isinstance(levels, str) else tuple(levels or ("probes",))
+    levels = tuple(levels.split(",")) if isinstance(levels, str) else tuple(levels or ())
+    levels = (levels or (() if contact_levels else ("probes",))) + contact_levels
     settings = SimulationSettings(
         n_poses=poses, plan=plan, noise=Noise(cmm_sigma, joint_resolution, repeatability),
         deviations=Deviations(*deviations),
         n_balls=balls if balls is not None else min(3, len(model.tooling.balls) if model.tooling else 3),
-        probes_per_ball=probes_per_ball, outlier_fraction=outliers, outlier_size=outlier_size, levels=levels)
+        probes_per_ball=probes_per_ball, outlier_fraction=outliers, outlier_size=outlier_size, levels=levels,
+        **({} if setup is None else {"setup": setup}))
     truth_slots = None
     if truth is not None:
         from fgcal.io.dataset_io import load_truth
@@ -152,3 +168,15 @@ def _floats(value, n: int, option: str) -> np.ndarray:
     if values.shape != (n,) or not np.all(np.isfinite(values)):
         raise FgcalError(f"{option}: expected {n} comma-separated numbers, got {value!r}")
     return values
+
+
+def _tool_ball(value):
+    """The tooling of one touching ball from ``X,Y,Z[,RADIUS]`` (mm)."""
+    from fgcal.robots.model import Tooling
+
+    parts = value.split(",") if isinstance(value, str) else list(value)
+    values = _floats(value, len(parts) if len(parts) in (3, 4) else 3, "--tool-ball")
+    radius = float(values[3]) if len(values) == 4 else 0.0
+    if radius < 0:
+        raise FgcalError(f"--tool-ball: the radius must not be negative, got {radius!r}")
+    return Tooling(radius, {"B": values[:3]})

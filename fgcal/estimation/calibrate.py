@@ -424,6 +424,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     est = final.to_file_units(state.theta)
     nominal = final.to_file_units(final.nominal())
     cov_file = final.covariance_to_file_units(cov)
+    cov_file = 0.5 * (cov_file + cov_file.T)  # symmetric but for rounding, which a near-gauge freedom magnifies
     sigma = np.sqrt(np.diag(cov_file))
     levels_summary = _level_summaries(graph, state, cov, lin)
     h = graph.row_leverage(state, cov, lin)

@@ -250,6 +250,7 @@ class OnlineRun:
         theta, cov = x[keep], cov_all[np.ix_(keep, keep)]
         params = kept
         cov_file = params.covariance_to_file_units(cov)
+        cov_file = 0.5 * (cov_file + cov_file.T)  # symmetric but for rounding
         sigma = np.sqrt(np.diag(cov_file))
         accepted = [p["pose"] for p in self.processed if p["accepted"]]
         # The final smoothing judges every pose again (one refused against an early, poor estimate,
