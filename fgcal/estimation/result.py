@@ -442,7 +442,7 @@ def load_result(path) -> CalibrationResult:
             fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},
             at_readings={k: ResidualSummary(**v) for k, v in d.get("at_readings", {}).items()},
             pose_residuals=[_pose_residual(p) for p in d.get("pose_residuals", [])])
-    except (AttributeError, KeyError, TypeError, ValueError) as exc:
+    except (AttributeError, KeyError, OverflowError, TypeError, ValueError) as exc:
         raise FgcalError(f"{path}: malformed result: {exc}") from None
     try:
         result.slot_vector()  # every slot of the result's own model has a value

@@ -23,6 +23,16 @@ _JOINT_ERROR = re.compile(r"^(?:j(\d+)\.compliance|map\.j(\d+)\.(?:sin|cos)(\d+)
 _SETUP_KINDS = ("fixture", "plane", "station")
 
 
+def _is_setup_parameter(name: str, blocks: set) -> bool:
+    """``KIND.NAME.COMPONENT`` of a built-in or registered block kind, or of a block the result's
+    ``setup`` names (a kind registered by the user's code, which this process may not have)."""
+    from fgcal.estimation.setup_params import is_setup_name
+
+    kind, _, rest = name.partition(".")
+    block = rest.rpartition(".")[0]
+    return kind in _SETUP_KINDS or is_setup_name(name) or (bool(block) and block in blocks)
+
+
 def _short(name) -> str:
     text = str(name)
     return text[:60] + ("..." if len(text) > 60 else "")
@@ -77,9 +87,10 @@ def _check_names(result) -> None:
     model = result.model()
     slots = set(model.slot_names) if result.robot_model else set(result.slots)
     n = model.n_joints
+    blocks = set(((result.setup or {}).get("fixtures") or {}).keys()) if isinstance(result.setup, dict) else set()
     for p in result.parameters:
         name = p.name
-        if name in slots or name.partition(".")[0] in _SETUP_KINDS:  # set-up names: checked with result.setup
+        if name in slots or _is_setup_parameter(name, blocks):  # set-up names: checked with result.setup
             continue
         m = _JOINT_ERROR.match(name)
         if m and 1 <= int(m.group(1) or m.group(2)) <= n and (m.group(3) is None or int(m.group(3)) >= 1):
