@@ -40,6 +40,8 @@ def main():
     ap.add_argument("--subsets", type=int, default=0, help="plans per split from random 80%% subsets (default 0)")
     ap.add_argument("--position-only", action="store_true",
                     help="design and calibrate from the probe's position only (one reflector)")
+    ap.add_argument("--no-misfit", action="store_true",
+                    help="every pose alike in the design's sandwich (the previous criterion)")
     args = ap.parse_args()
     import logging
 
@@ -66,7 +68,8 @@ def main():
         model = model_from_dict(model_dict)
         noise = dataset_noise(calib, model, args.noise)
         c = compare_on_held_out(calib, held, model, args.poses, args.random_sets, np.random.default_rng([split, 1]),
-                                index=args.index, noise=noise)
+                                index=args.index, noise=noise,
+                                misfit_weights=not args.no_misfit)
         wins += c.plan_mean < np.median(c.random_mean)
         shares.append(c.beaten())
         q = np.percentile(c.random_mean, [25, 50, 75])
@@ -77,7 +80,8 @@ def main():
         rng = np.random.default_rng([split, 2])
         for k in range(args.subsets):
             sub = calib.select(calib.pose_ids[rng.random(calib.n_poses) < 0.8])
-            plan = design_from_dataset(sub, model, args.poses, index=args.index, random_sets=1, noise=noise)
+            plan = design_from_dataset(sub, model, args.poses, index=args.index, random_sets=1, noise=noise,
+                                       misfit_weights=not args.no_misfit)
             err = verify(calibrate(calib.select(plan.pose_ids), model), held, model).after.position_mm.mean()
             sub_wins += err < np.median(c.random_mean)
             sub_shares.append(np.mean(c.random_mean > err))

@@ -48,6 +48,9 @@ def main():
     ap.add_argument("--candidates", type=int, default=2000)
     ap.add_argument("--seed", type=int, default=0, help="fgcal design --seed (the candidates)")
     ap.add_argument("--index", default=None, help="design criterion (default: fgcal design's)")
+    ap.add_argument("--perturb", choices=("identifiable", "all"), default="identifiable",
+                    help="which slots the truths perturb: the model's identifiable parameters (default), or all 37 "
+                         "(the others are absorbed or left as an unmodelled error)")
     args = ap.parse_args()
     import logging
 
@@ -70,7 +73,7 @@ def main():
     print(f"designed in {time.perf_counter() - t0:.1f} s")
     rng = np.random.default_rng([args.seed, 7])
     sets = [pool[rng.choice(len(pool), size=args.poses, replace=False)] for _ in range(args.random_sets)]
-    names = model.identifiable_names()
+    names = model.identifiable_names() if args.perturb == "identifiable" else list(model.slot_names)
     plan_err, rand_err = [], np.zeros((args.random_sets, args.truths))
     with tempfile.TemporaryDirectory() as tmp:
         for t in range(args.truths):

@@ -145,3 +145,47 @@ def position_rms(truth: dict, estimate: dict, q_deg) -> float:
     """RMS (mm) over joint sets ``q_deg`` (N, 6) of the distance between the tool points of two robots."""
     d = [fk_from_truth(truth, q)[:3, 3] - fk_from_truth(estimate, q)[:3, 3] for q in np.atleast_2d(q_deg)]
     return float(np.sqrt(np.mean(np.sum(np.square(d), axis=1))))
+
+
+def droop_deg(q_deg, gain_deg=0.02):
+    """A non-geometric joint error (deg) no DH model has: the shoulder and elbow sag under the arm's
+    weight (a torque of cos q2 and cos(q2 + q3)), the wrist wobbles once a turn; ``gain_deg`` its size."""
+    q = np.radians(np.atleast_2d(q_deg))
+    out = np.zeros_like(q)
+    out[:, 1] = gain_deg * (np.cos(q[:, 1]) + 0.5 * np.cos(q[:, 1] + q[:, 2]))
+    out[:, 2] = 0.5 * gain_deg * np.cos(q[:, 1] + q[:, 2])
+    out[:, 3] = 0.5 * gain_deg * np.sin(3 * q[:, 3])
+    return out
+
+
+def centre_dataset(out_dir, robot: dict, robot_file, truth: dict, q_commanded_deg, rng: np.random.Generator,
+                   cmm_sigma=0.01, joint_resolution=0.01, n_balls=3, unmodelled=None, pose_ids=None) -> list[int]:
+    """Measure the ball centres of the true robot at the commanded joints (N, 6) deg (fresh rounding
+    as :func:`probe_dataset`); ``unmodelled(q_deg) -> dq_deg`` moves the arm away from its readings
+    (an error of the robot no geometric model has). Writes ``centres.csv``; returns the pose ids
+    written (a pose whose balls the true robot does not show is left out)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    q_c = np.atleast_2d(q_commanded_deg)
+    ids = np.arange(1, len(q_c) + 1) if pose_ids is None else np.asarray(pose_ids, dtype=int)
+    joints, centres, kept = ["pose," + ",".join(f"q{k}" for k in range(1, 7))], ["pose,ball,x,y,z"], []
+    step = joint_resolution
+    for pid, qc in zip(ids, q_c, strict=True):
+        actual = qc + (rng.uniform(-0.5, 0.5, size=qc.shape) * step if step > 0 else 0.0)
+        reading = np.round(actual / step) * step if step > 0 else actual
+        arm = actual + (unmodelled(actual)[0] if unmodelled is not None else 0.0)
+        balls = measured_balls(robot, fk_from_truth(truth, arm), n_balls)
+        if balls is None:
+            continue
+        kept.append(int(pid))
+        joints.append(f"{pid}," + ",".join(repr(float(v)) for v in reading))
+        centres += [f"{pid},{b}," + ",".join(repr(float(v)) for v in c + rng.normal(size=3) * cmm_sigma)
+                    for b, c in balls.items()]
+    balls = "\n".join(f"    {b}: [{', '.join(repr(float(v)) for v in off)}]" for b, off in robot["balls"].items())
+    (out_dir / "dataset.yaml").write_text(
+        f"format: fgcal-dataset/1\nrobot: {robot_file}\ntool:\n  radius: {robot['radius']}\n  balls:\n{balls}\n"
+        f"noise: {{cmm_sigma: {cmm_sigma}, joint_resolution: {joint_resolution}, repeatability: 0.0}}\n"
+        "provenance: {generator: tests/probe_sim.py}\n")
+    (out_dir / "joints.csv").write_text("\n".join(joints) + "\n")
+    (out_dir / "centres.csv").write_text("\n".join(centres) + "\n")
+    return kept
