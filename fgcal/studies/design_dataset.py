@@ -208,9 +208,9 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
         levels[name] = (float(level.declared), float(level.used), level.unit)
     weights, slots = sig.replaced(**scaled), result.slot_vector(model)
-    misfit, floor = pose_misfit(ds, model, slots, weights), _floor(result, ds, model)
+    floor = _floor(result, ds, model)
     if np.any(np.asarray(sig.joint) > 0):  # the estimator models joint noise and estimated it
-        return DesignNoise(weights, slots, levels, mode, misfit=misfit, floor_mm=floor)
+        return DesignNoise(weights, slots, levels, mode, misfit=_misfit(ds, model, slots, weights), floor_mm=floor)
     # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
     # s^2 * sens / rows to a component's variance factor (pooled over the components).
     sens = joint_sensitivity(model, ds.joints_rad, dataset_layout(ds, model, slots=slots), sig, slots)
@@ -218,11 +218,17 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
                  for c, (_, rows) in sens.items() if c in levels)
     total = sum(v for c, (v, _) in sens.items() if c in levels)
     if not excess > 0 or not total > 0:
-        return DesignNoise(weights, slots, levels, mode, misfit=misfit, floor_mm=floor)
+        return DesignNoise(weights, slots, levels, mode, misfit=_misfit(ds, model, slots, weights), floor_mm=floor)
     joint_error = float(np.sqrt(excess / total))
     levels["unmodelled joint error"] = (0.0, float(np.degrees(joint_error)), "deg")
-    return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error, misfit=misfit,
-                       floor_mm=floor)
+    return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error,
+                       misfit=_misfit(ds, model, slots, weights, sig, joint_error), floor_mm=floor)
+
+
+def _misfit(ds, model, slots, weights, actual=None, joint_error=0.0) -> dict:
+    from fgcal.studies import design_floor  # its NEIGHBOURS read at call time
+
+    return pose_misfit(ds, model, slots, weights, design_floor.NEIGHBOURS, actual, joint_error)
 
 
 def _floor(result, ds: Dataset, model: RobotModel) -> float:
