@@ -358,6 +358,9 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         raise FgcalError("--poses must be at least 1")
     model = with_dataset_tooling(ds, model)  # the candidates measure the dataset's balls
     rng = rng if rng is not None else np.random.default_rng(0)
+    if candidates is None and ds.n_poses < n_poses and not per_placement:  # said before the long calibration
+        raise FgcalError(f"{ds.path or 'the dataset'}: {ds.n_poses} candidate poses for a plan of {n_poses}: "
+                         "fewer candidates than poses")
     found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
     if candidates is None:
         ids, q_deg = ds.pose_ids, ds.joints_deg

@@ -59,7 +59,7 @@ def pose_misfit(ds: Dataset, model: RobotModel, slots, sigmas: Sigmas, neighbour
     ----------
     ds : Dataset
         Its measurement types without set-up blocks are used (probe points, which need the ball
-        centres solved, and contacts are not: their poses get 1).
+        centres solved, and contacts are not: their poses get 1; a dataset with stations gets none).
     slots : ndarray, shape (S,)
         The calibrated geometry (internal units).
     sigmas : Sigmas
@@ -78,6 +78,8 @@ def pose_misfit(ds: Dataset, model: RobotModel, slots, sigmas: Sigmas, neighbour
         Pose id to its misfit ratio (observed over expected squared residual, 1: as the design
         expects on average); empty when no type applies.
     """
+    if ds.stations is not None:  # centres from several stations: their frames are estimated, not known here
+        return {}
     x = np.asarray(slots, dtype=float)
     q = model.joints_to_internal(ds.joints_deg)
     row = {int(p): i for i, p in enumerate(ds.pose_ids.tolist())}
