@@ -316,6 +316,28 @@ class Pixels(SetupMeasurement):
     def observations(self, pose, ball, values, line=None):
         raise NotImplementedError("pixels are built by PixelObservations.build")
 
+    # ------------------------------------------------------------------ the online engines' rows
+    block_specs = True  # block_observations needs the dataset's cameras and targets (``specs``)
+
+    def row_labels(self, obs: PixelObservations) -> np.ndarray:
+        """Each corner's point name (M,): what the online engines keep as a row's ball."""
+        return obs.point
+
+    def row_values(self, obs: PixelObservations) -> np.ndarray:
+        """Each corner's measured pixel (M, 2): what the online engines keep as a row's values."""
+        return obs.uv
+
+    def row_blocks(self, block: str, label: str, specs: dict) -> list:
+        """The blocks one corner (camera ``block``, point ``label``) depends on: its camera, then the
+        target that has the point."""
+        return [block] + [n for n, s in specs.items() if s.type == "target" and label in s.points][:1]
+
+    def block_observations(self, pose, ball, block, values, specs=None) -> PixelObservations:
+        """Corners from the online engines' rows: pose ids (M,), point names ``ball`` (M,), cameras
+        ``block`` (M,), pixels ``values`` (M, 2) (further columns ignored) and the specs by name."""
+        uv = np.asarray(values, dtype=float).reshape(len(np.atleast_1d(pose)), -1)[:, :2]
+        return PixelObservations.build(np.asarray(pose, dtype=int), block, ball, uv, dict(specs or {}))
+
     def rows(self, obs):
         return ([int(p), c, n, float(u), float(v)]
                 for p, c, n, (u, v) in zip(obs.pose, obs.camera, obs.point, obs.uv, strict=True))
