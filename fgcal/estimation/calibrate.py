@@ -455,6 +455,9 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         residuals["probes_mm"] = raw["probes"][0][:, 0].tolist()
     for level in graph.measurements:
         residuals.update(BY_LEVEL[level].residual_summary(raw[level][0]))
+        if hasattr(BY_LEVEL[level], "residual_places"):  # a camera's: where on the image each residual is
+            residuals.update(BY_LEVEL[level].residual_places(raw[level][0], graph.measurements[level], pose_ids,
+                                                             graph.setup))
     if "joints" in raw:
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]

@@ -349,5 +349,19 @@ class Pixels(SetupMeasurement):
     def residual_summary(self, e) -> dict:
         return {"pixels_px": np.asarray(e).ravel().tolist()}
 
+    def residual_places(self, e, terms: Terms, pose_ids, layout) -> dict:
+        """Where each corner's residual ``e`` (M, 2) is, for the report's image-plane bins: its
+        measured pixel (``pixels_u_px``, ``pixels_v_px``), its pose id, its camera (``pixels_camera``:
+        the index among the layout's cameras, in their order) and the residual in that camera's
+        own px (``pixels_du_px``, ``pixels_dv_px``)."""
+        _, uv, cam0, _, _, weight = terms.data
+        cams = [n for n, f in layout.spec.fixtures.items() if f.type == "camera"]
+        index = {layout.offset[n]: i for i, n in enumerate(cams)}
+        own = np.asarray(e, dtype=float) / weight[:, None]
+        return {"pixels_u_px": uv[:, 0].tolist(), "pixels_v_px": uv[:, 1].tolist(),
+                "pixels_pose": np.asarray(pose_ids)[terms.pose].astype(float).tolist(),
+                "pixels_camera": [float(index[int(k)]) for k in cam0],
+                "pixels_du_px": own[:, 0].tolist(), "pixels_dv_px": own[:, 1].tolist()}
+
 
 PIXELS = Pixels()
