@@ -354,7 +354,7 @@ def name_outliers(graph, lin, h, ds, pose_ids, h_in=None) -> list[Outlier]:
             resid = float(np.abs(e[k, 0])) if level == "probes" else float(np.linalg.norm(
                 e[k, 3:] if level == "poses" else e[k]))
             label = str(labels[k]) if level != "poses" and labels is not None else None
-            line = int(obs.line[k]) if getattr(obs, "line", None) is not None else -1
+            line = int(obs.line[k]) if getattr(obs, "line", None) is not None else 0
             out.append(Outlier(level, int(pose_ids[pose[k]]), label, int(k), line, resid, unit,
                                float(np.sqrt((w2[k] / scales).max()))))
     return sorted(out, key=lambda o: (o.pose, o.level, o.index))

@@ -316,6 +316,18 @@ class Pixels(SetupMeasurement):
     def observations(self, pose, ball, values, line=None):
         raise NotImplementedError("pixels are built by PixelObservations.build")
 
+    # ------------------------------------------------------------------ each camera's noise
+    def noise_groups(self, terms: Terms, layout) -> dict:
+        """Each camera's corners (``{camera: rows (M,) bool}``): a noise group each
+        (:mod:`fgcal.estimation.group_noise`)."""
+        cam0 = terms.data[2]
+        return {n: cam0 == layout.offset[n] for n, f in layout.spec.fixtures.items()
+                if f.type == "camera" and np.any(cam0 == layout.offset[n])}
+
+    def group_weight(self, terms: Terms) -> np.ndarray:
+        """The corners' weights (M,) in the payload (the component's sigma over the camera's): rescaled in place."""
+        return terms.data[5]
+
     # ------------------------------------------------------------------ the online engines' rows
     block_specs = True  # block_observations needs the dataset's cameras and targets (``specs``)
 
