@@ -41,7 +41,7 @@ N_POSES = 30
 TYPES = ["centres", "reflector", "poses", "distances", "contacts", "stations", "pixels"]
 ONLINE = ["ekf", "ukf", "isam2"]
 ENGINES = ["batch", "gtsam", *ONLINE]
-DESIGN_REFUSED: set = {"pixels"}  # every other type is designed for (stations: each pose from its station)
+DESIGN_REFUSED: set = set()  # every type is designed for (stations: each pose from its station)
 # compensate needs a TCP in the world: a camera's data hold the base and the tool (its frames are the
 # camera's and the target's), so its TCP is a point in a frame of the calibration's choosing
 COMPENSATED = [t for t in TYPES if t != "pixels"]

@@ -81,6 +81,8 @@ def update_groups(graph, lin, h, tolerance: float = 0.01) -> bool:
                 weight[mask] = new
                 changed = True
                 log.debug("noise group %s: variance factor %.3g of the component's", name, rel)
+    if changed:  # the weights are the payload's, not the graph's sigmas: its remembered linearisation is stale
+        graph._last = None
     return changed
 
 
