@@ -250,7 +250,7 @@ def test_calibrate_verify_report_and_refusals_through_the_cli(tmp_path):
     run = _cli("online", tmp_path / "cal", "--engine", "ekf", "--out", tmp_path / "online.json")
     assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
     online = load_result(tmp_path / "online.json")
-    assert online.names == result.names
+    assert online.names == result.names and online.setup["refused"] == result.setup["refused"]  # named alike
     assert np.max(np.abs(online.estimate - result.estimate) / result.sigma) < 0.1
     run = _cli("design", "--dataset", tmp_path / "cal", "--poses", "5", "--out", tmp_path / "plan.csv")
     assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr

@@ -298,6 +298,7 @@ class _Engine:
             raise FgcalError(f"final smoothing: the batch solve estimates {', '.join(sol.graph.params.names)}")
         self.final_held = held
         self._final_gauge = gauge
+        self._final_refused = list(sol.refused)  # rows refused before the solve (a corner behind a camera)
         # In the engine's parameters: a held one at its value, with no variance.
         self._final_slots = sol.graph.params.full(sol.state.theta, sol.graph.held)
         self.final_pose_ids = [int(p) for p in sol.pose_ids]  # every pose the smoothing judged (and took)
@@ -365,6 +366,8 @@ class _Engine:
         out = {**layout.spec.to_dict(), "estimated": layout.describe(layout.full(x[len(self.params):]))}
         if any(h["reason"] == GAUGE_REASON for h in self.held_info()):
             out["gauge"] = GAUGE_REASON
+        if self._final is not None and getattr(self, "_final_refused", None):  # named, as the batch names them
+            out["refused"] = list(self._final_refused)
         return out
 
 
