@@ -16,6 +16,7 @@ pytest.importorskip("cv2")
 
 from pixel_sim import camera_dataset
 
+from fgcal.api.calibration import calibration_summary
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.estimation.result import load_result
 from fgcal.io.dataset_io import dataset_model, load_dataset
@@ -55,6 +56,8 @@ def test_each_camera_has_its_own_noise(tmp_path):
         assert n.declared == pytest.approx(0.4) and n.unit == "px" and n.note == "estimated"
         assert n.estimated == pytest.approx(sigma, rel=0.10), (name, n.estimated)
         assert n.used == pytest.approx(n.estimated, rel=0.02)
+    lines = "\n".join(calibration_summary(res))
+    assert "pixels.left" in lines and "pixels.right" in lines  # reported per camera
     d = np.column_stack([res.residuals["pixels_du_px"], res.residuals["pixels_dv_px"]])
     cam = np.asarray(res.residuals["pixels_camera"]).astype(int)
     rms = [float(np.sqrt(np.mean(d[cam == k] ** 2))) for k in range(2)]
