@@ -34,7 +34,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import kinematic_levels
 from fgcal.robots.model import RobotModel
 from fgcal.studies.design import Candidates, design_plan, random_design_values
-from fgcal.studies.design_floor import pose_misfit, with_floor
+from fgcal.studies.design_floor import floor_of, pose_misfit, weigh_by_misfit, with_floor
 from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
 
 __all__ = [
@@ -209,7 +209,7 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
         levels[name] = (float(level.declared), float(level.used), level.unit)
     weights, slots = sig.replaced(**scaled), result.slot_vector(model)
-    floor = _floor(result, ds, model)
+    floor = floor_of(result, ds, model)
     if np.any(np.asarray(sig.joint) > 0):  # the estimator models joint noise and estimated it
         return DesignNoise(weights, slots, levels, mode, misfit=_misfit(ds, model, slots, weights), floor_mm=floor)
     # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
@@ -230,19 +230,6 @@ def _misfit(ds, model, slots, weights, actual=None, joint_error=0.0) -> dict:
     from fgcal.studies import design_floor  # its NEIGHBOURS read at call time
 
     return pose_misfit(ds, model, slots, weights, design_floor.NEIGHBOURS, actual, joint_error)
-
-
-def _floor(result, ds: Dataset, model: RobotModel) -> float:
-    """RMS position error (mm) at ``ds``'s poses of the calibration ``result`` of all of them."""
-    from fgcal.estimation.verification import verify
-
-    try:
-        err = np.asarray(verify(result, ds, model).after.position_mm, dtype=float)
-    except (FgcalError, ValueError) as exc:  # a type verify does not compare: no floor stated
-        log.info("design: no floor from %s (%s)", ds.path or "the dataset", exc)
-        return 0.0
-    err = err[np.isfinite(err)]
-    return float(np.sqrt(np.mean(err**2))) if len(err) else 0.0
 
 
 def with_dataset_tooling(ds: Dataset, model: RobotModel) -> RobotModel:
@@ -396,7 +383,7 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     prep = Candidates.build(model, q, ds.noise, layout=layout, params=params, slots=found.slots,
                             sigmas=found.sigmas, actual=found.actual, joint_error=found.joint_error)
     if candidates is None and found.misfit and misfit_weights:
-        prep = _weigh_by_misfit(prep, np.array([found.misfit.get(int(p), 1.0) for p in ids]))
+        prep = weigh_by_misfit(prep, np.array([found.misfit.get(int(p), 1.0) for p in ids]))
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
@@ -406,15 +393,6 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
                          int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode, stations,
                          found.floor_mm)
-
-
-def _weigh_by_misfit(prep: Candidates, ratio) -> Candidates:
-    """``prep`` with each candidate's sandwich middle scaled by its misfit ratio (N,): its own share
-    of what the geometric model does not explain (without a middle: its information so scaled, the
-    estimator's weights being the estimated average noise)."""
-    ratio = np.asarray(ratio, dtype=float)[:, None, None]
-    middle = prep.info * ratio if prep.middle is None else prep.middle * ratio
-    return replace(prep, middle=middle)
 
 
 def placement_of(layout: Layout, spec) -> np.ndarray:

@@ -25,15 +25,18 @@ No I/O here.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 
+from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Sigmas
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import kinematic_levels
 from fgcal.robots.model import RobotModel
+from fgcal.studies.design import Candidates
 
-__all__ = ["NEIGHBOURS", "pose_misfit", "with_floor"]
+__all__ = ["MIN_RATIO", "NEIGHBOURS", "floor_of", "pose_misfit", "weigh_by_misfit", "with_floor"]
 
 log = logging.getLogger(__name__)
 
@@ -133,3 +136,25 @@ def with_floor(pred_mm: float, floor_mm: float) -> float:
     """The predicted position error RMS at new poses (mm) of a plan whose estimation error is
     ``pred_mm``, on a robot whose geometric model leaves ``floor_mm`` unexplained."""
     return float(np.hypot(pred_mm, floor_mm))
+
+
+def floor_of(result, ds: Dataset, model: RobotModel) -> float:
+    """RMS position error (mm) at ``ds``'s poses of the calibration ``result`` of all of them."""
+    from fgcal.estimation.verification import verify
+
+    try:
+        err = np.asarray(verify(result, ds, model).after.position_mm, dtype=float)
+    except (FgcalError, ValueError) as exc:  # a type verify does not compare: no floor stated
+        log.info("design: no floor from %s (%s)", ds.path or "the dataset", exc)
+        return 0.0
+    err = err[np.isfinite(err)]
+    return float(np.sqrt(np.mean(err**2))) if len(err) else 0.0
+
+
+def weigh_by_misfit(prep: Candidates, ratio) -> Candidates:
+    """``prep`` with each candidate's sandwich middle scaled by its misfit ratio (N,): its own share
+    of what the geometric model does not explain (without a middle: its information so scaled, the
+    estimator's weights being the estimated average noise)."""
+    ratio = np.asarray(ratio, dtype=float)[:, None, None]
+    middle = prep.info * ratio if prep.middle is None else prep.middle * ratio
+    return replace(prep, middle=middle)
