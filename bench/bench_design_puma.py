@@ -10,7 +10,7 @@ independent forward kinematics of the calibrated and the true parameters). The p
 25th percentile of the random plans' mean error over the same truths.
 
 Measured 2026-12-02: seed 0 (40 random sets) plan 0.0367 mm against the random plans' 25th
-percentile 0.0477 (median 0.0499; predicted 0.0388), the plan beating every random plan; seeds 1, 2, 3
+percentile 0.0476 (median 0.0505; predicted 0.0388), the plan beating every random plan; seeds 1, 2, 3
 (20 random sets): 0.0370, 0.0373, 0.0411 against 0.0489, 0.0507, 0.0493; ``--perturb all`` (seed 0):
 0.0378 against 0.0467. The issue's 0.0434 against 0.0409 (another scorer) is not reproduced here.
 
