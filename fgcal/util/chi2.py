@@ -58,7 +58,10 @@ def _upper_fraction(a: float, x: float) -> float:
 
 
 def _gamma_pq(a: float, x: float) -> tuple[float, float]:
-    """Regularised incomplete gamma ``(P(a, x), Q(a, x))``, each computed where it is the small one."""
+    """Regularised incomplete gamma ``(P(a, x), Q(a, x))``, each computed where it is the small one
+    (``a = 0``: the point mass at zero, as scipy.special)."""
+    if a == 0.0 and x >= 0.0:
+        return 1.0, 0.0
     if x <= 0.0:
         return 0.0, 1.0
     if math.isinf(x):
@@ -70,30 +73,33 @@ def _gamma_pq(a: float, x: float) -> tuple[float, float]:
     return 1.0 - q, q
 
 
-def _check(k: float, x: float) -> tuple[float, float]:
-    k, x = float(k), float(x)
-    if not k > 0 or math.isnan(x):
-        raise ValueError(f"chi-square needs degrees of freedom > 0 and a value, got k={k}, x={x}")
-    return k, x
+def _valid(k: float, x: float) -> bool:
+    """Degrees of freedom >= 0 and a value (as scipy.special, anything else gives nan)."""
+    return k >= 0 and not math.isnan(x)
 
 
 def chi2_cdf(k: float, x: float) -> float:
-    """``P(X <= x)`` for ``X ~ chi-square(k)`` (``scipy.special.chdtr(k, x)``)."""
-    k, x = _check(k, x)
-    return _gamma_pq(0.5 * k, 0.5 * x)[0]
+    """``P(X <= x)`` for ``X ~ chi-square(k)`` (``scipy.special.chdtr(k, x)``; nan where it is)."""
+    k, x = float(k), float(x)
+    return _gamma_pq(0.5 * k, 0.5 * x)[0] if _valid(k, x) else math.nan
 
 
 def chi2_sf(k: float, x: float) -> float:
-    """``P(X > x)`` for ``X ~ chi-square(k)`` (``scipy.special.chdtrc(k, x)``)."""
-    k, x = _check(k, x)
-    return _gamma_pq(0.5 * k, 0.5 * x)[1]
+    """``P(X > x)`` for ``X ~ chi-square(k)`` (``scipy.special.chdtrc(k, x)``; nan where it is)."""
+    k, x = float(k), float(x)
+    return _gamma_pq(0.5 * k, 0.5 * x)[1] if _valid(k, x) else math.nan
 
 
 def chi2_isf(k: float, p: float) -> float:
-    """The ``x`` with ``P(X > x) = p`` for ``X ~ chi-square(k)`` (``scipy.special.chdtri(k, p)``), ``0 < p < 1``."""
-    k, p = _check(k, p)
-    if not 0.0 < p < 1.0:
-        raise ValueError(f"a chi-square tail probability must be in (0, 1), got {p}")
+    """The ``x`` with ``P(X > x) = p`` for ``X ~ chi-square(k)`` (``scipy.special.chdtri(k, p)``:
+    inf at ``p = 0``, 0 at ``p = 1``, nan outside [0, 1])."""
+    k, p = float(k), float(p)
+    if not _valid(k, p) or k == 0 or not 0.0 <= p <= 1.0:
+        return math.nan
+    if p == 0.0:
+        return math.inf
+    if p == 1.0:
+        return 0.0
     a = 0.5 * k
     # Start: Wilson-Hilferty (a normal quantile by a rational approximation), then bracket.
     z = _normal_isf(p)
