@@ -58,6 +58,11 @@ def test_held_out_accuracy_matches_the_reference(series, tmp_path_factory):
             from fgcal.report.uncertainty import verdict
             v = verify(r, held, model).to_dict()
             assert any("no geometric model explains" in line for line in verdict(r, v))
+            # the first verdict: an error ~30 times the tracker's noise is the model's limit, not the noise's
+            from fgcal.report.report_sections import build_content
+            first = next(b.items for b in build_content(r, v).sections[0].blocks if b.kind == "ul")[0]
+            assert first.startswith("The model, not the noise, limits the accuracy") and \
+                "--model compliance+map" in first, first
             write_report(r, tmp_path_factory.mktemp("ur10-report"), v)
     # measured: 0.4045 and 0.3976 mm (base and tool only: 1.011 and 1.044 mm)
     assert np.mean(full) <= 0.405
