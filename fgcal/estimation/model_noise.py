@@ -22,6 +22,7 @@ from fgcal.estimation.calibrate import calibrate
 from fgcal.estimation.joint_errors import JointErrorSpec
 from fgcal.estimation.noise import MIN_REDUNDANCY, NoiseMode, fit_test
 from fgcal.estimation.options import CalibrationOptions
+from fgcal.estimation.robust_cov import scatter_covariance
 
 __all__ = ["OWN_NOTE", "REUSED", "REUSED_NOTE", "fit_model", "own_noise"]
 
@@ -66,7 +67,9 @@ def fit_model(ds, model, options: CalibrationOptions, spec: JointErrorSpec, geom
     """The model ``spec`` calibrated on ``ds`` at its own noise, started at ``geometric``'s.
 
     ``options`` as for the geometric fit ``geometric`` (a :class:`CalibrationResult` of ``ds``);
-    where that fit had the declared noise, so has this one (nothing is estimated).
+    where that fit had the declared noise, so has this one (nothing is estimated). With a map
+    (``spec.harmonics``) the covariance is the estimate's scatter
+    (:func:`fgcal.estimation.robust_cov.scatter_covariance`), not the posterior.
     """
     fixed = replace(options, estimate_noise=False, noise=NoiseMode.DECLARED,
                     noise_scale=geometric.options.get("noise_scale") or options.noise_scale)
@@ -75,9 +78,10 @@ def fit_model(ds, model, options: CalibrationOptions, spec: JointErrorSpec, geom
         return _reused_noise(calibrate(ds, model, replace(opts_, joint_errors=spec_)), geometric)
 
     first = fit(spec, fixed)
-    if geometric.noise_mode != NoiseMode.ESTIMATED.value:
-        return first
-    return own_noise(fit, first, spec, fixed)
+    res = first if geometric.noise_mode != NoiseMode.ESTIMATED.value else own_noise(fit, first, spec, fixed)
+    if spec.harmonics:  # a MAP estimate: its covariance at the scatter the data show (not the posterior's)
+        scatter_covariance(ds, model, res, fixed)
+    return res
 
 
 def own_noise(fit: Callable, first, spec: JointErrorSpec, options: CalibrationOptions):
