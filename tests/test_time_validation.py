@@ -54,3 +54,14 @@ def test_compare_models_names_a_drift_in_the_session():
     assert len(out[0.4].drift) == 1 and "the data drift" in out[0.4].drift[0]
     s = out[0.4].score("geometric")
     assert s.forward_error > 1.25 * s.cv_error and s.forward_max >= s.forward_error
+
+
+def test_selection_with_drift_and_later_scores_round_trips():
+    from fgcal.estimation.model_select import ModelScore, ModelSelection
+
+    sel = ModelSelection([ModelScore("geometric", {}, 30, 0.35, 0.01, cv_max=2.1, forward_error=0.42, forward_max=2.0)],
+                         "geometric", 5, "geometric: the best", ["the data drift: ..."])
+    back = ModelSelection.from_dict(sel.to_dict())
+    assert back == sel and back.drift == ["the data drift: ..."] and back.scores[0].forward_max == 2.0
+    old = {k: v for k, v in sel.to_dict().items() if k != "drift"}  # a result written before: no drift
+    assert ModelSelection.from_dict(old).drift == []
