@@ -150,3 +150,25 @@ def test_the_block_jacobian_matches_finite_differences(drifting):
 def test_bad_drift_levels_are_refused():
     with pytest.raises(FgcalError, match="drift length_mm"):
         DriftLevels(length_mm=-1.0)
+
+
+def test_the_command_writes_the_series_and_refuses_what_it_does_not_do(drifting, tmp_path, capsys):
+    from fgcal.cli import main
+    from fgcal.io.dataset_io import save_dataset
+
+    ds, _ = drifting
+    path = tmp_path / "session"
+    save_dataset(ds.select(ds.pose_ids[:60]), path)
+    out = tmp_path / "drift.json"
+    rc = main(["online", str(path), "--model", "compliance+map", "--harmonics", "1", "--drift", "0.003", "0.0003",
+               "--map-drift", "0.1", "--train", "0.5", "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert rc == 0, printed
+    res = load_drift_result(out)
+    assert res.train == 30 and len(res.steps) == 60 and res.levels.length_mm == 0.003
+    assert res.names[-2:] == ["map.j6.sin1", "map.j6.cos1"] and "j2.compliance" in res.names
+    assert f"mean {res.summary()['mean']:.4f} mm" in printed
+    assert main(["online", str(path), "--model", "compliance+map", "--stdin"]) == 2
+    assert "--stdin is for the engines without it" in capsys.readouterr().err
+    assert main(["online", str(path), "--model", "geometric", "--engine", "ukf"]) == 2
+    assert "--engine ukf does not apply" in capsys.readouterr().err

@@ -27,6 +27,9 @@ def _spec(ds, robot, model: str, harmonics: int, map_sigma_urad: float, joint_er
     kind = ModelKind(model)
     if kind is ModelKind.GEOMETRIC:
         return None
+    if isinstance(joint_errors, JointErrorSpec):
+        return joint_errors if kind is ModelKind.COMPLIANCE_MAP else JointErrorSpec(joint_errors.compliance,
+                                                                                    payload=joint_errors.payload)
     if joint_errors is not None:
         from fgcal.estimation.result import load_result
 
@@ -72,8 +75,8 @@ def follow(dataset, *, model: str = "compliance+map", harmonics: int = 30, map_s
         Map harmonics per joint (``compliance+map`` without ``joint_errors``).
     map_sigma_urad : float
         Prior standard deviation of each map coefficient (µrad).
-    joint_errors : path or CalibrationResult, optional
-        A result of ``fgcal calibrate --model``: its block (compliances, harmonics, prior) is used.
+    joint_errors : path, CalibrationResult or JointErrorSpec, optional
+        A result of ``fgcal calibrate --model`` (its block: compliances, harmonics, prior), or a block.
     drift : (mm, deg), optional
         Random-walk step per pose of the geometry; with ``map_drift_urad`` (µrad per pose of each
         map coefficient; compliances 0.1 of it in µrad/Nm). Chosen on the training poses when None.

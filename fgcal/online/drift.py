@@ -124,6 +124,8 @@ class DriftFilter:
     spec : JointErrorSpec or None
         The joint-error block (None: geometry alone).
     levels : DriftLevels
+    design_cache : dict, optional
+        Shared by filters of the same dataset and block (the joint-error design per reading).
     noise_factor : float or None
         The declared measurement noise (variances) is multiplied by it; None (default): one factor
         per noise component (tool rotation, tool position, ball centres) estimated from the
@@ -132,7 +134,8 @@ class DriftFilter:
     """
 
     def __init__(self, ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, levels: DriftLevels,
-                 noise_factor: float | None = None, options: CalibrationOptions = CalibrationOptions()):
+                 noise_factor: float | None = None, options: CalibrationOptions = CalibrationOptions(),
+                 design_cache: dict | None = None):
         if noise_factor is not None and (not np.isfinite(noise_factor) or noise_factor <= 0):
             raise FgcalError(f"noise factor {noise_factor!r}: must be a positive number")
         self.ds, self.model, self.levels = ds, model, levels
@@ -157,13 +160,20 @@ class DriftFilter:
         self.sigma_centre = float(sig.centre)
         self.Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (model.n_joints,)))
         self.steps: list[DriftStep] = []
+        self.design_cache: dict = {} if design_cache is None else design_cache  # reading -> G (same block)
 
     # ---------------------------------------------------------------- measurement
     def _design(self, q) -> np.ndarray:
-        """``G`` (n, K) at the reading ``q``; compliance torques at the nominal geometry."""
+        """``G`` (n, K) at the reading ``q``; compliance torques at the nominal geometry (so that
+        it depends on the reading alone and is kept: the iterations and the runs of
+        :func:`choose_drift` share it)."""
         if self.block is None:
             return np.zeros((len(q), 0))
-        return self.block.design(q[None], self.model.nominal)[0]
+        key = q.tobytes()
+        G = self.design_cache.get(key)
+        if G is None:
+            G = self.design_cache[key] = self.block.design(q[None], self.model.nominal)[0]
+        return G
 
     def _rows(self, rec: PoseData, x):
         """``(e (M,), H (M, S), R0 (M, M), component of each row (M,), position rows)`` at ``x``."""
@@ -288,10 +298,11 @@ def _records(ds: Dataset, model: RobotModel, order=None) -> list[PoseData]:
 
 
 def follow_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, levels: DriftLevels,
-                 noise_factor: float | None = None, order=None, stop_after: int | None = None) -> DriftFilter:
+                 noise_factor: float | None = None, order=None, stop_after: int | None = None,
+                 design_cache: dict | None = None) -> DriftFilter:
     """Run a :class:`DriftFilter` over the dataset's poses in ``order`` (pose ids; default file
     order, which is time order for a recorded session); ``stop_after``: only the first poses."""
-    f = DriftFilter(ds, model, spec, levels, noise_factor)
+    f = DriftFilter(ds, model, spec, levels, noise_factor, design_cache=design_cache)
     recs = _records(ds, model, order)
     for rec in recs[:stop_after]:
         f.step(rec)
@@ -324,11 +335,12 @@ def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, tr
     start = int(burn_in * train)
     table: list[dict] = []
     done: dict = {}
+    cache: dict = {}
 
     def score(c, nf):
         key = (float(c), float(nf))
         if key not in done:
-            f = follow_drift(ds, model, spec, base.scaled(c), nf, order=order, stop_after=train)
+            f = follow_drift(ds, model, spec, base.scaled(c), nf, order=order, stop_after=train, design_cache=cache)
             scored = f.steps[start:]
             done[key] = {"scale": key[0], "noise_factor": key[1], "loglik": float(sum(s.loglik for s in scored)),
                          "mean_mm": float(np.mean([s.error_mm for s in scored]))}
