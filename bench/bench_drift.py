@@ -8,8 +8,8 @@ through every pose in order, predicting each from the poses before it (its drift
 chosen by the training poses' one-step-ahead likelihood only), and its one-step-ahead errors at
 the same later poses are compared: mean and max (mm), the ratio online / batch.
 
-Run: ``python bench/bench_drift.py [--series PATH] [--batch RESULT.json] [--harmonics H --map-sigma URAD]``
-(``--batch``: a saved compliance+map result of the training poses, to skip the comparison's minutes).
+Run: ``python bench/bench_drift.py [--series PATH] [--save-batch DIR | --batch DIR] [--harmonics H --map-sigma URAD]``
+(``--batch DIR``: the batch results a run with ``--save-batch DIR`` wrote, to skip the comparison's minutes).
 """
 from __future__ import annotations
 
@@ -45,10 +45,12 @@ def time_split(series, calib, share=0.6):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--series", type=Path, default=default_series())
-    ap.add_argument("--batch", type=Path, default=None, help="saved batch result (compliance+map, training poses)")
+    ap.add_argument("--batch", type=Path, default=None,
+                    help="folder of saved batch results of the training poses (MODEL.json: geometric, compliance, "
+                         "compliance+map) written by --save-batch, to skip the comparison's minutes")
     ap.add_argument("--harmonics", type=int, default=None, help="online map harmonics (default: the batch's)")
     ap.add_argument("--map-sigma", type=float, default=None, help="online map prior, urad (default: the batch's)")
-    ap.add_argument("--save-batch", type=Path, default=None, help="write the batch compliance+map result here")
+    ap.add_argument("--save-batch", type=Path, default=None, help="write the batch results into this folder")
     args = ap.parse_args()
     if args.series is None or not args.series.exists():
         print("real data not found (../shared/data/landgraf-ur10/Series_B); give --series PATH")
@@ -69,7 +71,9 @@ def main():
     t0 = time.perf_counter()
     batch = {}
     if args.batch is not None:
-        batch["compliance+map"] = load_result(args.batch)
+        for name in ("geometric", "compliance", "compliance+map"):
+            if (args.batch / f"{name}.json").exists():
+                batch[name] = load_result(args.batch / f"{name}.json")
     else:
         from fgcal.estimation.model_select import compare_models
 
@@ -79,7 +83,9 @@ def main():
         batch = dict(results)
         print(f"batch comparison {time.perf_counter() - t0:.0f} s; recommended {sel.recommended}")
         if args.save_batch:
-            save_result(results["compliance+map"], args.save_batch)
+            args.save_batch.mkdir(parents=True, exist_ok=True)
+            for name, res in results.items():
+                save_result(res, args.save_batch / f"{name}.json")
     t_batch = time.perf_counter() - t0
     later_ds = calib.select(later)
     print(f"\n  {'model':28s} {'mean mm':>8s} {'max mm':>8s}")
@@ -99,7 +105,7 @@ def main():
     n_train = (len(train) + 0.5) / ds.n_poses  # the first len(train) poses choose the drift
     for label, kind in (("geometric", "geometric"), ("compliance+map", "compliance+map")):
         t1 = time.perf_counter()
-        r = follow(ds, model=kind, joint_errors=spec if kind != "geometric" else None, train=n_train)
+        r = follow(ds, model=kind, joint_errors=spec if kind != "geometric" else None, train=n_train, robot=model)
         elapsed = time.perf_counter() - t1
         by_pose = {s.pose: s.error_mm for s in r.steps}
         e = np.array([by_pose[p] for p in later])
@@ -111,7 +117,8 @@ def main():
               f"the batch's time)")
         print(f"    online / batch {label}: mean {e.mean() / b.mean():.3f}, max {e.max() / b.max():.3f}")
         for row in r.choice:
-            print(f"    candidate drift x{row['scale']:g} noise x{row['noise_factor']:g}: training log-likelihood "
+            print(f"    candidate drift x{row['geometry']:g} geometry, x{row['block']:g} block, noise "
+                  f"x{row['noise_factor']:g}: training log-likelihood "
                   f"{row['loglik']:.1f}, one-step-ahead mean {row['mean_mm']:.4f} mm")
     return 0
 

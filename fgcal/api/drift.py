@@ -16,9 +16,9 @@ __all__ = ["BASE_DRIFT", "follow"]
 
 log = logging.getLogger(__name__)
 
-# The drift per pose the automatic choice scales (DRIFT_SCALES): a micrometre and 0.36 arc-seconds of
-# geometry, 0.1 µrad of each map coefficient, 0.01 µrad/Nm of each compliance.
-BASE_DRIFT = DriftLevels(length_mm=1e-3, angle_deg=1e-4, map_urad=0.1, compliance_urad_per_nm=0.01)
+# The drift per pose the automatic choice scales (DRIFT_SCALES, the geometry's and the block's apart):
+# a micrometre and 0.36 arc-seconds of geometry, 1 µrad of each map coefficient, 0.1 µrad/Nm of each compliance.
+BASE_DRIFT = DriftLevels(length_mm=1e-3, angle_deg=1e-4, map_urad=1.0, compliance_urad_per_nm=0.1)
 
 
 def _spec(ds, robot, model: str, harmonics: int, map_sigma_urad: float, joint_errors) -> JointErrorSpec | None:
@@ -58,7 +58,7 @@ def _spec(ds, robot, model: str, harmonics: int, map_sigma_urad: float, joint_er
 
 def follow(dataset, *, model: str = "compliance+map", harmonics: int = 30, map_sigma_urad: float = 300.0,
            joint_errors=None, drift: Sequence[float] | None = None, map_drift_urad: float | None = None,
-           train: float = 0.6, noise_factor: float | None = None, baseline=None) -> DriftResult:
+           train: float = 0.6, noise_factor: float | None = None, baseline=None, robot=None) -> DriftResult:
     """Follow the robot of ``dataset`` through its poses in file (time) order, one pose ahead.
 
     Each pose is predicted from the state after the poses before it (geometry and joint-error
@@ -86,6 +86,8 @@ def follow(dataset, *, model: str = "compliance+map", harmonics: int = 30, map_s
         The declared noise's variance factor; chosen with the drift when None.
     baseline : path or CalibrationResult, optional
         A batch result: its errors at the same later poses are stored beside (``extra["baseline"]``).
+    robot : RobotModel, optional
+        The robot (default: the dataset's, from its files).
 
     Returns
     -------
@@ -98,7 +100,7 @@ def follow(dataset, *, model: str = "compliance+map", harmonics: int = 30, map_s
     if not 0.0 < train < 1.0:
         raise FgcalError(f"--train {train!r}: a share of the poses between 0 and 1 (exclusive)")
     ds = load_dataset(dataset) if isinstance(dataset, str | Path) else dataset
-    robot = dataset_model(ds)
+    robot = dataset_model(ds) if robot is None else robot
     spec = _spec(ds, robot, model, harmonics, map_sigma_urad, joint_errors)
     n = ds.n_poses
     n_train = int(train * n)

@@ -309,26 +309,33 @@ def follow_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, le
     return f
 
 
-DRIFT_SCALES = (0.0, 0.3, 1.0, 3.0, 10.0, 30.0)  # multiples of the base drift tried
-NOISE_FACTORS = (1.0, 3.0, 10.0, 30.0, 100.0, 300.0, 1000.0)  # declared-noise variance factors tried
+DRIFT_SCALES = (0.0, 0.3, 1.0, 3.0, 10.0)  # multiples of the base drift tried (geometry and block apart)
+NOISE_FACTORS = (3.0, 10.0, 30.0, 100.0, 300.0)  # declared-noise variance factors tried
+
+
+def _split(base: DriftLevels, geometry: float, block: float) -> DriftLevels:
+    """``base`` with its geometric steps scaled by ``geometry`` and the block's by ``block``."""
+    return DriftLevels(geometry * base.length_mm, geometry * base.angle_deg, block * base.map_urad,
+                       block * base.compliance_urad_per_nm)
 
 
 def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, train: int, base: DriftLevels,
                  factors=DRIFT_SCALES, noise_factors=NOISE_FACTORS, order=None, burn_in: float = 0.25):
-    """The drift ``base.scaled(c)`` and the noise factor that maximise the one-step-ahead
-    log-likelihood of the first ``train`` poses (those after the first ``burn_in`` share of them,
-    where the weak prior no longer dominates the prediction); the poses after them are never run.
+    """The drift (``base`` with its geometry and its block scaled apart by ``factors``) and the
+    noise factor that maximise the one-step-ahead log-likelihood of the first ``train`` poses
+    (those after the first ``burn_in`` share of them, where the weak prior still dominates the
+    prediction, are scored); the poses after them are never run.
 
-    A coordinate search: the noise factor at no drift, then the drift at that noise, then the
-    noise again at that drift (each a grid; the noise declared by a dataset is often a tracker's
-    alone, far below what a model of the robot fits to).
+    A coordinate search, each step a grid: the noise factor at no drift (the noise a dataset
+    declares is often its instrument's alone, far below what a model of the robot fits to), the
+    geometry's drift, the block's drift, then the noise factor again.
 
     Returns
     -------
     levels : DriftLevels
     noise_factor : float
     table : list of dict
-        ``{"scale", "noise_factor", "loglik", "mean_mm"}`` per candidate run (training poses only).
+        ``{"geometry", "block", "noise_factor", "loglik", "mean_mm"}`` per run (training poses only).
     """
     if train < 4:
         raise FgcalError(f"choosing the drift needs at least 4 training poses, not {train}")
@@ -336,21 +343,26 @@ def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, tr
     table: list[dict] = []
     done: dict = {}
     cache: dict = {}
+    has_block = spec is not None and bool(spec.names(model.n_joints))
 
-    def score(c, nf):
-        key = (float(c), float(nf))
+    def score(g, b, nf):
+        key = (float(g), float(b), float(nf))
         if key not in done:
-            f = follow_drift(ds, model, spec, base.scaled(c), nf, order=order, stop_after=train, design_cache=cache)
+            f = follow_drift(ds, model, spec, _split(base, g, b), nf, order=order, stop_after=train,
+                             design_cache=cache)
             scored = f.steps[start:]
-            done[key] = {"scale": key[0], "noise_factor": key[1], "loglik": float(sum(s.loglik for s in scored)),
+            done[key] = {"geometry": key[0], "block": key[1], "noise_factor": key[2],
+                         "loglik": float(sum(s.loglik for s in scored)),
                          "mean_mm": float(np.mean([s.error_mm for s in scored]))}
             table.append(done[key])
-            log.info("drift x%g, noise factor %g: training log-likelihood %.1f, one-step-ahead mean %.4f mm",
-                     c, nf, done[key]["loglik"], done[key]["mean_mm"])
+            log.info("drift x%g (geometry), x%g (block), noise factor %g: training log-likelihood %.1f, "
+                     "one-step-ahead mean %.4f mm", g, b, nf, done[key]["loglik"], done[key]["mean_mm"])
         return done[key]["loglik"]
 
-    c0 = min(factors)
-    nf = max(noise_factors, key=lambda v: score(c0, v))
-    c = max(factors, key=lambda v: score(v, nf))
-    nf = max(noise_factors, key=lambda v: score(c, v))
-    return base.scaled(c), nf, table
+    g = b = min(factors)
+    nf = max(noise_factors, key=lambda v: score(g, b, v))
+    g = max(factors, key=lambda v: score(v, b, nf))
+    if has_block:
+        b = max(factors, key=lambda v: score(g, v, nf))
+    nf = max(noise_factors, key=lambda v: score(g, b, v))
+    return _split(base, g, b), nf, table
