@@ -311,6 +311,8 @@ def follow_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, le
 
 DRIFT_SCALES = (0.0, 0.3, 1.0, 3.0, 10.0)  # multiples of the base drift tried (geometry and block apart)
 NOISE_FACTORS = (3.0, 10.0, 30.0, 100.0, 300.0)  # declared-noise variance factors tried
+GROWTH = 3.0  # a grid whose best value is its largest grows by this factor ...
+MAX_GROWTH = 4  # ... at most this many times
 
 
 def _split(base: DriftLevels, geometry: float, block: float) -> DriftLevels:
@@ -326,7 +328,8 @@ def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, tr
     (those after the first ``burn_in`` share of them, where the weak prior still dominates the
     prediction, are scored); the poses after them are never run.
 
-    A coordinate search, each step a grid: the noise factor at no drift (the noise a dataset
+    A coordinate search, each step a grid (grown by :data:`GROWTH` past its largest value, at most
+    :data:`MAX_GROWTH` times, while the best is there; a warning when it stops there): the noise factor at no drift (the noise a dataset
     declares is often its instrument's alone, far below what a model of the robot fits to), the
     geometry's drift, the block's drift, then the noise factor again.
 
@@ -359,10 +362,23 @@ def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, tr
                      "one-step-ahead mean %.4f mm", g, b, nf, done[key]["loglik"], done[key]["mean_mm"])
         return done[key]["loglik"]
 
+    def best(grid, at):
+        """The grid's best value, the grid grown by GROWTH past its largest end while the best is there."""
+        grid = sorted(grid)
+        top = max(grid, key=at)
+        for _ in range(MAX_GROWTH):
+            if top != grid[-1] or top <= 0:
+                break
+            grid.append(grid[-1] * GROWTH)
+            top = max(grid, key=at)
+        if top == grid[-1] and len(grid) > 1:
+            log.warning("the drift's choice stopped at the largest value tried (%g): the optimum may lie beyond it", top)
+        return top
+
     g = b = min(factors)
-    nf = max(noise_factors, key=lambda v: score(g, b, v))
-    g = max(factors, key=lambda v: score(v, b, nf))
+    nf = best(noise_factors, lambda v: score(g, b, v))
+    g = best(factors, lambda v: score(v, b, nf))
     if has_block:
-        b = max(factors, key=lambda v: score(g, v, nf))
-    nf = max(noise_factors, key=lambda v: score(g, b, v))
+        b = best(factors, lambda v: score(g, v, nf))
+    nf = best(noise_factors, lambda v: score(g, b, v))
     return _split(base, g, b), nf, table
