@@ -130,14 +130,16 @@ def test_result_round_trip_and_bad_files(drifting, tmp_path):
         load_drift_result(path)
 
 
-def test_the_block_jacobian_matches_finite_differences(drifting):
+@pytest.mark.parametrize("spec", [SPEC, JointErrorSpec(compliance=(2, 3), harmonics=1, map_joints=(2,))])
+def test_the_block_jacobian_matches_finite_differences(drifting, spec):
     ds, _ = drifting
-    f = follow_drift(ds, UR10, SPEC, BASE, 1.0, stop_after=0)
+    f = follow_drift(ds, UR10, spec, BASE, 1.0, stop_after=0)
     from fgcal.online.drift import _records
 
     rec = _records(ds, UR10)[5]
     rng = np.random.default_rng(0)
     x = f.x + rng.normal(0, 1e-4, len(f.x))
+    x[f.n_geometric:] = rng.normal(0, 30e-6, len(x) - f.n_geometric)  # rad, rad/Nm
     _, H, _, _, _ = f._rows(rec, x)
     h = 1e-7
     for k in list(range(3)) + list(range(len(x) - 4, len(x))):
@@ -160,14 +162,21 @@ def test_the_command_writes_the_series_and_refuses_what_it_does_not_do(drifting,
     path = tmp_path / "session"
     save_dataset(ds.select(ds.pose_ids[:60]), path)
     out = tmp_path / "drift.json"
+    from fgcal.estimation.result import save_result
+
+    batch = calibrate(ds.select(ds.pose_ids[:30]), UR10, CalibrationOptions(joint_errors=SPEC))
+    save_result(batch, tmp_path / "batch.json")
     rc = main(["online", str(path), "--model", "compliance+map", "--harmonics", "1", "--drift", "0.003", "0.0003",
-               "--map-drift", "0.1", "--train", "0.5", "--out", str(out)])
+               "--map-drift", "0.1", "--train", "0.5", "--out", str(out), "--baseline", str(tmp_path / "batch.json")])
     printed = capsys.readouterr().out
     assert rc == 0, printed
     res = load_drift_result(out)
     assert res.train == 30 and len(res.steps) == 60 and res.levels.length_mm == 0.003
     assert res.names[-2:] == ["map.j6.sin1", "map.j6.cos1"] and "j2.compliance" in res.names
     assert f"mean {res.summary()['mean']:.4f} mm" in printed
+    later = verify(batch, ds.select(ds.pose_ids[30:60]), UR10).after.position_mm
+    assert res.extra["baseline"]["summary"]["mean"] == pytest.approx(later.mean())
+    assert f"the batch result at the same poses: mean {later.mean():.4f} mm" in printed
     assert main(["online", str(path), "--model", "compliance+map", "--stdin"]) == 2
     assert "--stdin is for the engines without it" in capsys.readouterr().err
     assert main(["online", str(path), "--model", "geometric", "--engine", "ukf"]) == 2
