@@ -329,9 +329,10 @@ def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, tr
     prediction, are scored); the poses after them are never run.
 
     A coordinate search, each step a grid (grown by :data:`GROWTH` past its largest value, at most
-    :data:`MAX_GROWTH` times, while the best is there; a warning when it stops there): the noise factor at no drift (the noise a dataset
-    declares is often its instrument's alone, far below what a model of the robot fits to), the
-    geometry's drift, the block's drift, then the noise factor again.
+    :data:`MAX_GROWTH` times, while the best is there; a warning when it stops there): the noise
+    factor at no drift (the noise a dataset declares is often its instrument's alone, far below
+    what a model of the robot fits to), the geometry's and the block's drift on one grid (each
+    then grown past its end where the best is there), then the noise factor again.
 
     Returns
     -------
@@ -377,7 +378,11 @@ def choose_drift(ds: Dataset, model: RobotModel, spec: JointErrorSpec | None, tr
 
     g = b = min(factors)
     nf = best(noise_factors, lambda v: score(g, b, v))
-    g = best(factors, lambda v: score(v, b, nf))
+    # the geometry's and the block's drift on one grid: each alone absorbs some of the other's
+    # drift, and a search along one at a time stops at the first it tried
+    pairs = [(gv, bv) for gv in factors for bv in (factors if has_block else (b,))]
+    g, b = max(pairs, key=lambda p: score(p[0], p[1], nf))
+    g = best(factors, lambda v: score(v, b, nf))  # grown past the grid's end where the best is there
     if has_block:
         b = best(factors, lambda v: score(g, v, nf))
     nf = best(noise_factors, lambda v: score(g, b, v))
