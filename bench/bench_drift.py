@@ -113,8 +113,8 @@ def main():
         b = batch_err.get(label, batch_err["compliance+map"])
         print(f"  online {label:21s} {e.mean():8.4f} {e.max():8.4f}   (drift {lv.length_mm:g} mm, {lv.angle_deg:g} deg, "
               f"map {lv.map_urad:g} urad per pose; noise factor {r.extra['noise_factor']:g}; "
-              f"{sum(not s.taken for s in r.steps)} not taken; {elapsed:.0f} s = {elapsed / max(t_batch, 1e-9):.2f} x "
-              f"the batch's time)")
+              f"{sum(not s.taken for s in r.steps)} not taken; {elapsed:.0f} s" +
+              (f" = {elapsed / t_batch:.2f} x the batch comparison's time)" if args.batch is None else ")"))
         print(f"    online / batch {label}: mean {e.mean() / b.mean():.3f}, max {e.max() / b.max():.3f}")
         for row in r.choice:
             print(f"    candidate drift x{row['geometry']:g} geometry, x{row['block']:g} block, noise "
