@@ -101,6 +101,8 @@ def main():
 
         spec = replace(spec, harmonics=spec.harmonics if args.harmonics is None else args.harmonics,
                        map_sigma=spec.map_sigma if args.map_sigma is None else args.map_sigma * 1e-6)
+    print(f"  online block: compliances of joints {list(spec.compliance)}, {spec.harmonics} map harmonics, prior "
+          f"{spec.map_sigma * 1e6:.1f} urad")
     ds = calib.select(np.sort(calib.pose_ids))
     n_train = (len(train) + 0.5) / ds.n_poses  # the first len(train) poses choose the drift
     for label, kind in (("geometric", "geometric"), ("compliance+map", "compliance+map")):
