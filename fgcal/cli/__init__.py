@@ -291,6 +291,22 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--drift", type=number(0.0, 1000.0, unit="mm, deg"), nargs=2, metavar=("MM", "DEG"), default=None,
                    help="random-walk drift of the parameters per pose for ekf/ukf: MM (mm) for lengths, DEG (deg) for angles "
                         "(default none)")
+    o.add_argument("--model", choices=MODELS, default=None,
+                   help="follow a drifting robot one pose ahead: the geometry and (compliance, compliance+map) the "
+                        "joint-error block as random walks in an iterated EKF; writes fgcal-drift/1 with --out")
+    o.add_argument("--harmonics", type=count(1, 1000), default=30, help="with --model compliance+map: map harmonics")
+    o.add_argument("--map-sigma", type=positive("urad", 1e5), default=300.0,
+                   help="with --model compliance+map: prior of each map coefficient (urad)")
+    o.add_argument("--joint-errors", type=Path, default=None,
+                   help="with --model: take the joint-error block of this fgcal calibrate --model result")
+    o.add_argument("--map-drift", type=number(0.0, 1e4, unit="urad"), default=None,
+                   help="with --model: random-walk step per pose of each map coefficient (urad; compliances 0.1 of "
+                        "it in urad/Nm); chosen with the geometry's on the training poses when --drift is not given")
+    o.add_argument("--train", type=number(0.0, 1.0, low_open=True, high_open=True), default=0.6,
+                   help="with --model: share of the poses (the first) the drift and noise are chosen on; the "
+                        "one-step-ahead summary is of the rest")
+    o.add_argument("--baseline", type=Path, default=None,
+                   help="with --model: a batch result whose errors at the same later poses are reported beside")
     o.set_defaults(func=_cmd_online)
 
     st = sub.add_parser("study", help="simulation studies: the paper's Figs. 8, 9, 13, its experiment, noise sweeps")

@@ -20,6 +20,10 @@ def _cmd_online(args) -> int:
 
     if args.stdin and args.follow:
         raise FgcalError("--stdin and --follow: choose one source of new poses")
+    if args.model is not None:
+        from fgcal.cli.commands.online_drift import cmd_online_drift
+
+        return cmd_online_drift(args)
     if args.checkpoint:  # read and appended to: it must not be one of the dataset's files
         check_output_file(args.checkpoint, [args.out, *dataset_inputs(args.dataset)], option="--checkpoint")
     if args.out:
