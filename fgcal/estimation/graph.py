@@ -116,6 +116,21 @@ def _robust(s, kind, k):
     raise ValueError(f"unknown robust loss {kind!r}")
 
 
+def _compact_design(joint_errors, n: int, n_joints: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(g (N, K), joints (K,))`` of a joint-error design given dense (N, n, K) or compact."""
+    if joint_errors is None:
+        return np.zeros((n, 0)), np.zeros(0, dtype=int)
+    if isinstance(joint_errors, tuple):
+        g, joint = joint_errors
+        return np.asarray(g, dtype=float).reshape(n, -1), np.asarray(joint, dtype=int)
+    G = np.asarray(joint_errors, dtype=float).reshape(n, n_joints, -1)
+    used = np.abs(G).max(axis=0) > 0  # (n, K)
+    if np.any(used.sum(axis=0) > 1):
+        raise ValueError("each joint-error parameter must correct one joint (a column of G with one nonzero row)")
+    joint = np.argmax(used, axis=0)
+    return G[:, joint, np.arange(G.shape[2])], joint
+
+
 class Graph(ArrowElimination):
     """The factor graph of one dataset, laid out for batched evaluation.
 
@@ -137,9 +152,12 @@ class Graph(ArrowElimination):
         :class:`fgcal.measurements.base.Terms` of its type in :mod:`fgcal.measurements.types`.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
-    joint_errors : ndarray, shape (N, n, K), optional
+    joint_errors : ndarray, shape (N, n, K), or tuple (g (N, K), joints (K,)), optional
         ``G`` of a joint-error block (:mod:`fgcal.estimation.joint_errors`) whose K parameters follow the
-        geometric ones in ``theta``: the joints are ``reading + G @ theta[n_geo:n_geo + K]``.
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[n_geo:n_geo + K]``. Each
+        parameter corrects one joint: the compact form gives that joint and ``G``'s entry there
+        (:meth:`~fgcal.estimation.joint_errors.JointErrorBlock.design_columns`), which is all the
+        graph keeps.
     setup : fgcal.measurements.setup.SetupLayout, optional
         The set-up unknowns (fixtures, planes); their free entries close ``theta`` (after the
         joint-error block). Measurement types with ``uses_setup`` see them; the known distances
@@ -164,8 +182,8 @@ class Graph(ArrowElimination):
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
         # --- joint-error block (fgcal.estimation.joint_errors): theta = [geometry (n_geo), phi (K)]
         self.n_geo = len(self.index)
-        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
-        self.K = 0 if self.G is None else self.G.shape[2]
+        self.g, self.g_joint = _compact_design(joint_errors, len(self.readings), nj)
+        self.K = self.g.shape[1]
         self.setup = setup
         self.S = 0 if setup is None else setup.n_free
         self._setup_col = None if setup is None else self.n_geo + self.K + setup.column()  # < n_geo+K: fixed
@@ -264,7 +282,38 @@ class Graph(ArrowElimination):
     def joints(self, state: State) -> np.ndarray:
         if self.joint_vars:
             return state.q
-        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K]
+        return self.readings if not self.K else self.readings + self.block_correction(state.theta)
+
+    def block_correction(self, theta) -> np.ndarray:
+        """(N, n) the joint-error block's correction of the readings at ``theta``."""
+        phi = np.asarray(theta)[self.n_geo:self.n_geo + self.K]
+        out = np.zeros_like(self.readings)
+        for j in np.unique(self.g_joint):
+            cols = self.g_joint == j
+            out[:, j] = self.g[:, cols] @ phi[cols]
+        return out
+
+    def _block_columns(self, pose, J_q) -> np.ndarray:
+        """(M, w, K) the block's Jacobian columns of rows with joint Jacobian ``J_q`` (M, w, n): ``J_q G``."""
+        return J_q[:, :, self.g_joint] * self.g[pose][:, None, :]
+
+    def _block_columns_into(self, out, pose, J_q) -> None:
+        """:meth:`_block_columns` written into ``out`` (M, w, K), one joint's columns at a time."""
+        for j, cols in self._joint_columns:
+            if isinstance(cols, slice):
+                np.multiply(J_q[:, :, j, None], self.g[pose, None, cols], out=out[:, :, cols])
+            else:  # an index array's selection is a copy: assigned instead
+                out[:, :, cols] = J_q[:, :, j, None] * self.g[pose][:, None, cols]
+
+    @cached_property
+    def _joint_columns(self) -> list:
+        """``(joint, its block columns)``: a slice where they are contiguous (they are as built)."""
+        out = []
+        for j in np.unique(self.g_joint):
+            cols = np.nonzero(self.g_joint == j)[0]
+            whole = cols[-1] - cols[0] + 1 == len(cols)
+            out.append((int(j), slice(int(cols[0]), int(cols[-1]) + 1) if whole else cols))
+        return out
 
     def _with_block(self, pose, J_t, J_q):
         """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0) and
@@ -273,8 +322,7 @@ class Graph(ArrowElimination):
             return J_t
         parts = [J_t]
         if self.K:
-            parts.append(np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars
-                         else np.einsum("nmj,njk->nmk", J_q, self.G[pose]))
+            parts.append(np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else self._block_columns(pose, J_q))
         if self.S:
             parts.append(np.zeros(J_t.shape[:2] + (self.S,)))
         return np.concatenate(parts, axis=2)
@@ -305,11 +353,12 @@ class Graph(ArrowElimination):
         J[:, self._setup_col[free]] = J_s[:, free] / sd[:, None]
         return e / sd, J, e
 
-    def linearise(self, state: State) -> Linearisation:
+    def linearise(self, state: State, remember: bool = True) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.
 
         The last linearisation is remembered: asking again at the same state (and held values,
         noise and excluded measurements) returns it, with the normal equations already formed on it.
+        ``remember=False``: a new one is not remembered (the remembered one is still returned).
         """
         # Sigmas are immutable (replaced, never changed): the same object means the same noise.
         weights = tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
@@ -319,7 +368,8 @@ class Graph(ArrowElimination):
                 and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
             return last[1]
         lin = self._linearise(state)
-        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights, self.sigmas)
+        if remember:
+            self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights, self.sigmas)
         return lin
 
     def _linearise(self, state: State) -> Linearisation:
@@ -332,7 +382,10 @@ class Graph(ArrowElimination):
         cost = 0.0
         raw = {}
 
-        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0):
+        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0, block=False):
+            """Whitened rows of one level; ``block``: ``J_t`` holds the geometric columns only and
+            the joint-error block's (``J_q G``) are formed here, a chunk of factors at a time
+            (no temporary of the whole level's P columns)."""
             nonlocal cost
             width = e.shape[1]
             ew = e / sigma
@@ -347,7 +400,23 @@ class Graph(ArrowElimination):
             rows_ = start[:, None] + np.arange(width)
             r[pose[:, None], rows_] = e * sw
             if J_t is not None:
-                Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
+                wide = J_t.shape[2]
+                with_block = block and self.K and not self.joint_vars  # else the block's columns are zero
+                # One factor per pose at the same rows (a pose measurement): Jt's rows are a view.
+                direct = len(pose) == n and np.array_equal(pose, np.arange(n)) and np.all(start == start[0])
+                for lo in range(0, len(pose), POSE_CHUNK):
+                    c = slice(lo, lo + POSE_CHUNK)
+                    s_ = sw[c][:, :, None]
+                    if direct:
+                        view = Jt[c, int(start[0]):int(start[0]) + width]
+                        np.multiply(J_t[c], s_, out=view[:, :, :wide])
+                        if with_block:
+                            self._block_columns_into(view[:, :, self.n_geo:self.n_geo + self.K], c, J_q[c] * s_)
+                        continue
+                    at = (pose[c, None], rows_[c])
+                    Jt[at + (slice(0, wide),)] = J_t[c] * s_
+                    if with_block:
+                        Jt[at + (slice(self.n_geo, self.n_geo + self.K),)] = self._block_columns(pose[c], J_q[c] * s_)
             if J_q is not None and self.joint_vars:
                 Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
             if J_c is not None:
@@ -377,10 +446,9 @@ class Graph(ArrowElimination):
                 J_t[sel] = jac.point_slots[b, k][:, :, self.index]
                 J_q[sel] = jac.point_joints[b, k]
                 del jac
-            J_t = self._with_block(self.ball_pose, J_t, J_q)
             J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
-                sigma=self.sigmas.kinematic)
+                sigma=self.sigmas.kinematic, block=True)
         for level, terms in self.measurements.items():
             kind = BY_LEVEL[level]
             if getattr(kind, "uses_setup", False):
@@ -388,16 +456,17 @@ class Graph(ArrowElimination):
                                                           self.setup_values(state.theta), self.index, self.held,
                                                           self.chain)
                 J_t = self._with_setup(self._with_block(terms.pose, J_t, J_q), J_s, cols)
+                put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
             else:
                 e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
-                J_t = self._with_block(terms.pose, J_t, J_q)
-            put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
+                put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas), block=True)
         if self.joint_vars:
             nj = self.n_joints
             J_joints = None
-            if self.K and self.G is not None:  # the joint variable is the reading plus the block's correction
-                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K])
-                J_joints = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G, np.zeros((n, nj, self.S))], axis=2)
+            if self.K:  # the joint variable is the reading plus the block's correction
+                e = fx.joint_error(state.q, self.readings + self.block_correction(state.theta))
+                J_joints = np.zeros((n, nj, P))
+                J_joints[:, self.g_joint, self.n_geo + np.arange(self.K)] = -self.g
             else:
                 e = fx.joint_error(state.q, self.readings)
             put("joints", np.arange(n), self.row["joints"], e, J_t=J_joints, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),

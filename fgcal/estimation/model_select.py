@@ -48,6 +48,7 @@ MAX_GRID_GROWTH = 6  # steps the map prior's grid grows by while the optimum is 
 CORRELATION_LIMIT = 0.9
 COMPLIANCE_RESOLUTION = 1.0  # urad/Nm: a compliance known no better than this is not identified (arms: ~5-20)
 SIGMA_GRID = tuple(float(s) for s in np.geomspace(1e-6, 3e-4, 8))  # rad
+_CHUNK = 2000  # poses per block of work in the cross-validation (bounds the temporaries)
 
 
 @dataclass
@@ -186,29 +187,49 @@ class _FoldSums:
         P = prob.J.shape[2]
         self.A = np.zeros((k, P, P))
         self.b = np.zeros((k, P))
-        for f in range(k):
-            Jf = prob.J[fold == f].reshape(-1, P)
-            self.A[f] = Jf.T @ Jf
-            self.b[f] = Jf.T @ prob.r[fold == f].reshape(-1)
+        # In chunks of poses, each row once: no copy of a fold's Jacobian (the cost is linear in the poses).
+        for lo in range(0, len(fold), _CHUNK):
+            c = slice(lo, lo + _CHUNK)
+            J, r, fc = prob.J[c], prob.r[c], fold[c]
+            for f in np.unique(fc):
+                Jf = J[fc == f].reshape(-1, P)  # a chunk's share of the fold: a bounded copy
+                self.A[f] += Jf.T @ Jf
+                self.b[f] += Jf.T @ r[fc == f].reshape(-1)
         self.A_all, self.b_all = self.A.sum(0), self.b.sum(0)
+        # each pose's rows that the error is measured on (the unit's scale applied)
+        self._metric = np.take_along_axis(prob.r, prob.metric_rows, axis=1) * prob.metric_scale
+        first = prob.metric_rows[:, :1]
+        same = bool(len(first)) and np.all(prob.metric_rows == first[0] + np.arange(prob.metric_rows.shape[1]))
+        self._rows = slice(int(first[0, 0]), int(first[0, 0]) + prob.metric_rows.shape[1]) if same else None
+
+    def _metric_jacobian(self, c: slice) -> np.ndarray:
+        """(n, 3, P) the metric rows' Jacobian of the poses ``c``: a view where every pose has them at
+        the same rows, else gathered."""
+        J = self.prob.J[c]
+        if self._rows is not None:
+            return J[:, self._rows]
+        return np.take_along_axis(J, self.prob.metric_rows[c][:, :, None], axis=1)
 
     def held_out_errors(self, cols, prior_sigma) -> np.ndarray:
         """(N,) error of each pose predicted by the fit to the other folds (columns ``cols``)."""
         prob = self.prob
         cols = np.asarray(cols)
         lam = np.where(np.isfinite(prior_sigma), 1.0 / np.asarray(prior_sigma) ** 2, 0.0)
-        err = np.zeros(len(prob.r))
+        X = np.zeros((prob.J.shape[2], self.k))  # each fold's fit over all columns (zero outside cols)
         for f in range(self.k):
             A = (self.A_all - self.A[f])[np.ix_(cols, cols)]
             b = (self.b_all - self.b[f])[cols]
             d = np.sqrt(np.maximum(np.diag(A), 1e-300))
             As = A / np.outer(d, d) + np.diag(lam / d**2) + 1e-10 * np.eye(len(cols))
-            x = -np.linalg.solve(As, b / d) / d
-            sel = np.nonzero(self.fold == f)[0]
-            pred = prob.r[sel] + prob.J[sel][:, :, cols] @ x  # (n_f, m)
-            pos = np.take_along_axis(pred, prob.metric_rows[sel], axis=1) * prob.metric_scale
-            err[sel] = np.linalg.norm(pos, axis=1)
-        return err
+            X[cols, f] = -np.linalg.solve(As, b / d) / d
+        # Every pose predicted by every fold's fit (N x 3 x folds products, no copy of J), then
+        # each pose's own fold's prediction taken.
+        pos = self._metric.copy()
+        for lo in range(0, len(self.fold), _CHUNK):
+            c = slice(lo, lo + _CHUNK)
+            pred = self._metric_jacobian(c) @ X  # (n, 3, folds)
+            pos[c] += np.take_along_axis(pred, self.fold[c][:, None, None], axis=2)[:, :, 0] * prob.metric_scale
+        return np.linalg.norm(pos, axis=1)
 
 
 def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GRID, sigma_grid=SIGMA_GRID,
@@ -374,6 +395,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
             specs[ModelKind.COMPLIANCE_MAP.value] = JointErrorSpec(compliance=joints, payload=payload,
                                                                    map_joints=map_joints, **kw)
         unit = prob.unit
+        del prob  # its Jacobian (poses x rows x all candidate parameters) is not needed by the fits
     else:
         geo_names = list(geo.names)
         if not geo_names:
