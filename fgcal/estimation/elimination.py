@@ -151,6 +151,9 @@ class ArrowElimination:
         shows in its residual.
         """
         lin = self.linearise(state) if lin is None else lin
+        cached = lin.cache.get("leverage")
+        if cached is not None and cached[0] is covariance:  # the same covariance object: the same answer
+            return cached[1]
         _, B, _, _, _ = self.normal_equations(lin)
         _, Dinv = self._reduced_at(lin)
         St = covariance  # (P, P) = S^-1
@@ -172,6 +175,7 @@ class ArrowElimination:
             Szz = Dinv[c] + np.matmul(Szt, E.transpose(0, 2, 1))
             h[c] = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
             h[c, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
+        lin.cache["leverage"] = (covariance, h)
         return h
 
     def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:
