@@ -303,23 +303,40 @@ class Graph(ArrowElimination, JointErrorColumns):
         noise and excluded measurements) returns it, with the normal equations already formed on it.
         ``remember=False``: a new one is not remembered (the remembered one is still returned).
         """
-        # Sigmas are immutable (replaced, never changed): the same object means the same noise.
-        weights = tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
-        key = (state.theta, state.q, state.c, self.held)
-        last = getattr(self, "_last", None)
-        if (last is not None and last[3] is self.sigmas and last[2] == weights
-                and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
-            return last[1]
+        lin = self._remembered(state)
+        if lin is not None:
+            return lin
         lin = self._linearise(state)
         if remember:
-            self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights, self.sigmas)
+            key = (state.theta, state.q, state.c, self.held)
+            self._last = (tuple(np.array(k, copy=True) for k in key), lin, self._weights_key(), self.sigmas)
         return lin
 
-    def _linearise(self, state: State) -> Linearisation:
+    def raw_errors(self, state: State) -> dict:
+        """``{level: (e, s, w)}`` at ``state``: the remembered linearisation's, else evaluated without
+        the Jacobians' (N, m, P) array."""
+        lin = self._remembered(state)
+        return (lin if lin is not None else self._linearise(state, residuals_only=True)).raw
+
+    def _weights_key(self) -> tuple:
+        return tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
+
+    def _remembered(self, state: State) -> Linearisation | None:
+        # Sigmas are immutable (replaced, never changed): the same object means the same noise.
+        key = (state.theta, state.q, state.c, self.held)
+        last = getattr(self, "_last", None)
+        if (last is not None and last[3] is self.sigmas and last[2] == self._weights_key()
+                and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
+            return last[1]
+        return None
+
+    def _linearise(self, state: State, residuals_only: bool = False) -> Linearisation:
+        """The linearisation at ``state``; ``residuals_only``: its ``J_theta`` has no columns (the
+        residuals, costs and raw errors alone, without the (N, m, P) array)."""
         n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K + self.S, self.nz
         theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
-        Jt = np.zeros((n, mt, P))
+        Jt = np.zeros((n, mt, 0 if residuals_only else P))
         Jz = np.zeros((n, m, nz))
         q = self.joints(state)
         cost = 0.0
@@ -342,7 +359,7 @@ class Graph(ArrowElimination, JointErrorColumns):
             sw = np.sqrt(w)[:, None] / sigma
             rows_ = start[:, None] + np.arange(width)
             r[pose[:, None], rows_] = e * sw
-            if J_t is not None:
+            if J_t is not None and not residuals_only:
                 wide = J_t.shape[2]
                 with_block = block and self.K and not self.joint_vars  # else the block's columns are zero
                 # One factor per pose at the same rows (a pose measurement): Jt's rows are a view.
@@ -408,8 +425,9 @@ class Graph(ArrowElimination, JointErrorColumns):
             J_joints = None
             if self.K:  # the joint variable is the reading plus the block's correction
                 e = fx.joint_error(state.q, self.readings + self.block_correction(state.theta))
-                J_joints = np.zeros((n, nj, P))
-                J_joints[:, self.g_joint, self.n_geo + np.arange(self.K)] = -self.g
+                J_joints = np.zeros((n, nj, 0 if residuals_only else P))
+                if not residuals_only:
+                    J_joints[:, self.g_joint, self.n_geo + np.arange(self.K)] = -self.g
             else:
                 e = fx.joint_error(state.q, self.readings)
             put("joints", np.arange(n), self.row["joints"], e, J_t=J_joints, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),
