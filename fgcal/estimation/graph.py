@@ -418,7 +418,11 @@ class Graph(ArrowElimination, JointErrorColumns):
                 J_t = self._with_setup(self._with_block(terms.pose, J_t, J_q), J_s, cols)
                 put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
             else:
-                e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
+                # In chunks of measurements: the kinematics' temporaries are many times the Jacobians'.
+                chunks = [terms.take(slice(lo, lo + POSE_CHUNK)) for lo in range(0, len(terms), POSE_CHUNK)] \
+                    if len(terms) > POSE_CHUNK else [terms]
+                parts = [kind.error(theta, q[t.pose], t.data, self.index, self.held, self.chain) for t in chunks]
+                e, J_t, J_q = (np.concatenate(x) if len(parts) > 1 else x[0] for x in zip(*parts))
                 put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas), block=True)
         if self.joint_vars:
             nj = self.n_joints
