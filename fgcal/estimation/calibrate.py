@@ -301,6 +301,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     if warm is not None:
         state.theta = _warm_theta(graph.params, state.theta, warm)
         damping = WARM_DAMPING
+        graph.forget()  # the start's linearisation (held_parameters'): not kept beside the solve's
     if options.estimate_noise:
         noise_mode = NoiseMode.ESTIMATED
     if options.noise_scale:  # a fixed scale (a model comparison reuses the geometric fit's noise)
@@ -369,6 +370,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
         if not changed:
             break
         # From the last optimum: lightly damped (a full damping here took 6 steps for what 2-3 do)
+        del lin  # the solve may release its Jacobian while it linearises the next state
         state, it2, converged = _solve(graph, state, options, damping=min(damping, WARM_DAMPING))
         iterations += it2
     else:

@@ -80,6 +80,7 @@ class Graph(ArrowElimination, JointErrorColumns):
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.excluded = {}  # level -> bool mask over its factors (set by the outlier handling)
+        self._last: tuple | None = None  # the remembered linearisation (see linearise)
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
         # --- joint-error block (fgcal.estimation.joint_errors): theta = [geometry (n_geo), phi (K)]
         self.n_geo = len(self.index)
@@ -227,6 +228,11 @@ class Graph(ArrowElimination, JointErrorColumns):
             self._last = (tuple(np.array(k, copy=True) for k in key), lin, self._weights_key(), self.sigmas)
         return lin
 
+    def forget(self, lin: Linearisation | None = None) -> None:
+        """Stop remembering ``lin`` (if it is the remembered linearisation; any when None)."""
+        if self._last is not None and (lin is None or self._last[1] is lin):
+            self._last = None
+
     def raw_errors(self, state: State) -> dict:
         """``{level: (e, s, w)}`` at ``state``: the remembered linearisation's, else evaluated without
         the Jacobians' (N, m, P) array."""
@@ -239,7 +245,7 @@ class Graph(ArrowElimination, JointErrorColumns):
     def _remembered(self, state: State) -> Linearisation | None:
         # Sigmas are immutable (replaced, never changed): the same object means the same noise.
         key = (state.theta, state.q, state.c, self.held)
-        last = getattr(self, "_last", None)
+        last = self._last
         if (last is not None and last[3] is self.sigmas and last[2] == self._weights_key()
                 and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
             return last[1]
