@@ -108,7 +108,8 @@ class DatasetDesign:
         lo, med, hi = self.random_quartiles()
         lines = [f"designed {len(self.pose_ids)} poses from {self.n_usable} usable of {self.n_candidates} candidates "
                  f"({', '.join(self.levels)}) by {self.index} ({self.iterations} DETMAX steps)",
-                 "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")),
+                 "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")
+                                  if k in self.values),
                  f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
                  f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
                  f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
@@ -305,6 +306,13 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     """
     if n_poses < 1:
         raise FgcalError("--poses must be at least 1")
+    if "pixels" in ds.levels():  # a camera's: the target in view, varied distance and tilt (DESIGN.md 8.4)
+        if len(ds.levels()) > 1 or per_placement:
+            raise FgcalError(f"{ds.path or 'dataset'}: design for cameras takes pixels alone (this dataset has "
+                             f"{', '.join(ds.levels())})")
+        from fgcal.studies.design_camera import design_cameras
+
+        return design_cameras(ds, model, n_poses, candidates, random_sets, rng, progress, max_iterations)
     model = with_dataset_tooling(ds, model)  # the candidates measure the dataset's balls
     rng = rng if rng is not None else np.random.default_rng(0)
     found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
