@@ -235,7 +235,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
         params = BlockParameters(params, block)
         kw["prior"] = (np.concatenate([mean, np.zeros(len(block))]), np.concatenate([sd, block.prior_sigma]))
-        kw["joint_errors"] = block.design(q, start)
+        kw["joint_errors"] = (block.design_columns(q, start), block.joints)
     if layout is not None:  # --- set-up unknowns close theta, with their priors (inf: none)
         mean, sd = kw.get("prior", (params.take(model.nominal), np.full(len(params), np.inf)))
         s_mean, s_sd = layout.prior()

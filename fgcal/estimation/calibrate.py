@@ -233,7 +233,7 @@ def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: 
 
 
 def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
-                      start=None, decide_held: bool = True, priors=None) -> Solution:
+                      start=None, decide_held: bool = True, priors=None, warm=None) -> Solution:
     """The solve of :func:`calibrate` without the result's summaries.
 
     Parameters
@@ -248,6 +248,11 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
     priors : dict, optional
         ``{name: sigma}`` (internal units): priors about the nominal on those parameters (the
         online engines pass those of :func:`split_held`).
+    warm : CalibrationResult, optional
+        A fit of a related model on the same data (the geometric one, or this model at other
+        noise): the parameters it has start the solve at its estimates, the others at the usual
+        start (a joint-error block at zero). Only the way to the optimum changes: the decisions
+        (held parameters) and the per-pose nominal residuals are those of the usual start.
     """
     noise_mode = NoiseMode(options.noise)
     outlier_mode = OutlierMode(options.outliers)
@@ -294,6 +299,10 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     damping = 1e-4 if start is None else WARM_DAMPING
+    if warm is not None:
+        state.theta = _warm_theta(graph.params, state.theta, warm)
+        damping = WARM_DAMPING
+        graph.forget()  # the start's linearisation (held_parameters'): not kept beside the solve's
     if options.estimate_noise:
         noise_mode = NoiseMode.ESTIMATED
     if options.noise_scale:  # a fixed scale (a model comparison reuses the geometric fit's noise)
@@ -310,13 +319,23 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
             log.info("%s: the data determine it at the solution (sigma %.3g) better than its typical-deviation "
                      "prior (%.3g): estimated without the prior", n, s, priors[n])
         priors = {n: s for n, s in priors.items() if n not in dropped}
-        warm = graph.params.full(state.theta, graph.held)
-        graph, state, pose_ids = build_graph(ds, model, names, options, start=warm, priors=priors)
+        warm_slots = graph.params.full(state.theta, graph.held)
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=warm_slots, priors=priors)
         state, it2, converged, rounds2, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
                                                                  outlier_mode)
         iterations, rounds = iterations + it2, rounds + rounds2
     return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
                     outlier_mode, held_info, theta_start, priors, refused, dropped)
+
+
+def _warm_theta(params, theta, warm) -> np.ndarray:
+    """``theta`` with the parameters ``warm`` (a result) estimated replaced by its estimates."""
+    est = {p.name: p.estimate for p in warm.parameters}
+    values = params.to_file_units(theta)
+    for i, name in enumerate(params.names):
+        if name in est:
+            values[i] = est[name]
+    return params.from_file_units(values)
 
 
 def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
@@ -353,6 +372,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
         if not changed:
             break
         # From the last optimum: lightly damped (a full damping here took 6 steps for what 2-3 do)
+        del lin  # the solve may release its Jacobian while it linearises the next state
         state, it2, converged = _solve(graph, state, options, damping=min(damping, WARM_DAMPING))
         iterations += it2
     else:
@@ -396,19 +416,22 @@ def solution_covariance(sol: Solution) -> np.ndarray:
     return _covariance(sol.graph, sol.state, sol.graph.linearise(sol.state))
 
 
-def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()) -> CalibrationResult:
+def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
+              warm=None) -> CalibrationResult:
     """Identify the kinematic parameters of ``model`` from ``ds`` by one factor-graph solve.
 
     By default each level's noise is estimated from the residuals where the redundancy allows
     (:mod:`fgcal.estimation.noise`) and gross errors are excluded and named; the covariance is at the
     estimated noise.
 
+    ``warm``: a result of a related model on the same data to start from (see :func:`solve_calibration`).
+
     Raises
     ------
     FgcalError
         If the data cannot determine the parameters (too few poses), naming how many are needed.
     """
-    sol = solve_calibration(ds, model, options)
+    sol = solve_calibration(ds, model, options, warm=warm)
     graph, state, pose_ids, levels, declared = sol.graph, sol.state, sol.pose_ids, sol.levels, sol.declared
     noise_mode, held_info, theta_start = sol.noise_mode, sol.held, sol.theta_start
     iterations, converged, rounds = sol.iterations, sol.converged, sol.rounds

@@ -85,6 +85,9 @@ class ArrowElimination:
 
     def _reduced_at(self, lin: Linearisation):
         """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
+        if "reduced" not in lin.cache and not self.nz:  # no per-pose variables: S is the normal matrix
+            A = self.normal_equations(lin)[0]
+            lin.cache["reduced"] = (A, np.zeros((self.n_poses, 0, 0)))
         if "reduced" not in lin.cache:
             A, B, D, _, _ = self.normal_equations(lin)
             _, _, Dinv = self.reduced(A, B, D)
@@ -150,18 +153,31 @@ class ArrowElimination:
         shows in its residual.
         """
         lin = self.linearise(state) if lin is None else lin
+        cached = lin.cache.get("leverage")
+        if cached is not None and cached[0] is covariance:  # the same covariance object: the same answer
+            return cached[1]
         _, B, _, _, _ = self.normal_equations(lin)
         _, Dinv = self._reduced_at(lin)
         St = covariance  # (P, P) = S^-1
-        E = -np.matmul(Dinv, B.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-        Szt = E @ St  # (N, nz, P)
-        Szz = Dinv + np.matmul(Szt, E.transpose(0, 2, 1))
-        Jt, Jz = lin.J_theta, lin.J_local
-        mt = Jt.shape[1]
-        # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt rows
-        # of a pose depend on theta.
-        h = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
-        h[:, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
+        Jt_all, Jz_all = lin.J_theta, lin.J_local
+        mt = Jt_all.shape[1]
+        h = np.zeros(lin.r.shape)
+        # In chunks of poses: the temporaries are as large as J_theta (on 8,000 poses with a
+        # 392-parameter map, 160 MB each).
+        for lo in range(0, self.n_poses, POSE_CHUNK):
+            c = slice(lo, lo + POSE_CHUNK)
+            Jt, Jz = Jt_all[c], Jz_all[c]
+            # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt
+            # rows of a pose depend on theta.
+            if not self.nz:
+                h[c, :mt] = np.einsum("nmp,nmp->nm", Jt @ St, Jt)
+                continue
+            E = -np.matmul(Dinv[c], B[c].transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
+            Szt = E @ St  # (n, nz, P)
+            Szz = Dinv[c] + np.matmul(Szt, E.transpose(0, 2, 1))
+            h[c] = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
+            h[c, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
+        lin.cache["leverage"] = (covariance, h)
         return h
 
     def leverage_by_level(self, state: State, covariance, lin: Linearisation | None = None) -> dict:

@@ -15,13 +15,14 @@ linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 
 import numpy as np
 
 import factors.errors as fx
 from fgcal.estimation.elimination import POSE_CHUNK, ArrowElimination
+from fgcal.estimation.graph_block import JointErrorColumns, compact_design
+from fgcal.estimation.graph_types import Linearisation, Sigmas, State, _robust
 from fgcal.measurements.types import BY_LEVEL, kinematic_levels
 from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import ParameterSet
@@ -31,92 +32,7 @@ __all__ = ["LEVELS", "Graph", "Sigmas", "State"]
 LEVELS = ("probes", "kinematic", *BY_LEVEL, "joints", "prior")
 
 
-@dataclass(frozen=True)
-class Sigmas:
-    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact.
-
-    ``other`` holds ``(field, sigma)`` pairs of measurement types beyond the built-in ones
-    (:meth:`fgcal.measurements.base.KinematicMeasurement.declared_sigmas`); they read as attributes.
-    """
-
-    probe: float
-    centre: float
-    pose_position: float
-    pose_rotation: float
-    joint: float
-    kinematic: float = 1e-4
-    distance: float = 0.01
-    other: tuple = ()
-
-    def __getattr__(self, name):  # only for names that are not fields
-        for field_name, value in object.__getattribute__(self, "other"):
-            if field_name == name:
-                return value
-        raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
-
-    def replaced(self, **values) -> Sigmas:
-        """A copy with the given sigmas changed (fields or ``other`` ones); itself when none are
-        given (the same object means the same noise: a linearisation stays valid)."""
-        if not values:
-            return self
-        known = {f.name for f in fields(self)}
-        other = dict(self.other)
-        other.update({k: v for k, v in values.items() if k not in known})
-        return replace(self, **{k: v for k, v in values.items() if k in known}, other=tuple(sorted(other.items())))
-
-
-@dataclass
-class State:
-    """The variables: ``theta`` (P,), ``q`` (N, n) rad/mm, ``c`` (Nb, 3) mm."""
-
-    theta: np.ndarray
-    q: np.ndarray
-    c: np.ndarray
-
-    def copy(self) -> State:
-        return State(self.theta.copy(), self.q.copy(), self.c.copy())
-
-
-@dataclass
-class Linearisation:
-    """Whitened residuals and Jacobians in per-pose blocks at one state.
-
-    Attributes
-    ----------
-    r : ndarray, shape (N, m)
-    J_theta : ndarray, shape (N, m_theta, P)
-        The first ``m_theta`` rows of each pose (the others do not depend on theta).
-    J_local : ndarray, shape (N, m, nz)
-    prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
-    cost : float
-        Half the (robust) sum of squares.
-    weights : dict of level to ndarray
-        Robust weights per factor.
-    """
-
-    r: np.ndarray
-    J_theta: np.ndarray
-    J_local: np.ndarray
-    prior_r: np.ndarray
-    prior_J: np.ndarray
-    cost: float
-    raw: dict = field(default_factory=dict)
-    cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
-
-
-def _robust(s, kind, k):
-    """Weights and costs of whitened factor norms ``s`` under a robust loss."""
-    if kind is None:
-        return np.ones_like(s), 0.5 * s**2
-    if kind == "huber":
-        w = np.where(s <= k, 1.0, k / np.maximum(s, 1e-300))
-        return w, np.where(s <= k, 0.5 * s**2, k * (s - 0.5 * k))
-    if kind == "cauchy":
-        return 1.0 / (1.0 + (s / k) ** 2), 0.5 * k**2 * np.log1p((s / k) ** 2)
-    raise ValueError(f"unknown robust loss {kind!r}")
-
-
-class Graph(ArrowElimination):
+class Graph(ArrowElimination, JointErrorColumns):
     """The factor graph of one dataset, laid out for batched evaluation.
 
     Parameters
@@ -137,9 +53,12 @@ class Graph(ArrowElimination):
         :class:`fgcal.measurements.base.Terms` of its type in :mod:`fgcal.measurements.types`.
     prior : tuple (mean (P,), sigma (P,)) or None
     robust : {None, "huber", "cauchy"}, robust_k : float
-    joint_errors : ndarray, shape (N, n, K), optional
+    joint_errors : ndarray, shape (N, n, K), or tuple (g (N, K), joints (K,)), optional
         ``G`` of a joint-error block (:mod:`fgcal.estimation.joint_errors`) whose K parameters follow the
-        geometric ones in ``theta``: the joints are ``reading + G @ theta[n_geo:n_geo + K]``.
+        geometric ones in ``theta``: the joints are ``reading + G @ theta[n_geo:n_geo + K]``. Each
+        parameter corrects one joint: the compact form gives that joint and ``G``'s entry there
+        (:meth:`~fgcal.estimation.joint_errors.JointErrorBlock.design_columns`), which is all the
+        graph keeps.
     setup : fgcal.measurements.setup.SetupLayout, optional
         The set-up unknowns (fixtures, planes); their free entries close ``theta`` (after the
         joint-error block). Measurement types with ``uses_setup`` see them; the known distances
@@ -161,11 +80,12 @@ class Graph(ArrowElimination):
         self.robust_k = robust_k if robust_k is not None else {"huber": 1.345, "cauchy": 2.385, None: 0.0}[robust]
         self.prior = prior
         self.excluded = {}  # level -> bool mask over its factors (set by the outlier handling)
+        self._last: tuple | None = None  # the remembered linearisation (see linearise)
         self.joint_vars = bool(np.all(np.asarray(sigmas.joint) > 0))
         # --- joint-error block (fgcal.estimation.joint_errors): theta = [geometry (n_geo), phi (K)]
         self.n_geo = len(self.index)
-        self.G = None if joint_errors is None else np.asarray(joint_errors, dtype=float)
-        self.K = 0 if self.G is None else self.G.shape[2]
+        self.g, self.g_joint = compact_design(joint_errors, len(self.readings), nj)
+        self.K = self.g.shape[1]
         self.setup = setup
         self.S = 0 if setup is None else setup.n_free
         self._setup_col = None if setup is None else self.n_geo + self.K + setup.column()  # < n_geo+K: fixed
@@ -264,20 +184,7 @@ class Graph(ArrowElimination):
     def joints(self, state: State) -> np.ndarray:
         if self.joint_vars:
             return state.q
-        return self.readings if not self.K else self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K]
-
-    def _with_block(self, pose, J_t, J_q):
-        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0) and
-        zeros for the set-up columns."""
-        if not self.K and not self.S:
-            return J_t
-        parts = [J_t]
-        if self.K:
-            parts.append(np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars
-                         else np.einsum("nmj,njk->nmk", J_q, self.G[pose]))
-        if self.S:
-            parts.append(np.zeros(J_t.shape[:2] + (self.S,)))
-        return np.concatenate(parts, axis=2)
+        return self.readings if not self.K else self.readings + self.block_correction(state.theta)
 
     def setup_values(self, theta) -> np.ndarray:
         """The whole set-up vector (fixed entries included) at ``theta``."""
@@ -305,34 +212,61 @@ class Graph(ArrowElimination):
         J[:, self._setup_col[free]] = J_s[:, free] / sd[:, None]
         return e / sd, J, e
 
-    def linearise(self, state: State) -> Linearisation:
+    def linearise(self, state: State, remember: bool = True) -> Linearisation:
         """Whitened residuals and Jacobians at ``state``; robust weights from the state itself.
 
         The last linearisation is remembered: asking again at the same state (and held values,
         noise and excluded measurements) returns it, with the normal equations already formed on it.
+        ``remember=False``: a new one is not remembered (the remembered one is still returned).
         """
-        # Sigmas are immutable (replaced, never changed): the same object means the same noise.
-        weights = tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
-        key = (state.theta, state.q, state.c, self.held)
-        last = getattr(self, "_last", None)
-        if (last is not None and last[3] is self.sigmas and last[2] == weights
-                and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
-            return last[1]
+        lin = self._remembered(state)
+        if lin is not None:
+            return lin
         lin = self._linearise(state)
-        self._last = (tuple(np.array(k, copy=True) for k in key), lin, weights, self.sigmas)
+        if remember:
+            key = (state.theta, state.q, state.c, self.held)
+            self._last = (tuple(np.array(k, copy=True) for k in key), lin, self._weights_key(), self.sigmas)
         return lin
 
-    def _linearise(self, state: State) -> Linearisation:
+    def forget(self, lin: Linearisation | None = None) -> None:
+        """Stop remembering ``lin`` (if it is the remembered linearisation; any when None)."""
+        if self._last is not None and (lin is None or self._last[1] is lin):
+            self._last = None
+
+    def raw_errors(self, state: State) -> dict:
+        """``{level: (e, s, w)}`` at ``state``: the remembered linearisation's, else evaluated without
+        the Jacobians' (N, m, P) array."""
+        lin = self._remembered(state)
+        return (lin if lin is not None else self._linearise(state, residuals_only=True)).raw
+
+    def _weights_key(self) -> tuple:
+        return tuple((lv, m.tobytes()) for lv, m in sorted(self.excluded.items()))
+
+    def _remembered(self, state: State) -> Linearisation | None:
+        # Sigmas are immutable (replaced, never changed): the same object means the same noise.
+        key = (state.theta, state.q, state.c, self.held)
+        last = self._last
+        if (last is not None and last[3] is self.sigmas and last[2] == self._weights_key()
+                and all(np.array_equal(u, v) for u, v in zip(last[0], key))):
+            return last[1]
+        return None
+
+    def _linearise(self, state: State, residuals_only: bool = False) -> Linearisation:
+        """The linearisation at ``state``; ``residuals_only``: its ``J_theta`` has no columns (the
+        residuals, costs and raw errors alone, without the (N, m, P) array)."""
         n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K + self.S, self.nz
         theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
-        Jt = np.zeros((n, mt, P))
+        Jt = np.zeros((n, mt, 0 if residuals_only else P))
         Jz = np.zeros((n, m, nz))
         q = self.joints(state)
         cost = 0.0
         raw = {}
 
-        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0):
+        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0, block=False):
+            """Whitened rows of one level; ``block``: ``J_t`` holds the geometric columns only and
+            the joint-error block's (``J_q G``) are formed here, a chunk of factors at a time
+            (no temporary of the whole level's P columns)."""
             nonlocal cost
             width = e.shape[1]
             ew = e / sigma
@@ -346,8 +280,24 @@ class Graph(ArrowElimination):
             sw = np.sqrt(w)[:, None] / sigma
             rows_ = start[:, None] + np.arange(width)
             r[pose[:, None], rows_] = e * sw
-            if J_t is not None:
-                Jt[pose[:, None], rows_] = J_t * sw[:, :, None]
+            if J_t is not None and not residuals_only:
+                wide = J_t.shape[2]
+                with_block = block and self.K and not self.joint_vars  # else the block's columns are zero
+                # One factor per pose at the same rows (a pose measurement): Jt's rows are a view.
+                direct = len(pose) == n and np.array_equal(pose, np.arange(n)) and np.all(start == start[0])
+                for lo in range(0, len(pose), POSE_CHUNK):
+                    c = slice(lo, lo + POSE_CHUNK)
+                    s_ = sw[c][:, :, None]
+                    if direct:
+                        view = Jt[c, int(start[0]):int(start[0]) + width]
+                        np.multiply(J_t[c], s_, out=view[:, :, :wide])
+                        if with_block:
+                            self._block_columns_into(view[:, :, self.n_geo:self.n_geo + self.K], c, J_q[c] * s_)
+                        continue
+                    at = (pose[c, None], rows_[c])
+                    Jt[at + (slice(0, wide),)] = J_t[c] * s_
+                    if with_block:
+                        Jt[at + (slice(self.n_geo, self.n_geo + self.K),)] = self._block_columns(pose[c], J_q[c] * s_)
             if J_q is not None and self.joint_vars:
                 Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
             if J_c is not None:
@@ -377,10 +327,9 @@ class Graph(ArrowElimination):
                 J_t[sel] = jac.point_slots[b, k][:, :, self.index]
                 J_q[sel] = jac.point_joints[b, k]
                 del jac
-            J_t = self._with_block(self.ball_pose, J_t, J_q)
             J_c = np.broadcast_to(-np.eye(3), (nb, 3, 3))
             put("kinematic", self.ball_pose, self.row["kinematic"], pts - state.c, J_t, J_q, J_c, self.ball_col,
-                sigma=self.sigmas.kinematic)
+                sigma=self.sigmas.kinematic, block=True)
         for level, terms in self.measurements.items():
             kind = BY_LEVEL[level]
             if getattr(kind, "uses_setup", False):
@@ -388,16 +337,22 @@ class Graph(ArrowElimination):
                                                           self.setup_values(state.theta), self.index, self.held,
                                                           self.chain)
                 J_t = self._with_setup(self._with_block(terms.pose, J_t, J_q), J_s, cols)
+                put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
             else:
-                e, J_t, J_q = kind.error(theta, q[terms.pose], terms.data, self.index, self.held, self.chain)
-                J_t = self._with_block(terms.pose, J_t, J_q)
-            put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
+                # In chunks of measurements: the kinematics' temporaries are many times the Jacobians'.
+                chunks = [terms.take(slice(lo, lo + POSE_CHUNK)) for lo in range(0, len(terms), POSE_CHUNK)] \
+                    if len(terms) > POSE_CHUNK else [terms]
+                parts = [kind.error(theta, q[t.pose], t.data, self.index, self.held, self.chain) for t in chunks]
+                e, J_t, J_q = (np.concatenate(x) if len(parts) > 1 else x[0] for x in zip(*parts))
+                put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas), block=True)
         if self.joint_vars:
             nj = self.n_joints
             J_joints = None
-            if self.K and self.G is not None:  # the joint variable is the reading plus the block's correction
-                e = fx.joint_error(state.q, self.readings + self.G @ state.theta[self.n_geo:self.n_geo + self.K])
-                J_joints = np.concatenate([np.zeros((n, nj, self.n_geo)), -self.G, np.zeros((n, nj, self.S))], axis=2)
+            if self.K:  # the joint variable is the reading plus the block's correction
+                e = fx.joint_error(state.q, self.readings + self.block_correction(state.theta))
+                J_joints = np.zeros((n, nj, 0 if residuals_only else P))
+                if not residuals_only:
+                    J_joints[:, self.g_joint, self.n_geo + np.arange(self.K)] = -self.g
             else:
                 e = fx.joint_error(state.q, self.readings)
             put("joints", np.arange(n), self.row["joints"], e, J_t=J_joints, J_q=np.broadcast_to(np.eye(nj), (n, nj, nj)),

@@ -180,19 +180,35 @@ class JointErrorBlock:
         """(K,) internal units."""
         return np.array([self.compliance_sigma if n.endswith(".compliance") else self.map_sigma for n in self.names])
 
-    def design(self, q, slots) -> np.ndarray:
-        """``G`` (N, n_joints, K): the joint correction per unit of each parameter at readings ``q`` (rad)."""
+    @property
+    def joints(self) -> np.ndarray:
+        """(K,) int: the joint (0-based) each parameter corrects (every column of ``G`` has one)."""
+        return np.array([j for _, j, _ in self._terms()], dtype=int)
+
+    def design_columns(self, q, slots) -> np.ndarray:
+        """``g`` (N, K): the nonzero entry of each column of :meth:`design`, ``G[:, joints[k], k]``.
+
+        The compact form of ``G``: each parameter corrects one joint, so ``G`` is ``n_joints``
+        times larger and mostly zeros (on 8,000 poses with 30 harmonics: 146 MB against 24 MB).
+        """
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        G = np.zeros(q.shape + (len(self),))
+        g = np.empty((len(q), len(self)))
         tau = None
         for k, (kind, j, h) in enumerate(self._terms()):
             if kind == "compliance":
                 if tau is None:
                     assert self.inertials is not None  # a compliance term needs the masses
                     tau = gravity_torques(slots, q, self.inertials, self.payload, self.chain)
-                G[:, j, k] = tau[:, j]
+                g[:, k] = tau[:, j]
             else:
-                G[:, j, k] = np.sin(h * q[:, j]) if kind == "sin" else np.cos(h * q[:, j])
+                g[:, k] = np.sin(h * q[:, j]) if kind == "sin" else np.cos(h * q[:, j])
+        return g
+
+    def design(self, q, slots) -> np.ndarray:
+        """``G`` (N, n_joints, K): the joint correction per unit of each parameter at readings ``q`` (rad)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        G = np.zeros(q.shape + (len(self),))
+        G[:, self.joints, np.arange(len(self))] = self.design_columns(q, slots)
         return G
 
 

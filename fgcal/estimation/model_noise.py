@@ -89,8 +89,11 @@ def fit_model(ds, model, options: CalibrationOptions, spec: JointErrorSpec, geom
     fixed = replace(options, estimate_noise=False, noise=NoiseMode.DECLARED,
                     noise_scale=geometric.options.get("noise_scale") or options.noise_scale)
 
+    last = [geometric]  # each fit starts from the one before (the same optimum, fewer iterations)
+
     def fit(spec_, opts_):
-        return _reused_noise(calibrate(ds, model, replace(opts_, joint_errors=spec_)), geometric)
+        last.append(calibrate(ds, model, replace(opts_, joint_errors=spec_), warm=last[-1]))
+        return _reused_noise(last[-1], geometric)
 
     first = fit(spec, fixed)
     res = first if geometric.noise_mode != NoiseMode.ESTIMATED.value else own_noise(fit, first, spec, fixed)

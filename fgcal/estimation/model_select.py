@@ -345,12 +345,6 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         prob = cv_problem(ds, model, geo, JointErrorSpec(), options)
         cv = cross_validate(prob, folds, rng, (), sigma_grid, fold_order)
         unit = prob.unit
-    # The added models: fitted as the cross-validation weighted them (the geometric fit's noise),
-    # then each at its own noise with the map prior scaled alike (fgcal.estimation.model_noise).
-    for kind, spec in specs.items():
-        if spec is not None:
-            results[kind] = fit_model(ds, model, options, spec, geo)
-            log.info("calibrated %s (%d parameters)", kind, len(results[kind].parameters))
     errors = {k: v[0] for k, v in cv.items() if k in specs}
     # Later poses predicted from earlier ones: where the data drift, the models are compared on
     # those (the errors new poses will see), and a lower mean bought with a worse maximum is refused.
@@ -360,6 +354,13 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         for k in errors:
             forward[k] = forward_errors(prob, *model_columns(prob, k, cv[k][1]), later)
     drift = drift_sentences(forward, errors, later, unit) if forward else []
+    del prob  # its Jacobian (poses x rows x all candidate parameters) is not needed by the fits
+    # The added models: fitted as the cross-validation weighted them (the geometric fit's noise),
+    # then each at its own noise with the map prior scaled alike (fgcal.estimation.model_noise).
+    for kind, spec in specs.items():
+        if spec is not None:
+            results[kind] = fit_model(ds, model, options, spec, geo)
+            log.info("calibrated %s (%d parameters)", kind, len(results[kind].parameters))
     for d in drift:
         log.warning("%s", d)
     if drift:

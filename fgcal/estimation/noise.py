@@ -244,7 +244,7 @@ def included_leverage(graph, state) -> np.ndarray:
     """The rows' leverage (N, m) at ``state`` as if no measurement were excluded (see :func:`_row_statistics`)."""
     kept, graph.excluded = graph.excluded, {}
     try:
-        lin = graph.linearise(state)
+        lin = graph.linearise(state, remember=False)  # the graph keeps the one with the exclusions
         return graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
     finally:
         graph.excluded = kept

@@ -43,7 +43,7 @@ def raw_at_readings(graph: Graph, theta) -> dict:
     if len(graph.ball_pose):
         T = graph.params.model.forward(graph.params.full(at.theta, graph.held), graph.joints(at)[graph.ball_pose])
         at.c = tool_points(T, graph.ball_offset[:, None, :])[:, 0]
-    return graph._linearise(at).raw
+    return graph.raw_errors(at)  # at the solution with exact joints: the graph's remembered linearisation
 
 
 def _kept(graph: Graph, level: str, n: int) -> np.ndarray:

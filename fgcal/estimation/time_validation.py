@@ -24,6 +24,7 @@ __all__ = ["FORWARD_FRACTION", "MAX_TOLERANCE", "FoldSums", "drift_sentences", "
 FORWARD_FRACTION = 0.6  # the earlier share of the training poses that predicts the rest
 DRIFT_RATIO = 1.25  # later poses predicted this much worse than interleaved ones (and beyond noise): drift
 MAX_TOLERANCE = 0.05  # a largest error within this share of a simpler model's counts as no worse
+_CHUNK = 2000  # poses per block of work in the fold sums (bounds the temporaries)
 
 
 def harmonic(name: str) -> int:
@@ -40,11 +41,28 @@ class FoldSums:
         P = prob.J.shape[2]
         self.A = np.zeros((k, P, P))
         self.b = np.zeros((k, P))
-        for f in range(k):
-            Jf = prob.J[fold == f].reshape(-1, P)
-            self.A[f] = Jf.T @ Jf
-            self.b[f] = Jf.T @ prob.r[fold == f].reshape(-1)
+        # In chunks of poses, each row once: no copy of a fold's Jacobian (the cost is linear in the poses).
+        for lo in range(0, len(fold), _CHUNK):
+            c = slice(lo, lo + _CHUNK)
+            J, r, fc = prob.J[c], prob.r[c], fold[c]
+            for f in np.unique(fc):
+                Jf = J[fc == f].reshape(-1, P)  # a chunk's share of the fold: a bounded copy
+                self.A[f] += Jf.T @ Jf
+                self.b[f] += Jf.T @ r[fc == f].reshape(-1)
         self.A_all, self.b_all = self.A.sum(0), self.b.sum(0)
+        # each pose's rows that the error is measured on (the unit's scale applied)
+        self._metric = np.take_along_axis(prob.r, prob.metric_rows, axis=1) * prob.metric_scale
+        first = prob.metric_rows[:, :1]
+        same = bool(len(first)) and np.all(prob.metric_rows == first[0] + np.arange(prob.metric_rows.shape[1]))
+        self._rows = slice(int(first[0, 0]), int(first[0, 0]) + prob.metric_rows.shape[1]) if same else None
+
+    def _metric_jacobian(self, c: slice) -> np.ndarray:
+        """(n, 3, P) the metric rows' Jacobian of the poses ``c``: a view where every pose has them at
+        the same rows, else gathered."""
+        J = self.prob.J[c]
+        if self._rows is not None:
+            return J[:, self._rows]
+        return np.take_along_axis(J, self.prob.metric_rows[c][:, :, None], axis=1)
 
     def fit_without(self, f: int, cols, prior_sigma) -> np.ndarray:
         """The increment (len(cols),) fitted to every fold but ``f``, priors of ``prior_sigma`` about zero."""
@@ -60,14 +78,17 @@ class FoldSums:
         """(N,) error of each pose predicted by the fit to the other folds (columns ``cols``)."""
         prob = self.prob
         cols = np.asarray(cols)
-        err = np.zeros(len(prob.r))
+        X = np.zeros((prob.J.shape[2], self.k))  # each fold's fit over all columns (zero outside cols)
         for f in range(self.k):
-            x = self.fit_without(f, cols, prior_sigma)
-            sel = np.nonzero(self.fold == f)[0]
-            pred = prob.r[sel] + prob.J[sel][:, :, cols] @ x  # (n_f, m)
-            pos = np.take_along_axis(pred, prob.metric_rows[sel], axis=1) * prob.metric_scale
-            err[sel] = np.linalg.norm(pos, axis=1)
-        return err
+            X[cols, f] = self.fit_without(f, cols, prior_sigma)
+        # Every pose predicted by every fold's fit (N x 3 x folds products, no copy of J), then
+        # each pose's own fold's prediction taken.
+        pos = self._metric.copy()
+        for lo in range(0, len(self.fold), _CHUNK):
+            c = slice(lo, lo + _CHUNK)
+            pred = self._metric_jacobian(c) @ X  # (n, 3, folds)
+            pos[c] += np.take_along_axis(pred, self.fold[c][:, None, None], axis=2)[:, :, 0] * prob.metric_scale
+        return np.linalg.norm(pos, axis=1)
 
 
 def model_columns(prob, kind: str, spec_kw: dict | None = None) -> tuple[list, list]:

@@ -1,0 +1,97 @@
+"""The factor graph's value types: the noise of each factor kind, the variables, a linearisation.
+
+Kept apart from :mod:`fgcal.estimation.graph` (which re-exports them) so that the graph's module
+holds the graph itself. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+__all__ = ["Linearisation", "Sigmas", "State"]
+
+
+@dataclass(frozen=True)
+class Sigmas:
+    """Noise of each factor kind (mm, rad); ``joint`` 0 means the readings are exact.
+
+    ``other`` holds ``(field, sigma)`` pairs of measurement types beyond the built-in ones
+    (:meth:`fgcal.measurements.base.KinematicMeasurement.declared_sigmas`); they read as attributes.
+    """
+
+    probe: float
+    centre: float
+    pose_position: float
+    pose_rotation: float
+    joint: float
+    kinematic: float = 1e-4
+    distance: float = 0.01
+    other: tuple = ()
+
+    def __getattr__(self, name):  # only for names that are not fields
+        for field_name, value in object.__getattribute__(self, "other"):
+            if field_name == name:
+                return value
+        raise AttributeError(f"{type(self).__name__} has no sigma {name!r}")
+
+    def replaced(self, **values) -> Sigmas:
+        """A copy with the given sigmas changed (fields or ``other`` ones); itself when none are
+        given (the same object means the same noise: a linearisation stays valid)."""
+        if not values:
+            return self
+        known = {f.name for f in fields(self)}
+        other = dict(self.other)
+        other.update({k: v for k, v in values.items() if k not in known})
+        return replace(self, **{k: v for k, v in values.items() if k in known}, other=tuple(sorted(other.items())))
+
+
+@dataclass
+class State:
+    """The variables: ``theta`` (P,), ``q`` (N, n) rad/mm, ``c`` (Nb, 3) mm."""
+
+    theta: np.ndarray
+    q: np.ndarray
+    c: np.ndarray
+
+    def copy(self) -> State:
+        return State(self.theta.copy(), self.q.copy(), self.c.copy())
+
+
+@dataclass
+class Linearisation:
+    """Whitened residuals and Jacobians in per-pose blocks at one state.
+
+    Attributes
+    ----------
+    r : ndarray, shape (N, m)
+    J_theta : ndarray, shape (N, m_theta, P)
+        The first ``m_theta`` rows of each pose (the others do not depend on theta).
+    J_local : ndarray, shape (N, m, nz)
+    prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
+    cost : float
+        Half the (robust) sum of squares.
+    weights : dict of level to ndarray
+        Robust weights per factor.
+    """
+
+    r: np.ndarray
+    J_theta: np.ndarray
+    J_local: np.ndarray
+    prior_r: np.ndarray
+    prior_J: np.ndarray
+    cost: float
+    raw: dict = field(default_factory=dict)
+    cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
+
+
+def _robust(s, kind, k):
+    """Weights and costs of whitened factor norms ``s`` under a robust loss."""
+    if kind is None:
+        return np.ones_like(s), 0.5 * s**2
+    if kind == "huber":
+        w = np.where(s <= k, 1.0, k / np.maximum(s, 1e-300))
+        return w, np.where(s <= k, 0.5 * s**2, k * (s - 0.5 * k))
+    if kind == "cauchy":
+        return 1.0 / (1.0 + (s / k) ** 2), 0.5 * k**2 * np.log1p((s / k) ** 2)
+    raise ValueError(f"unknown robust loss {kind!r}")
