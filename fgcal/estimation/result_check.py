@@ -116,6 +116,8 @@ def _check_levels(result) -> None:
                 raise FgcalError(f"noise.{_short(key)}.{field}: {_short(v)!r} is not a finite number >= 0")
     if not isinstance(result.n_poses, int) or result.n_poses < 0:
         raise FgcalError(f"n_poses: {_short(result.n_poses)!r} is not a count")
+    if result.n_poses == 0:  # only the prior: nothing was calibrated (an online run that took no pose)
+        raise FgcalError("n_poses: 0, a result from no pose (only the prior) is not a calibration")
 
 
 def validate_result(result) -> None:

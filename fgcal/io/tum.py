@@ -102,10 +102,33 @@ def read_tum_with_joint_log(trajectory, joint_log, joints, time_column: str = "t
     line, t, xyz, R, skipped = read_tum(trajectory, length_unit)
     log_lines, values, log_skipped = read_columns(joint_log, [time_column, *joints], delimiter=delimiter,
                                                   decimal_comma=decimal_comma)
-    skipped += [f"{Path(joint_log).name} {s}" for s in log_skipped]
-    index, ok, gap = join_by_time(t, values[time_column], tolerance)
+    log_name = Path(joint_log).name
+    skipped += [f"{log_name} {s}" for s in log_skipped]
+    t_log = values[time_column]
+    # A timestamp the log repeats is ambiguous (which reading was at that time?): only its first
+    # reading is kept, the others named.
+    _, first = np.unique(t_log, return_index=True)
+    repeated = np.setdiff1d(np.arange(len(t_log)), first)
+    skipped += [f"{log_name} line {log_lines[i]}: timestamp {t_log[i]:.17g} repeats an earlier reading's (ignored)"
+                for i in repeated]
+    first.sort()
+    index, ok, gap = join_by_time(t, t_log[first], tolerance)
+    index = first[index]
     skipped += [f"line {ln}: no joint reading within {tolerance:g} (nearest {g:.3g} away)"
                 for ln, g in zip(line[~ok], gap[~ok])]
+    # One reading is one configuration: when several poses are nearest the same reading, the one
+    # nearest in time keeps it and the others are named (a wide tolerance would pair them all).
+    order = np.lexsort((gap, index))
+    taken = np.zeros(len(index), dtype=bool)
+    seen = -1
+    for k in order:
+        if ok[k] and index[k] != seen:
+            taken[k], seen = True, index[k]
+    for k in np.flatnonzero(ok & ~taken):
+        keeper = int(line[np.flatnonzero(taken & (index == index[k]))[0]])
+        skipped.append(f"line {line[k]}: its nearest joint reading ({log_name} line {log_lines[index[k]]}) is "
+                       f"taken by line {keeper}, nearer in time (one reading, one pose)")
+    ok = taken
     if not ok.any():
         raise DatasetError(f"{trajectory}: no pose has a joint reading of {joint_log} within {tolerance:g}; do the "
                            "clocks agree?")

@@ -5,8 +5,12 @@ import sys
 
 import numpy as np
 
+from fgcal.errors import DatasetError
 from fgcal.io.skipped import bounded
 from fgcal.measurements.cells import MAX_ID
+from fgcal.measurements.distance import DISTANCE
+from fgcal.measurements.point import POINT
+from fgcal.measurements.pose import POSE
 from fgcal.online.records import PoseData, setup_types
 
 __all__ = ["STREAM_FORMAT", "read_stream"]
@@ -23,6 +27,21 @@ One record a line, comma-separated (lines starting with # and blank lines are ig
   contact,POSE,BALL,FIXTURE          BALL seated at fixture point FIXTURE, or touching plane FIXTURE
                                      (a fixture of dataset.yaml's fixtures:)
   end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
+
+# A record's values are read by its measurement type's own parser, the one the dataset's files are
+# read with: a value a file may not hold (a negative ballbar length, a quaternion not of norm 1,
+# a point beyond the absurd-size bound) is refused on the stream too.
+_PARSED = {"probe": (POINT, ("ball", "x", "y", "z")), "centre": (POINT, ("ball", "x", "y", "z")),
+           "pose": (POSE, ("x", "y", "z", "qw", "qx", "qy", "qz")), "distance": (DISTANCE, ("ball", "length"))}
+
+
+def _parsed(tag: str, fields: list, balls) -> np.ndarray:
+    kind, names = _PARSED[tag]
+    record = dict(zip(names, fields[2:], strict=True))
+    try:
+        return kind.parse("stdin", record, balls)[1]
+    except DatasetError as exc:
+        raise ValueError(str(exc).removeprefix("stdin: ")) from None
 
 
 def read_stream(lines, balls, warn=None, model=None, setup=None):
@@ -78,9 +97,12 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
                     raise ValueError(f"unknown fixture {f[3]!r} (dataset.yaml's fixtures: {names})")
                 current.contacts.append((by_kind[kind], f[2], f[3]))
                 continue
-            values = [float(v) for v in f[3 if tag in ("probe", "centre", "distance") else 2:]]
-            if not all(np.isfinite(values)):
-                raise ValueError("a number is not finite")
+            if tag in _PARSED:
+                values = _parsed(tag, f, balls).tolist()
+            else:
+                values = [float(v) for v in f[2:]]
+                if not all(np.isfinite(values)):
+                    raise ValueError("a number is not finite")
         except ValueError as exc:
             warn(f"stdin: line {n} skipped: {bounded(str(exc))}")
             continue
@@ -99,11 +121,7 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
         elif tag == "distance":
             current.distances.append((f[2], float(values[0])))
         elif tag == "pose":
-            q = np.array(values[3:])
-            if abs(np.linalg.norm(q) - 1) > 1e-3:
-                warn(f"stdin: line {n} skipped: quaternion norm {np.linalg.norm(q):.6g}, expected 1")
-                continue
-            current.T = pose_matrices(values[:3], q)
+            current.T = pose_matrices(values[:3], np.array(values[3:]))
         else:  # end
             yield current
             current = None
