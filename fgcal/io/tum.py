@@ -9,6 +9,7 @@ tolerance; poses without one are named and skipped.
 from __future__ import annotations
 
 import math
+from array import array
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ def _is_number(text: str) -> bool:
 
 def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
     """``(line, t, xyz, R, skipped)`` of a TUM trajectory file; xyz (N, 3) in mm, R (N, 3, 3)."""
-    rows, lines, skipped = [], [], []
+    rows, lines, skipped = array("d"), array("q"), []  # 8 bytes a value, not a Python float
     for i, raw in enumerate(read_lines(path), start=1):
         s = raw.strip()
         if not s or s.startswith("#"):
@@ -52,13 +53,13 @@ def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
         if abs(np.linalg.norm(v[4:]) - 1.0) > QUATERNION_NORM_TOLERANCE:
             skipped.append(f"line {i}: quaternion norm {np.linalg.norm(v[4:]):.4g} is not 1")
             continue
-        rows.append(v)
+        rows.extend(v)
         lines.append(i)
-    if not rows:
+    if not lines:
         raise DatasetError(f"{path}: no usable TUM rows ({len(skipped)} skipped{': ' + bounded(skipped[0]) if skipped else ''})")
-    a = np.array(rows)
-    return np.array(lines), a[:, 0], a[:, 1:4] * LengthUnit(length_unit).to_mm, Rotation.from_quat(a[:, 4:]).as_matrix(), \
-        skipped
+    a = np.frombuffer(rows, dtype=float).reshape(-1, 8)
+    return np.frombuffer(lines, dtype=np.int64), a[:, 0].copy(), a[:, 1:4] * LengthUnit(length_unit).to_mm, \
+        Rotation.from_quat(a[:, 4:]).as_matrix(), skipped
 
 
 def join_by_time(t_measured, t_log, tolerance: float):

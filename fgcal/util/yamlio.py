@@ -24,6 +24,7 @@ __all__ = [
     "MAX_YAML_BYTES",
     "MAX_YAML_DEPTH",
     "atomic_write_bytes",
+    "atomic_write_chunks",
     "atomic_write_text",
     "check_regular_file",
     "dump_yaml",
@@ -31,6 +32,7 @@ __all__ = [
     "read_text_file",
     "read_yaml",
     "short_repr",
+    "text_lines",
 ]
 
 MAX_YAML_BYTES = 16 * 1024 * 1024  # model files and dataset.yaml are a few kB
@@ -92,6 +94,48 @@ def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise error(f"{path}: line {line}: not UTF-8 text") from None
+
+
+def text_lines(path, error=FgcalError, max_bytes: int | None = None):
+    """The lines of a regular UTF-8 file (line ends and a byte-order mark removed), read as they are
+    used: memory of one line, not of the file. Problems raise ``error`` naming the file and line (not
+    its content), as :func:`read_text_file`'s do; the checks before the first line are made at the call.
+    """
+    path = Path(path)
+    check_regular_file(path, error, max_bytes)
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+    fh = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the check
+        fh.close()
+        raise error(f"{path}: not a regular file; refusing to read it")
+    return _lines_of(fh, path, error, max_bytes)
+
+
+def _lines_of(fh, path, error, max_bytes):
+    with fh:
+        read = 0
+        n = 0
+        while True:
+            try:
+                raw = fh.readline()
+            except OSError as exc:
+                raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+            if not raw:
+                return
+            n += 1
+            read += len(raw)
+            if max_bytes is not None and read > max_bytes:  # grown since the check
+                raise error(f"{path}: more than the {max_bytes} bytes such a file can be")
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError:
+                raise error(f"{path}: line {n}: not UTF-8 text") from None
+            if n == 1:
+                text = text.removeprefix("\ufeff")
+            yield from text.splitlines()  # as str.splitlines of the whole text: old Mac line ends too
 
 
 # YAML 1.1 wants a dot in a float ("1.0e-2"); people write 1e-2 and 5e2. Accept them as numbers.
@@ -209,13 +253,20 @@ def atomic_write_bytes(path, data: bytes) -> None:
     The file gets the permissions the umask gives (as ``open`` would); on any error or
     interruption the temporary file is removed and ``path`` is left as it was.
     """
+    atomic_write_chunks(path, (data,))
+
+
+def atomic_write_chunks(path, chunks) -> None:
+    """Write the byte strings of the iterable ``chunks`` to ``path`` atomically, as :func:`atomic_write_bytes`
+    does, holding one chunk at a time (a large table is written in bounded memory)."""
     path = Path(path)
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
             os.fchmod(fh.fileno(), 0o666 & ~_umask())
-            fh.write(data)
+            for data in chunks:
+                fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
