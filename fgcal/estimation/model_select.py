@@ -138,6 +138,8 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
     state.theta = graph.params.take(graph.held)
     lin = graph.linearise(state)
     r, J = lin.r, lin.J_theta
+    if J.shape[1] < r.shape[1]:  # J_theta holds each pose's first rows; the later ones (probes) do not see theta
+        J = np.concatenate([J, np.zeros((J.shape[0], r.shape[1] - J.shape[1], J.shape[2]))], axis=1)
     if graph.nz:  # project out per-pose variables (ball centres): what remains sees theta only
         Q, _ = np.linalg.qr(lin.J_local)
         r = r - np.einsum("nmz,nz->nm", Q, np.einsum("nmz,nm->nz", Q, r))

@@ -100,6 +100,9 @@ def read_tum_with_joint_log(trajectory, joint_log, joints, time_column: str = "t
     Measurements
         Pose id = line of the TUM file; poses without a joint reading near enough are in ``skipped``.
     """
+    joints = tuple(joints or ())
+    if not joints:
+        raise DatasetError("--joints: give the joint log's joint columns in chain order")
     line, t, xyz, R, skipped = read_tum(trajectory, length_unit)
     log_lines, values, log_skipped = read_columns(joint_log, [time_column, *joints], delimiter=delimiter,
                                                   decimal_comma=decimal_comma)

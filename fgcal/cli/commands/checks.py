@@ -129,6 +129,8 @@ def check_output_dir(path, inputs=(), option: str = "--out", must_be_new: bool =
             raise FgcalError(f"{path}: already exists (use --force to replace it)")
         if not must_be_new and not os.access(path, os.W_OK | os.X_OK):
             raise FgcalError(f"{option} {path}: folder is not writable")
+        if not must_be_new and os.path.lexists(path / "dataset.yaml"):  # written into, it would mix with one
+            raise FgcalError(f"{option} {path}: is a dataset folder; choose another folder")
     ancestor = path.parent if must_be_new or not os.path.lexists(path) else path
     while not os.path.lexists(ancestor) and ancestor != ancestor.parent:
         ancestor = ancestor.parent

@@ -1,0 +1,57 @@
+"""What tools/hostile_sweep3.py found (every option of every command with hostile values), one test each."""
+import numpy as np
+import pytest
+from hostile_util import call, one_line_error, small_dataset
+
+
+@pytest.fixture(scope="module")
+def probes_ds(puma, tmp_path_factory):
+    path = tmp_path_factory.mktemp("sweep3") / "ds"
+    small_dataset(puma, path, n_poses=8, seed=7)
+    return path
+
+
+def test_model_comparison_of_probe_data(puma, probes_ds):
+    """``calibrate --verification`` of probe points was a broadcast traceback: J_theta holds only each
+    pose's kinematic rows. Padded with the probe rows' zeros, the projected problem is the one the
+    ball centres leave: residual and Jacobian orthogonal to the per-pose variables' columns."""
+    from fgcal.estimation.build import build_graph
+    from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+    from fgcal.estimation.joint_errors import JointErrorSpec
+    from fgcal.estimation.model_select import cv_problem
+    from fgcal.io.dataset_io import load_dataset
+
+    ds = load_dataset(probes_ds)
+    geo = calibrate(ds, puma, CalibrationOptions())
+    prob = cv_problem(ds, puma, geo, JointErrorSpec())
+    opts = CalibrationOptions(joint_noise=False, robust=None, prior="none", joint_errors=JointErrorSpec())
+    scale = {k: float(v) for k, v in (geo.options.get("noise_scale") or {}).items()}
+    graph, state, _ = build_graph(ds, puma, list(geo.names), opts, scale=scale)  # as cv_problem linearises
+    graph.held = geo.slot_vector(puma)
+    state.theta = graph.params.take(graph.held)
+    lin = graph.linearise(state)
+    assert prob.J.shape == (8, lin.r.shape[1], len(geo.names)) and prob.unit == "sigma"
+    size = np.abs(lin.J_local).max() * np.abs(lin.J_theta).max()
+    np.testing.assert_allclose(np.einsum("nmz,nmp->nzp", lin.J_local, prob.J), 0, atol=1e-10 * size)
+    np.testing.assert_allclose(np.einsum("nmz,nm->nz", lin.J_local, prob.r), 0,
+                               atol=1e-10 * np.abs(lin.J_local).max() * np.abs(lin.r).max())
+    assert lin.J_theta.shape[1] < lin.r.shape[1]  # the case: probe rows beyond J_theta's
+
+
+def test_report_into_a_dataset_folder_is_refused(probes_ds, tmp_path, capsys):
+    """report --out DS wrote its pages and figures into a dataset's folder."""
+    code, _, err = call(["calibrate", probes_ds, "--out", tmp_path / "r.json"], capsys)
+    assert code == 0, err
+    before = sorted(p.name for p in probes_ds.iterdir())
+    code, _, err = call(["report", tmp_path / "r.json", "--out", probes_ds], capsys)
+    one_line_error(code, err, "is a dataset folder")
+    assert sorted(p.name for p in probes_ds.iterdir()) == before
+
+
+@pytest.mark.parametrize("joints", ["", ",,,"])
+def test_tum_import_without_joint_columns(tmp_path, capsys, joints):
+    (tmp_path / "t.tum").write_text("1 0 0 0 0 0 0 1\n")
+    (tmp_path / "j.csv").write_text("time,q1\n1,0\n")
+    code, _, err = call(["import", "tum", tmp_path / "t.tum", tmp_path / "o", "--robot", "ur10", "--joint-log",
+                         tmp_path / "j.csv", "--joints", joints], capsys)
+    one_line_error(code, err, "--joints: give the joint log's joint columns")
