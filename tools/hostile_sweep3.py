@@ -33,7 +33,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from hostile_sweep import leftovers, run_case
+from hostile_sweep import changes, run_case
 from hostile_workspace import REPO, Case, build_base, files_digest
 
 sys.path.insert(0, str(REPO))
@@ -279,12 +279,7 @@ def run_pair(name, args, output, base: Path, timeout: float) -> tuple[str, str, 
         bad = _reads_back(work / output)
         if bad and any(code == 0 for code, _ in outs):
             problems.append(f"{output}: {bad}")
-        for g, digest in guard.items():
-            if files_digest(work / g) != digest:
-                problems.append(f"input {g} changed")
-        left = leftovers(work)
-        if left:
-            problems.append(f"left behind: {', '.join(left[:3])}")
+        problems += changes(work, guard)
         if problems:
             return "silent", "; ".join(problems), dt
         return "ok", " / ".join(f"{c}: {(e.strip().splitlines() or [''])[-1][:70]}" for c, e in outs), dt

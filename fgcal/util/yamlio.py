@@ -72,17 +72,24 @@ def check_regular_file(path, error=FgcalError, max_bytes: int | None = None) -> 
     return st.st_size
 
 
-def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
-    """The UTF-8 text of a regular file; every problem raises ``error`` naming the file (not its content)."""
-    path = Path(path)
+def _open_regular(path: Path, error, max_bytes: int | None):
+    """A binary file object of the regular file ``path`` (a FIFO or device is refused without blocking)."""
     check_regular_file(path, error, max_bytes)
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
-    with os.fdopen(fd, "rb") as fh:
-        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the check
-            raise error(f"{path}: not a regular file; refusing to read it")
+    fh = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the check
+        fh.close()
+        raise error(f"{path}: not a regular file; refusing to read it")
+    return fh
+
+
+def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
+    """The UTF-8 text of a regular file; every problem raises ``error`` naming the file (not its content)."""
+    path = Path(path)
+    with _open_regular(path, error, max_bytes) as fh:
         try:
             data = fh.read() if max_bytes is None else fh.read(max_bytes + 1)
         except OSError as exc:
@@ -102,16 +109,7 @@ def text_lines(path, error=FgcalError, max_bytes: int | None = None):
     its content), as :func:`read_text_file`'s do; the checks before the first line are made at the call.
     """
     path = Path(path)
-    check_regular_file(path, error, max_bytes)
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
-    fh = os.fdopen(fd, "rb")
-    if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the check
-        fh.close()
-        raise error(f"{path}: not a regular file; refusing to read it")
-    return _lines_of(fh, path, error, max_bytes)
+    return _lines_of(_open_regular(path, error, max_bytes), path, error, max_bytes)
 
 
 def _lines_of(fh, path, error, max_bytes):
