@@ -55,3 +55,11 @@ def test_tum_import_without_joint_columns(tmp_path, capsys, joints):
     code, _, err = call(["import", "tum", tmp_path / "t.tum", tmp_path / "o", "--robot", "ur10", "--joint-log",
                          tmp_path / "j.csv", "--joints", joints], capsys)
     one_line_error(code, err, "--joints: give the joint log's joint columns")
+
+
+@pytest.mark.parametrize("address", ["-1", "localhost", "tcp://10.0.0.1"])
+def test_scheduler_address_needs_a_port(tmp_path, capsys, address):
+    """--scheduler without a port passed the option check and ended in Dask's ValueError."""
+    code, _, err = call(["study", "fig13", "--out", tmp_path / "st", "--scheduler", address], capsys)
+    one_line_error(code, err, "--scheduler", "has no port")
+    assert not (tmp_path / "st").exists()
