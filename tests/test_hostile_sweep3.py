@@ -63,3 +63,12 @@ def test_scheduler_address_needs_a_port(tmp_path, capsys, address):
     code, _, err = call(["study", "fig13", "--out", tmp_path / "st", "--scheduler", address], capsys)
     one_line_error(code, err, "--scheduler", "has no port")
     assert not (tmp_path / "st").exists()
+
+
+def test_ur_hash_without_ur_kinematics_is_refused(probes_ds, tmp_path, capsys):
+    """export --ur-hash without --ur-kinematics was dropped without a word (the sweep's text values)."""
+    code, _, err = call(["calibrate", probes_ds, "--out", tmp_path / "r.json"], capsys)
+    assert code == 0, err
+    code, _, err = call(["export", tmp_path / "r.json", "--model", tmp_path / "m.yaml", "--ur-hash", "calib_1"], capsys)
+    one_line_error(code, err, "--ur-hash", "--ur-kinematics FILE")
+    assert not (tmp_path / "m.yaml").exists()
