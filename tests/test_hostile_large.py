@@ -118,3 +118,14 @@ def test_import_table_is_streamed(tmp_path):
     np.testing.assert_allclose(m.joints_rad, table[:, :6], atol=1e-12)
     np.testing.assert_allclose(m.xyz, table[:, 6:9] * 1000.0, atol=1e-9)
     assert peak < path.stat().st_size, (peak, path.stat().st_size)
+
+
+def test_an_overlong_line_is_refused_unread(tmp_path, monkeypatch):
+    """A table line beyond the bound (1 MiB) is one error naming the line, read no further than the bound
+    (a 2 GB line would have been split into a list of a billion fields)."""
+    import fgcal.io.table_io as table_io
+
+    monkeypatch.setattr(table_io, "MAX_TABLE_LINE", 1000)
+    (tmp_path / "t.csv").write_text("a,b\n1,2\n" + "3," * 600 + "4\n")
+    with pytest.raises(DatasetError, match=r"t.csv: line 3: longer than 1000 bytes"):
+        table_io.read_columns(tmp_path / "t.csv", ["a", "b"])

@@ -269,6 +269,7 @@ def rotation_from_columns(values, spec: ColumnSpec) -> np.ndarray:
     return Rotation.from_quat(xyzw).as_matrix()
 
 
+MAX_TABLE_LINE = 1 << 20  # bytes of a line: a row is a few kB; a longer line is refused before it is read whole
 MAX_TABLE_BYTES = 2 << 30  # a table is streamed (bench/bench_memory.py): beyond this, refused, naming the size
 
 
@@ -277,7 +278,7 @@ def read_lines(path: Path):
     the memory of one line); :class:`DatasetError` naming the file when unreadable."""
     from fgcal.util.yamlio import text_lines
 
-    return text_lines(path, DatasetError, MAX_TABLE_BYTES)
+    return text_lines(path, DatasetError, MAX_TABLE_BYTES, MAX_TABLE_LINE)
 
 
 def _csv_rows(reader, path):

@@ -21,6 +21,7 @@ import yaml
 from fgcal.errors import FgcalError
 
 __all__ = [
+    "MAX_LINE_BYTES",
     "MAX_YAML_BYTES",
     "MAX_YAML_DEPTH",
     "atomic_write_bytes",
@@ -103,27 +104,33 @@ def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
         raise error(f"{path}: line {line}: not UTF-8 text") from None
 
 
-def text_lines(path, error=FgcalError, max_bytes: int | None = None):
+MAX_LINE_BYTES = 1 << 20  # a line of a table or trajectory: a few kB; beyond this it is not one
+
+
+def text_lines(path, error=FgcalError, max_bytes: int | None = None, max_line: int = MAX_LINE_BYTES):
     """The lines of a regular UTF-8 file (line ends and a byte-order mark removed), read as they are
     used: memory of one line, not of the file. Problems raise ``error`` naming the file and line (not
     its content), as :func:`read_text_file`'s do; the checks before the first line are made at the call.
+    A line longer than ``max_line`` bytes is an error (it is not read whole).
     """
     path = Path(path)
-    return _lines_of(_open_regular(path, error, max_bytes), path, error, max_bytes)
+    return _lines_of(_open_regular(path, error, max_bytes), path, error, max_bytes, max_line)
 
 
-def _lines_of(fh, path, error, max_bytes):
+def _lines_of(fh, path, error, max_bytes, max_line):
     with fh:
         read = 0
         n = 0
         while True:
             try:
-                raw = fh.readline()
+                raw = fh.readline(max_line + 1)
             except OSError as exc:
                 raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
             if not raw:
                 return
             n += 1
+            if len(raw) > max_line:
+                raise error(f"{path}: line {n}: longer than {max_line} bytes; not a line of text such a file has")
             read += len(raw)
             if max_bytes is not None and read > max_bytes:  # grown since the check
                 raise error(f"{path}: more than the {max_bytes} bytes such a file can be")
