@@ -72,3 +72,27 @@ def test_ur_hash_without_ur_kinematics_is_refused(probes_ds, tmp_path, capsys):
     code, _, err = call(["export", tmp_path / "r.json", "--model", tmp_path / "m.yaml", "--ur-hash", "calib_1"], capsys)
     one_line_error(code, err, "--ur-hash", "--ur-kinematics FILE")
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_a_dataset_written_meanwhile_is_not_replaced(puma, tmp_path, monkeypatch):
+    """Two simulate (or import) runs on one new OUT both passed the 'exists' check and the second
+    replaced the first, both saying 'wrote'. Without --force the rename to OUT now fails instead."""
+    import fgcal.io.dataset_write as dataset_write
+    from fgcal.errors import FgcalError
+    from fgcal.io.dataset_io import load_dataset
+
+    first = small_dataset(puma, tmp_path / "a", n_poses=6, seed=8)
+    write_into = dataset_write._write_into
+
+    def racing(ds, tmp):  # the other run finishes while this one writes
+        write_into(ds, tmp)
+        if ds is not first:
+            dataset_write.save_dataset(first, tmp_path / "out")
+
+    monkeypatch.setattr(dataset_write, "_write_into", racing)
+    other = load_dataset(tmp_path / "a")
+    other.joints_deg = other.joints_deg + 1.0
+    with pytest.raises(FgcalError, match="already exists \\(written meanwhile by another run"):
+        dataset_write.save_dataset(other, tmp_path / "out")
+    np.testing.assert_array_equal(load_dataset(tmp_path / "out").joints_deg, load_dataset(tmp_path / "a").joints_deg)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "out"]  # no temporary folder left

@@ -117,7 +117,13 @@ def save_dataset(ds: Dataset, directory, overwrite: bool = False, extra_files=No
         _write_into(ds, tmp)
         for name, text in (extra_files or {}).items():
             atomic_write_text(tmp / name, text)
-        if directory.exists():
+        if not overwrite:  # rename(2) onto an existing folder with files fails: another run that wrote
+            try:           # it meanwhile is not replaced (the check above is minutes before)
+                tmp.rename(directory)
+            except OSError:
+                raise FgcalError(f"{directory}: already exists (written meanwhile by another run; use --force "
+                                 "to replace it)") from None
+        elif directory.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old.", dir=directory.parent))
             old.rmdir()
             directory.rename(old)
