@@ -96,3 +96,24 @@ def test_a_dataset_written_meanwhile_is_not_replaced(puma, tmp_path, monkeypatch
         dataset_write.save_dataset(other, tmp_path / "out")
     np.testing.assert_array_equal(load_dataset(tmp_path / "out").joints_deg, load_dataset(tmp_path / "a").joints_deg)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "out"]  # no temporary folder left
+
+
+def test_an_output_file_written_meanwhile_is_not_replaced(tmp_path):
+    """An output checked absent (no --force) is created by its atomic write, never replaces a file that
+    appeared meanwhile (two calibrate runs on one --out both said 'wrote'); --force replaces."""
+    from fgcal.errors import FgcalError
+    from fgcal.util.yamlio import atomic_write_text, may_replace, must_be_new
+
+    out = tmp_path / "r.json"
+    must_be_new(out)
+    out.write_text("the other run's\n")  # written while this run worked
+    with pytest.raises(FgcalError, match="already exists \\(written meanwhile by another run"):
+        atomic_write_text(out, "this run's\n")
+    assert out.read_text() == "the other run's\n" and sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+    may_replace(out)
+    atomic_write_text(out, "this run's\n")
+    assert out.read_text() == "this run's\n"
+    must_be_new(tmp_path / "new.json")
+    atomic_write_text(tmp_path / "new.json", "x\n")  # absent: created
+    atomic_write_text(tmp_path / "new.json", "y\n")  # one claim, one write: later writes replace as before
+    assert (tmp_path / "new.json").read_text() == "y\n"

@@ -13,8 +13,12 @@ __all__ = ["calibrated_model", "export", "export_camera_info", "export_deltas", 
 
 
 def _refuse_existing(path, force: bool) -> None:
+    from fgcal.util.yamlio import must_be_new
+
     if path is not None and Path(path).exists() and not force:
         raise FgcalError(f"{path}: already exists (use --force to replace it)")
+    if path is not None and not force:
+        must_be_new(path)
 
 
 def calibrated_model(result):

@@ -30,6 +30,8 @@ __all__ = [
     "check_regular_file",
     "dump_yaml",
     "make_dir",
+    "may_replace",
+    "must_be_new",
     "read_text_file",
     "read_yaml",
     "short_repr",
@@ -261,6 +263,41 @@ def atomic_write_bytes(path, data: bytes) -> None:
     atomic_write_chunks(path, (data,))
 
 
+_NEW_FILES: set[str] = set()  # outputs checked absent (no --force): written only if still absent
+
+
+def must_be_new(path) -> None:
+    """Mark the output ``path`` (checked absent, no ``--force``) so that its atomic write creates it
+    and never replaces a file another run wrote meanwhile (two runs on one output, started together:
+    the later one fails naming it, instead of both saying they wrote)."""
+    _NEW_FILES.add(os.path.abspath(path))
+
+
+def may_replace(path) -> None:
+    """Undo :func:`must_be_new` (``--force``)."""
+    _NEW_FILES.discard(os.path.abspath(path))
+
+
+def _publish(tmp, path: Path) -> None:
+    key = os.path.abspath(path)
+    if key not in _NEW_FILES:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path)  # fails if path exists: create-if-absent, atomically
+    except FileExistsError:
+        raise FgcalError(f"{path}: already exists (written meanwhile by another run; use --force to replace "
+                         "it)") from None
+    except OSError:  # a file system without hard links: the check, then the rename
+        if os.path.lexists(path):
+            raise FgcalError(f"{path}: already exists (written meanwhile by another run; use --force to "
+                             "replace it)") from None
+        os.replace(tmp, path)
+    else:
+        os.unlink(tmp)
+    _NEW_FILES.discard(key)
+
+
 def atomic_write_chunks(path, chunks) -> None:
     """Write the byte strings of the iterable ``chunks`` to ``path`` atomically, as :func:`atomic_write_bytes`
     does, holding one chunk at a time (a large table is written in bounded memory)."""
@@ -274,7 +311,7 @@ def atomic_write_chunks(path, chunks) -> None:
                 fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        _publish(tmp, path)
         tmp = None
     except OSError as exc:
         if exc.filename is None:  # a failed write names no file: name the one being written
