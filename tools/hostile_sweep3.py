@@ -15,8 +15,9 @@ from the parser (a new option is swept too), with hostile values by kind, and co
 Each single case runs as :mod:`tools/hostile_sweep` runs them (a child with a time and memory limit,
 classed ok / traceback / silent / hung / killed); a value may be taken (exit 0) or refused (exit 2,
 one line), except where an error is due (an output over an input). A concurrent pair is ``ok`` when
-both end with 0 or a one-line refusal, at least one wrote, the output reads back, the inputs are
-unchanged and no temporary file is left.
+one run wrote and the other ended in a one-line refusal (no output here may replace an existing
+one without ``--force``), the output reads back, the inputs are unchanged and no temporary file is
+left.
 
 Usage: ``python tools/hostile_sweep3.py [--jobs 2] [--only TEXT] [--timeout 150] [--list]``.
 """
@@ -269,13 +270,15 @@ def run_pair(name, args, output, base: Path, timeout: float) -> tuple[str, str, 
                 return "hung", f"no end after {timeout:.0f} s", dt
             if "Traceback" in err:
                 return "traceback", err.strip().splitlines()[-1][:200], dt
-            lines = [ln for ln in err.splitlines() if ln.strip() and not ln.lower().startswith(("warning:", "note:"))]
+            progress = f"{args[0]}:"  # a command's progress lines on stderr (design: greedy start ...)
+            lines = [ln for ln in err.splitlines() if ln.strip() and not ln.lower().startswith(("warning:", "note:"))
+                     and not ln.startswith(progress)]
             if code not in (0, 2) or (code == 2 and len(lines) != 1):
                 problems.append(f"exit {code}, {len(lines)} error lines: {err.strip()[-150:]}")
         if not any(code == 0 for code, _ in outs):
             problems.append("neither run wrote: " + " | ".join(e.strip()[-100:] for _, e in outs))
-        if "SEED" in args and all(code == 0 for code, _ in outs):
-            problems.append("two studies of different seeds both exit 0 on one --out")
+        if all(code == 0 for code, _ in outs):  # every output here is refused when it exists (no --force)
+            problems.append("both runs said they wrote one new output (the later replaced the earlier)")
         bad = _reads_back(work / output)
         if bad and any(code == 0 for code, _ in outs):
             problems.append(f"{output}: {bad}")
