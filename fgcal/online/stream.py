@@ -55,7 +55,7 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
     """
     from fgcal.robots.transforms import pose_matrices
 
-    warn = warn or (lambda m: print(m, file=sys.stderr))
+    warn = warn or (lambda m: print(f"warning: {m}", file=sys.stderr))  # the stream goes on: a warning line
     current: PoseData | None = None
     n_joints = 6 if model is None else model.n_joints
     widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "contact": 4, "end": 2}
