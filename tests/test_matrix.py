@@ -2,8 +2,9 @@
 
 Types: ball centres of three balls, a single reflector, full poses, ballbar distances (all
 simulated by :mod:`fgcal.studies.simulate` on the Puma 560), contacts to two-socket plates plus a
-table (tests/contact_sim.py on the Kinova URDF) and centres from three stations
-(tests/test_stations.py). Every cell is checked against an expectation computed independently of
+table (tests/contact_sim.py on the Kinova URDF), centres from three stations
+(tests/test_stations.py) and a camera's pixels of a board on a Panda's tool (tests/pixel_sim.py:
+OpenCV's projection, eye-to-hand). Every cell is checked against an expectation computed independently of
 the code under test where one exists: the simulated truth, the batch solve for the other
 engines, the holding rule for what is held, the result's own kinematics for the export.
 """
@@ -18,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from contact_sim import UrdfChain, plane_dataset, rigid_align, two_socket_dataset
+from pixel_sim import camera_dataset
 from plain_dh import fk_from_truth
 from test_contacts_simulated import _merge
 from test_stations import CHAIN as STATION_CHAIN
@@ -36,10 +38,13 @@ DATA = Path(__file__).parent / "data" / "urdf"
 REFLECTOR = np.array([0.0, 0.0, 50.0])
 N_POSES = 30
 
-TYPES = ["centres", "reflector", "poses", "distances", "contacts", "stations"]
+TYPES = ["centres", "reflector", "poses", "distances", "contacts", "stations", "pixels"]
 ONLINE = ["ekf", "ukf", "isam2"]
 ENGINES = ["batch", "gtsam", *ONLINE]
 DESIGN_REFUSED: set = set()  # every type is designed for (stations: each pose from its station)
+# compensate needs a TCP in the world: a camera's data hold the base and the tool (its frames are the
+# camera's and the target's), so its TCP is a point in a frame of the calibration's choosing
+COMPENSATED = [t for t in TYPES if t != "pixels"]
 HAS_TRUTH = {"centres", "reflector", "poses", "distances"}  # simulated by fgcal: a truth.yaml
 TRUE_URDF: dict = {}  # kind -> (the true robot's URDF text, chain): the URDF-generated datasets
 
@@ -111,6 +116,9 @@ def paths(puma, ur10, tmp_path_factory):
     out["contacts"] = _contacts(tmp / "c")
     TRUE_URDF["stations"] = (_stations_simulate(tmp / "s", 0, n=N_POSES), STATION_CHAIN)
     out["stations"] = tmp / "s" / "all"
+    camera_dataset(tmp / "pixels", DATA / "panda.urdf", {"base": "panda_link0", "tip": "panda_hand_tcp"},
+                   np.random.default_rng(8), n_images=N_POSES, n_held_out=0)
+    out["pixels"] = tmp / "pixels"
     return out
 
 
@@ -407,7 +415,7 @@ def test_command(paths, cli_tmp, kind, command, tmp_path):
             assert d["truth"]["position_mm"]["rms"] < d["truth"]["before"]["position_mm"]["rms"], d["truth"]
         elif kind == "contacts":
             assert d["consistency_mm"]["rms"] < d["before"]["consistency_mm"]["rms"], d
-        else:  # stations: no truth file, the measured positions
+        else:  # stations: no truth file, the measured positions; pixels: the reprojection error (px)
             assert d["position_mm"]["rms"] < d["before"]["position_mm"]["rms"], d
         return
     if command == "report":
@@ -475,7 +483,7 @@ def _well_conditioned(model, slots, q_file, n):
     return q_file[np.sort(np.argsort(-smallest)[:n])]
 
 
-@pytest.mark.parametrize("kind", TYPES)
+@pytest.mark.parametrize("kind", COMPENSATED)
 def test_compensate(paths, cli_tmp, kind, tmp_path):
     """``compensate`` on each type's result: targets 3 mm (random directions) from where the calibrated
     robot puts the TCP (a ball; the reflector, a position-only instrument, whose orientation is the

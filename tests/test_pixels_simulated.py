@@ -22,6 +22,7 @@ from contact_sim import UrdfChain
 from pixel_sim import camera_dataset, pose
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
+from fgcal.estimation.result import load_result
 from fgcal.io.dataset_io import dataset_model, load_dataset
 
 DATA = Path(__file__).parent / "data" / "urdf"
@@ -212,7 +213,6 @@ def test_calibrate_verify_report_and_refusals_through_the_cli(tmp_path):
     assert np.array_equal(back.pixels.uv, ds.select(ds.pose_ids[:10]).pixels.uv)
     run = _cli("calibrate", tmp_path / "cal", "--out", tmp_path / "r.json")
     assert run.returncode == 0, run.stderr
-    from fgcal.estimation.result import load_result
 
     result = load_result(tmp_path / "r.json")
     assert result.setup["refused"] == [{"level": "pixels", "pose": 1, "camera": "left", "point": point,
@@ -246,10 +246,15 @@ def test_calibrate_verify_report_and_refusals_through_the_cli(tmp_path):
     info = yaml.safe_load((tmp_path / "out.urdf.camera_left.yaml").read_text())
     assert info["image_width"] == 1280 and info["distortion_model"] == "plumb_bob"
     assert info["camera_matrix"]["data"][0] == pytest.approx(est["intrinsics"]["fx"])
-    for args, what in ((("online", tmp_path / "cal", "--engine", "ekf"), "the online engines do not take pixels yet"),
-                       (("design", "--dataset", tmp_path / "cal", "--poses", "5"), "design for cameras")):
-        run = _cli(*args, "--out", tmp_path / f"{args[0]}.out")  # not yet: one line, exit 2
-        assert run.returncode == 2 and what in run.stderr and "Traceback" not in run.stderr, run.stderr
+    # the online engines and design take pixels (tests/test_online_pixels.py, tests/test_design_cameras.py)
+    run = _cli("online", tmp_path / "cal", "--engine", "ekf", "--out", tmp_path / "online.json")
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    online = load_result(tmp_path / "online.json")
+    assert online.names == result.names and online.setup["refused"] == result.setup["refused"]  # named alike
+    assert np.max(np.abs(online.estimate - result.estimate) / result.sigma) < 0.1
+    run = _cli("design", "--dataset", tmp_path / "cal", "--poses", "5", "--out", tmp_path / "plan.csv")
+    assert run.returncode == 0 and "Traceback" not in run.stderr, run.stderr
+    assert len((tmp_path / "plan.csv").read_text().strip().splitlines()) == 1 + 5
     bad = (tmp_path / "cal" / "pixels.csv").read_text().replace(",left,", ",right,", 1)
     (tmp_path / "cal" / "pixels.csv").write_text(bad)
     run = _cli("calibrate", tmp_path / "cal", "--out", tmp_path / "r2.json")

@@ -11,6 +11,7 @@ from __future__ import annotations
 from fgcal.api.calibration import calibrate, calibration_summary
 from fgcal.api.checking import CheckReport, check
 from fgcal.api.compensation import compensate
+from fgcal.api.detecting import Detection, detect
 from fgcal.api.exporting import export, export_deltas, export_model, export_urdf
 from fgcal.api.notes import FgcalNote, FgcalWarning
 from fgcal.api.planning import design
@@ -18,6 +19,6 @@ from fgcal.api.reporting import Report, report
 from fgcal.api.simulation import simulate
 from fgcal.api.verification import load_verification, verification_summary, verify
 
-__all__ = ["CheckReport", "FgcalNote", "FgcalWarning", "Report", "calibrate", "calibration_summary", "check",
-           "compensate", "design", "export", "export_deltas", "export_model", "export_urdf", "load_verification",
+__all__ = ["CheckReport", "Detection", "FgcalNote", "FgcalWarning", "Report", "calibrate", "calibration_summary",
+           "check", "compensate", "design", "detect", "export", "export_deltas", "export_model", "export_urdf", "load_verification",
            "report", "simulate", "verification_summary", "verify"]

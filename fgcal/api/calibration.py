@@ -225,7 +225,8 @@ def calibration_summary(result: CalibrationResult) -> list[str]:
         extra = f", rotation {r.rms_rotation_deg:.4g} deg" if r.rms_rotation_deg is not None else ""
         out.append(f"  {name:8s} at the joint readings: rms {r.rms:.4g} {r.unit}{extra}")
     out.append(f"  noise ({result.noise_mode}):")
-    for name, n in result.noise.items():
+    groups = result.noise_groups if len(result.noise_groups) > 1 else {}  # one camera's is its component's
+    for name, n in (*result.noise.items(), *groups.items()):  # then each camera's own
         est = f"estimated {n.estimated:.3g}" if n.estimated is not None else n.note
         out.append(f"    {name:15s} declared {n.declared:.3g} {n.unit}, {est}; "
                    f"test of the declared: p = {n.p_value:.2g}")

@@ -170,7 +170,9 @@ def _from_robot(robot, poses, candidates, index, level, seed, noise_values, prog
              "  " + ", ".join(f"{k} {d.values[k]:.4g}" for k in ALL if k != "pred"),
              f"  predicted position error RMS at new poses: {d.values['pred']:.4g} mm "
              f"(random {poses}-pose sets from the same candidates: median {np.median(random_pred):.4g}, "
-             f"quartiles {np.percentile(random_pred, 25):.4g}-{np.percentile(random_pred, 75):.4g} mm)"]
+             f"quartiles {np.percentile(random_pred, 25):.4g}-{np.percentile(random_pred, 75):.4g} mm)",
+             "  the estimation error alone: the robot's error that no geometric model describes (compliance, gear "
+             "errors) adds to it at every pose; design --dataset of a measured series states that floor"]
     if prepared.dropped:
         lines.append(f"  not identifiable from these candidates, not designed for: {', '.join(prepared.dropped)}")
     joints = np.array([model.joints_to_file_units(q) for q in d.q], dtype=float)

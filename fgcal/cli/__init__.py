@@ -24,6 +24,7 @@ from fgcal.cli.commands.common import default as _d
 from fgcal.cli.commands.compensate import _cmd_compensate
 from fgcal.cli.commands.demo import _cmd_demo
 from fgcal.cli.commands.design import _cmd_design
+from fgcal.cli.commands.detect import _cmd_detect
 from fgcal.cli.commands.export import _cmd_export
 from fgcal.cli.commands.measure import _cmd_measure
 from fgcal.cli.commands.online import _cmd_online
@@ -341,6 +342,16 @@ def build_parser() -> argparse.ArgumentParser:
     de.add_argument("--out", type=Path, required=True, help="plan CSV: pose,q1..qn (deg); the candidates' pose ids")
     de.add_argument("--force", action="store_true", help="replace OUT if it exists")
     de.set_defaults(func=_cmd_design)
+
+    dt = sub.add_parser("detect", help="chessboard corners in images -> pixels.csv (OpenCV: pip install fgcal[camera])")
+    dt.add_argument("images", type=Path, nargs="+", help="image files; each one's pose id is the last number in its "
+                                                           "name (img_012.png: 12), else its place in the list")
+    dt.add_argument("--grid", required=True, help="the board's inner corners ROWSxCOLS (points r{i}c{j})")
+    dt.add_argument("--square", required=True, type=positive_mm,
+                    help="the board's square (mm), for the targets: entry printed")
+    dt.add_argument("--camera", default="left", help="the camera's name in pixels.csv (default left)")
+    dt.add_argument("--out", type=Path, required=True, help="pixels.csv to write (pose,camera,point,u,v)")
+    dt.set_defaults(func=_cmd_detect)
 
     d = sub.add_parser("demo", help="run the main job on the bundled dataset")
     d.add_argument("--out", type=Path, default=None,

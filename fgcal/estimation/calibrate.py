@@ -22,6 +22,7 @@ from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, setup_size, tool_is_free, world_is_fixed
 from fgcal.estimation.graph import Graph, Sigmas, State
+from fgcal.estimation.group_noise import group_noise, update_groups
 from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
 from fgcal.estimation.noise import (
     NoiseMode,
@@ -338,6 +339,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
         if noise_mode is NoiseMode.ESTIMATED:
             graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared)
             changed |= moved
+            changed |= update_groups(graph, lin, h)  # each camera's share of the pixels' noise
         if not changed and outlier_mode is OutlierMode.EXCLUDE and readmitted < MAX_READMISSIONS:
             # Settled: every exclusion is tested again at this (final) noise and solution; those
             # within the limit come back, and the rounds go on to a fixed point.
@@ -429,6 +431,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     levels_summary = _level_summaries(graph, state, cov, lin)
     h = graph.row_leverage(state, cov, lin)
     noise_table = level_noise(components(graph, lin, h), graph.sigmas, declared, noise_mode)
+    groups = group_noise(graph, lin, h, declared, noise_mode)  # each camera's, beside the component's
     ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())
     red_total = sum(n.redundancy for n in noise_table.values())
     outliers = name_outliers(graph, lin, h, ds, pose_ids,
@@ -455,6 +458,9 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         residuals["probes_mm"] = raw["probes"][0][:, 0].tolist()
     for level in graph.measurements:
         residuals.update(BY_LEVEL[level].residual_summary(raw[level][0]))
+        if hasattr(BY_LEVEL[level], "residual_places"):  # a camera's: where on the image each residual is
+            residuals.update(BY_LEVEL[level].residual_places(raw[level][0], graph.measurements[level], pose_ids,
+                                                             graph.setup))
     if "joints" in raw:
         residuals["joints_deg"] = model.joints_to_file_units(raw["joints"][0]).ravel().tolist()
     tool_xyz = model.forward(slots, graph.joints(state))[:, :3, 3]
@@ -471,7 +477,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         singular_values=[float(v) for v in sv], condition_number=float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf"),
         pose_ids=[int(p) for p in pose_ids], options=opts, dataset=str(ds.path) if ds.path else None,
         fgcal_version=__version__, residuals=residuals, tool_xyz=tool_xyz.tolist(),
-        noise_mode=noise_mode.value, noise=noise_table, outliers=outliers,
+        noise_mode=noise_mode.value, noise=noise_table, noise_groups=groups, outliers=outliers,
         fit_test={"statistic": float(ssq_declared), "redundancy": float(red_total),
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
         at_readings=at_readings(graph, state, read_raw),

@@ -25,7 +25,7 @@ from enum import Enum
 import numpy as np
 from scipy import special
 
-from fgcal.measurements.types import all_levels, kinematic_types
+from fgcal.measurements.types import BY_LEVEL, all_levels, kinematic_types
 
 __all__ = [
     "MIN_REDUNDANCY",
@@ -347,11 +347,16 @@ def name_outliers(graph, lin, h, ds, pose_ids, h_in=None) -> list[Outlier]:
         scales = _column_scales(level, w2, kept) if kept.any() else np.ones(w2.shape[1])
         e = lin.raw[level][0]
         obs = getattr(ds, level)
+        # a row's ball, or what the type names a row by (a camera's corner: its point)
+        labels = obs.ball if hasattr(obs, "ball") else getattr(obs, "point", None)
+        unit = getattr(BY_LEVEL[level], "unit", "mm") if level in BY_LEVEL else "mm"
         for k in np.nonzero(mask)[0]:
             resid = float(np.abs(e[k, 0])) if level == "probes" else float(np.linalg.norm(
                 e[k, 3:] if level == "poses" else e[k]))
-            out.append(Outlier(level, int(pose_ids[pose[k]]), str(obs.ball[k]) if level != "poses" else None,
-                               int(k), int(obs.line[k]), resid, "mm", float(np.sqrt((w2[k] / scales).max()))))
+            label = str(labels[k]) if level != "poses" and labels is not None else None
+            line = int(obs.line[k]) if getattr(obs, "line", None) is not None else 0
+            out.append(Outlier(level, int(pose_ids[pose[k]]), label, int(k), line, resid, unit,
+                               float(np.sqrt((w2[k] / scales).max()))))
     return sorted(out, key=lambda o: (o.pose, o.level, o.index))
 
 

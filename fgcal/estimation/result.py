@@ -159,6 +159,9 @@ class CalibrationResult:
     noise : dict of str to LevelNoise
         Per variance component (``probes``, ``centres``, ``poses``, ``poses_rotation``, ``joints``):
         declared, estimated and used sigma, redundancy, and the test of the declared sigma.
+    noise_groups : dict of str to LevelNoise
+        Each noise group within a component (``pixels.CAMERA``: a camera's own pixel noise), as
+        ``noise`` has it (:mod:`fgcal.estimation.group_noise`).
     outliers : list of Outlier
         Measurements excluded as gross errors (pose, ball, line of the file).
     fit_test : dict
@@ -196,6 +199,8 @@ class CalibrationResult:
     tooling: dict = field(default_factory=dict)
     noise_mode: str = "declared"
     noise: dict[str, LevelNoise] = field(default_factory=dict)
+    # each noise group's share of a component (``pixels.CAMERA``: a camera's pixel noise), beside ``noise``
+    noise_groups: dict[str, LevelNoise] = field(default_factory=dict)
     outliers: list[Outlier] = field(default_factory=list)
     fit_test: dict = field(default_factory=dict)
     at_readings: dict[str, ResidualSummary] = field(default_factory=dict)
@@ -265,6 +270,8 @@ class CalibrationResult:
         d["levels"] = {k: asdict(v) for k, v in self.levels.items()}
         d["noise_mode"], d["fit_test"] = self.noise_mode, self.fit_test
         d["noise"] = {k: asdict(v) for k, v in self.noise.items()}
+        if self.noise_groups:
+            d["noise_groups"] = {k: asdict(v) for k, v in self.noise_groups.items()}
         d["outliers"] = [asdict(o) for o in self.outliers]
         d["at_readings"] = {k: asdict(v) for k, v in self.at_readings.items()}
         # PoseResidual holds scalars only: a shallow dict is asdict's (which deep-copies, 10x slower)
@@ -446,6 +453,7 @@ def load_result(path) -> CalibrationResult:
             setup=_check_setup(d.get("setup"), [p.name for p in params]),
             tooling=check_tooling(d.get("tooling")), noise_mode=str(d.get("noise_mode", "declared")),
             noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
+            noise_groups={k: LevelNoise(**v) for k, v in d.get("noise_groups", {}).items()},
             outliers=[Outlier(**o) for o in d.get("outliers", [])],
             fit_test={k: _float(v) for k, v in d.get("fit_test", {}).items()},
             at_readings={k: ResidualSummary(**v) for k, v in d.get("at_readings", {}).items()},

@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "Comparison",
     "ErrorStats",
+    "ToolPointErrors",
     "Verification",
     "check_same_robot",
     "check_verification",
@@ -72,6 +73,20 @@ class Comparison:
 
 
 @dataclass
+class ToolPointErrors:
+    """A camera's tool-point error implied at each pose (mm, :func:`~fgcal.estimation.verify_pixels.tool_point_errors`):
+    ``what`` it measures (the target's points on the tool, or the camera's centre), calibrated and nominal (K,)."""
+
+    what: str
+    after: np.ndarray
+    before: np.ndarray
+
+    def summary(self, values) -> dict:
+        v = np.asarray(values, dtype=float)
+        return {"tool_point_mm": vars(error_stats(v[np.isfinite(v)])), "tool_point": self.what}
+
+
+@dataclass
 class Verification:
     """Calibrated and nominal errors against the measurements, and against the truth if known.
 
@@ -91,6 +106,7 @@ class Verification:
     xyz_mm: np.ndarray | None = None  # (K, 3) measured tool positions (mean of a pose's points), world frame
     joints_deg: np.ndarray | None = None  # (K, n) joint readings in file units (deg; mm for prismatic)
     contacts: dict | None = None  # contacts: {"after": ..., "before": ...} of ContactConsistency.summary()
+    tool_points: ToolPointErrors | None = None  # a camera's: the tool-point error implied (mm)
 
     def save(self, path) -> None:
         """Write :meth:`to_dict` as ``verify.json`` (``fgcal-verify/1``), atomically."""
@@ -131,11 +147,21 @@ class Verification:
                 pose["joints_deg"] = [float(v) for v in self.joints_deg[k]]
             if self.truth_after is not None:
                 pose["truth_position_mm"] = float(self.truth_after.position_mm[k])
+            if self.tool_points is not None:
+                pose["tool_point_mm"] = _finite_or_none(self.tool_points.after[k])
+                pose["before_tool_point_mm"] = _finite_or_none(self.tool_points.before[k])
         d["skipped"] = self.skipped
+        if self.tool_points is not None:
+            d.update(self.tool_points.summary(self.tool_points.after))
+            d["before"].update(self.tool_points.summary(self.tool_points.before))
         if self.contacts is not None:
             d.update(self.contacts["after"])
             d["before"].update(self.contacts["before"])
         return d
+
+
+def _finite_or_none(v) -> float | None:
+    return float(v) if np.isfinite(v) else None
 
 
 def measured_poses(ds: Dataset):

@@ -316,6 +316,40 @@ class Pixels(SetupMeasurement):
     def observations(self, pose, ball, values, line=None):
         raise NotImplementedError("pixels are built by PixelObservations.build")
 
+    # ------------------------------------------------------------------ each camera's noise
+    def noise_groups(self, terms: Terms, layout) -> dict:
+        """Each camera's corners (``{camera: rows (M,) bool}``): a noise group each
+        (:mod:`fgcal.estimation.group_noise`)."""
+        cam0 = terms.data[2]
+        return {n: cam0 == layout.offset[n] for n, f in layout.spec.fixtures.items()
+                if f.type == "camera" and np.any(cam0 == layout.offset[n])}
+
+    def group_weight(self, terms: Terms) -> np.ndarray:
+        """The corners' weights (M,) in the payload (the component's sigma over the camera's): rescaled in place."""
+        return terms.data[5]
+
+    # ------------------------------------------------------------------ the online engines' rows
+    block_specs = True  # block_observations needs the dataset's cameras and targets (``specs``)
+
+    def row_labels(self, obs: PixelObservations) -> np.ndarray:
+        """Each corner's point name (M,): what the online engines keep as a row's ball."""
+        return obs.point
+
+    def row_values(self, obs: PixelObservations) -> np.ndarray:
+        """Each corner's measured pixel (M, 2): what the online engines keep as a row's values."""
+        return obs.uv
+
+    def row_blocks(self, block: str, label: str, specs: dict) -> list:
+        """The blocks one corner (camera ``block``, point ``label``) depends on: its camera, then the
+        target that has the point."""
+        return [block] + [n for n, s in specs.items() if s.type == "target" and label in s.points][:1]
+
+    def block_observations(self, pose, ball, block, values, specs=None) -> PixelObservations:
+        """Corners from the online engines' rows: pose ids (M,), point names ``ball`` (M,), cameras
+        ``block`` (M,), pixels ``values`` (M, 2) (further columns ignored) and the specs by name."""
+        uv = np.asarray(values, dtype=float).reshape(len(np.atleast_1d(pose)), -1)[:, :2]
+        return PixelObservations.build(np.asarray(pose, dtype=int), block, ball, uv, dict(specs or {}))
+
     def rows(self, obs):
         return ([int(p), c, n, float(u), float(v)]
                 for p, c, n, (u, v) in zip(obs.pose, obs.camera, obs.point, obs.uv, strict=True))
@@ -326,6 +360,20 @@ class Pixels(SetupMeasurement):
 
     def residual_summary(self, e) -> dict:
         return {"pixels_px": np.asarray(e).ravel().tolist()}
+
+    def residual_places(self, e, terms: Terms, pose_ids, layout) -> dict:
+        """Where each corner's residual ``e`` (M, 2) is, for the report's image-plane bins: its
+        measured pixel (``pixels_u_px``, ``pixels_v_px``), its pose id, its camera (``pixels_camera``:
+        the index among the layout's cameras, in their order) and the residual in that camera's
+        own px (``pixels_du_px``, ``pixels_dv_px``)."""
+        _, uv, cam0, _, _, weight = terms.data
+        cams = [n for n, f in layout.spec.fixtures.items() if f.type == "camera"]
+        index = {layout.offset[n]: i for i, n in enumerate(cams)}
+        own = np.asarray(e, dtype=float) / weight[:, None]
+        return {"pixels_u_px": uv[:, 0].tolist(), "pixels_v_px": uv[:, 1].tolist(),
+                "pixels_pose": np.asarray(pose_ids)[terms.pose].astype(float).tolist(),
+                "pixels_camera": [float(index[int(k)]) for k in cam0],
+                "pixels_du_px": own[:, 0].tolist(), "pixels_dv_px": own[:, 1].tolist()}
 
 
 PIXELS = Pixels()

@@ -298,6 +298,7 @@ class _Engine:
             raise FgcalError(f"final smoothing: the batch solve estimates {', '.join(sol.graph.params.names)}")
         self.final_held = held
         self._final_gauge = gauge
+        self._final_refused = list(sol.refused)  # rows refused before the solve (a corner behind a camera)
         # In the engine's parameters: a held one at its value, with no variance.
         self._final_slots = sol.graph.params.full(sol.state.theta, sol.graph.held)
         self.final_pose_ids = [int(p) for p in sol.pose_ids]  # every pose the smoothing judged (and took)
@@ -342,11 +343,12 @@ class _Engine:
         """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,
         those never seen by the measurements first, then those the final smoothing held."""
         slots = self.held if getattr(self, "_final_slots", None) is None else self._final_slots
-        from fgcal.estimation.gauge import GAUGE_REASON
+        from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON
 
         values = self.model.slots_to_file_units(slots)
         gauge = [*self.gauge, *getattr(self, "_final_gauge", [])]
-        out = [{"name": n, "value": float(values[self.model.slot(n)]), "reason": GAUGE_REASON} for n in gauge]
+        out = [{"name": n, "value": float(values[self.model.slot(n)]),
+                "reason": TOOL_GAUGE_REASON if n.startswith("tool.") else GAUGE_REASON} for n in gauge]
         for n, partners in (*self.unseen.items(), *self.final_held.items()):
             if n in gauge:
                 continue
@@ -364,26 +366,35 @@ class _Engine:
         out = {**layout.spec.to_dict(), "estimated": layout.describe(layout.full(x[len(self.params):]))}
         if any(h["reason"] == GAUGE_REASON for h in self.held_info()):
             out["gauge"] = GAUGE_REASON
+        if self._final is not None and getattr(self, "_final_refused", None):  # named, as the batch names them
+            out["refused"] = list(self._final_refused)
         return out
 
 
 def _gauge_names(ds: Dataset, names) -> list[str]:
     """The base's parameters among ``names`` when nothing in ``ds`` fixes the world frame (contacts
-    with unknown fixtures only: :func:`fgcal.estimation.calibrate.world_is_fixed`); none for a
-    dataset with no measurements yet."""
-    from fgcal.estimation.gauge import world_is_fixed
+    with unknown fixtures only: :func:`fgcal.estimation.calibrate.world_is_fixed`), and the tool's
+    when a camera's blocks on the tool are of unknown pose (:func:`~fgcal.estimation.gauge.tool_is_free`);
+    none for a dataset with no measurements yet."""
+    from fgcal.estimation.gauge import tool_is_free, world_is_fixed
 
     levels = ds.levels()
-    if not levels or world_is_fixed(ds, levels):
+    if not levels:
         return []
-    return [n for n in names if n.startswith("base.")]
+    out = [] if world_is_fixed(ds, levels) else [n for n in names if n.startswith("base.")]
+    # a camera's blocks of unknown pose on the tool: the tool's frame is theirs, as the batch holds it
+    return out + ([n for n in names if n.startswith("tool.")] if tool_is_free(ds, levels) else [])
 
 
 def _measured(ds: Dataset):
     """What ``ds`` measures, as :func:`~fgcal.estimation.holding.unseen_parameters` takes it: a
-    pose, or the tool points of its balls; a full pose while nothing is known (a stream)."""
+    pose (a measured pose, a camera's pixels), or the tool points of its balls; a full pose while
+    nothing is known (a stream)."""
+    from fgcal.measurements.types import BY_LEVEL
+
     levels = ds.levels()
-    if not levels or "poses" in levels:
+    # a camera sees the tool's whole pose (a target on it, or the world's target from it)
+    if not levels or "poses" in levels or any(hasattr(BY_LEVEL.get(lv), "tool_blocks") for lv in levels):
         return "pose"
     from fgcal.estimation.calibrate import _measured_points
 

@@ -57,20 +57,24 @@ class ISAM2Engine(_Engine):
         # A set-up block (a point's x, y, z or a plane's two tilts and offset): the angles' threshold
         # on the first two entries (a point's x and y are relinearised more often: they are cheap).
         thresholds.insert(("s", np.array([theta_threshold[1], theta_threshold[1], theta_threshold[0]])))
-        # A block of another size (a station's three angles and position) has a symbol of its own,
-        # with the thresholds of its kind's angles and lengths.
-        self._block_symbols: dict[int, str] = {3: "s"}
-        for kind in BLOCK_KINDS.values():
-            if kind.size not in self._block_symbols and len(self._block_symbols) < len(BLOCK_SYMBOLS):
+        # A block of another shape (a station's three angles and position, a camera's mount and the
+        # intrinsics it estimates) has a symbol of its own, with the thresholds of its free entries.
+        self._block_symbols: dict[tuple, str] = {(3, *_thresholds(BLOCK_KINDS["plane"], theta_threshold)): "s"}
+        for kind, free in _block_shapes(ds):
+            shape = _thresholds(kind, theta_threshold)[np.asarray(free, dtype=bool)]
+            key = (len(shape), *shape)
+            if key not in self._block_symbols and len(self._block_symbols) < len(BLOCK_SYMBOLS):
                 c = BLOCK_SYMBOLS[len(self._block_symbols)]
-                self._block_symbols[kind.size] = c
-                thresholds.insert((c, np.where(kind.angles, theta_threshold[1], theta_threshold[0])))
+                self._block_symbols[key] = c
+                thresholds.insert((c, shape))
         p.setRelinearizeThreshold(thresholds)
+        self._theta_threshold = theta_threshold
         p.relinearizeSkip = 1
         self._isam_params = p
         self.t_key = fx.theta_key()
         self._s_keys: dict[str, int] = {}  # free set-up block -> its variable, in the order started
-        self._s_sizes: dict[str, int] = {}  # free set-up block -> its size
+        self._s_sizes: dict[str, int] = {}  # free set-up block -> its free entries
+        self._s_symbols: dict[str, str] = {}  # free set-up block -> its variable's symbol
         self._tree(None)
         self._started = False
 
@@ -180,16 +184,21 @@ class ISAM2Engine(_Engine):
         layout = prop.layout
         k = 0
         for name in prop.started:
-            if layout.spec.fixtures[name].fixed:
+            fixture = layout.spec.fixtures[name]
+            kind = BLOCK_KINDS[fixture.type]
+            free = np.asarray(fixture.entries_free(kind.size), dtype=bool)
+            size = int(free.sum())
+            if fixture.fixed or not size:
                 continue
-            size = BLOCK_KINDS[layout.spec.fixtures[name].type].size
-            symbol = self._block_symbols.get(size)
+            shape = _thresholds(kind, self._theta_threshold)[free]
+            symbol = self._block_symbols.get((size, *shape))
             if symbol is None:
-                raise FgcalError(f"set-up block {name}: the iSAM2 engine takes blocks of "
-                                 f"{', '.join(map(str, sorted(self._block_symbols)))} entries, not {size}")
-            key = gtsam.symbol(symbol, sum(1 for n in self._s_keys if self._s_sizes[n] == size))
+                raise FgcalError(f"set-up block {name}: the iSAM2 engine takes at most {len(BLOCK_SYMBOLS)} "
+                                 "shapes of set-up blocks")
+            key = gtsam.symbol(symbol, sum(1 for n in self._s_keys if self._s_symbols[n] == symbol))
             self._s_keys[name] = key
             self._s_sizes[name] = size
+            self._s_symbols[name] = symbol
             values.insert(key, prop.mean[k:k + size])
             graph.add(gtsam.PriorFactorVector(key, prop.mean[k:k + size],
                                               gtsam.noiseModel.Diagonal.Sigmas(prop.sigma[k:k + size])))
@@ -203,8 +212,7 @@ class ISAM2Engine(_Engine):
             sigma = group.kind.sigma(self.sigmas)
             for r in range(group.n):
                 row = tuple(np.asarray(d)[r:r + 1] for d in group.data)
-                name = group.fixtures[r]
-                s_key = self._s_keys.get(name)
+
                 if group.current:
                     noise = fx.noise_model(sigma * np.sqrt(f))
                     q = {k_: v for k_, v in qargs.items() if k_ in ("q_key", "q_fixed")}
@@ -213,8 +221,8 @@ class ISAM2Engine(_Engine):
                     Rj = np.diag(np.broadcast_to(np.asarray(self.sigmas.joint, dtype=float) ** 2, (len(group.q),)))
                     noise = gtsam.noiseModel.Gaussian.Covariance(f * (np.diag(sigma**2) + jq @ Rj @ jq.T))
                     q = {"q_fixed": group.q}
-                graph.add(contact_factor(group.kind, row, layout, name, noise, self.params.index, self.held, chain,
-                                         t_key=self.t_key, s_key=s_key, **q))
+                graph.add(contact_factor(group.kind, row, layout, group.blocks[r], noise, self.params.index,
+                                         self.held, chain, t_key=self.t_key, s_keys=self._s_keys, **q))
         for c in prop.constraints:
             graph.add(distance_constraint_factor(c, layout, self._s_keys))
 
@@ -262,3 +270,26 @@ class ISAM2Engine(_Engine):
             return self._final[0].copy(), self._final[1].copy(), None
         x, cov = self._running()
         return x.copy(), cov.copy(), self.setup.layout
+
+
+def _thresholds(kind, theta_threshold) -> np.ndarray:
+    """A block kind's relinearisation thresholds (size,): angles and a camera's distortion (dimensionless)
+    at the angles' threshold, lengths (mm) and a camera's focal lengths and centre (px) at the lengths'."""
+    if kind.type == "point":  # a plane's: a point's x and y are relinearised more often (they are cheap)
+        kind = BLOCK_KINDS["plane"]
+    small = np.asarray(kind.angles, dtype=bool).copy()
+    if kind.type == "camera":
+        small[10:] = True  # k1, k2, p1, p2, k3
+    return np.where(small, theta_threshold[1], theta_threshold[0])
+
+
+def _block_shapes(ds) -> list:
+    """``(kind, free entries)`` of every block shape the engine may start: each kind's whole block,
+    and each of the dataset's blocks with only some entries free (a camera's known intrinsics)."""
+    out = [(kind, np.ones(kind.size, dtype=bool)) for kind in BLOCK_KINDS.values()]
+    for f in getattr(ds.setup, "fixtures", {}).values():
+        kind = BLOCK_KINDS[f.type]
+        free = np.asarray(f.entries_free(kind.size), dtype=bool)
+        if free.any() and not free.all():
+            out.insert(0, (kind, free))  # the dataset's own first: a symbol each, before the others'
+    return out

@@ -91,8 +91,26 @@ def carries_values(kind) -> bool:
 def online_setup(kind) -> bool:
     """Whether the online engines take a set-up type: contacts to fixture points or planes (the
     block alone), or a type whose rows carry values and whose blocks start from a fit of them
-    (:func:`carries_values`: a station's centres); not yet a camera's pixels."""
+    (:func:`carries_values`: a station's centres, a camera's pixels)."""
     return getattr(kind, "fixture_type", None) in ("point", "plane") or carries_values(kind)
+
+
+def row_labels(kind, obs) -> np.ndarray:
+    """What a set-up type's row keeps as its ball (M,): the ball, or the type's own label (a pixel's point)."""
+    return kind.row_labels(obs) if hasattr(kind, "row_labels") else obs.ball
+
+
+def row_values(kind, obs) -> np.ndarray:
+    """A set-up type's measured values (M, k): the type's own (a pixel's u, v) or its row arrays."""
+    return np.asarray(kind.row_values(obs), dtype=float) if hasattr(kind, "row_values") else _values(obs)
+
+
+def block_observations(kind, pose, labels, blocks, values, setup):
+    """The type's ``block_observations`` of rows (``setup``: the dataset's SetupSpec, for a type
+    that needs the specs of its blocks: a camera's pixels)."""
+    if getattr(kind, "block_specs", False):
+        return kind.block_observations(pose, labels, blocks, values, specs=dict(setup.fixtures))
+    return kind.block_observations(pose, labels, blocks, values)
 
 
 def read_levels() -> tuple:
@@ -149,8 +167,8 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
             obs = getattr(ds, level)
             blocks = BY_LEVEL[level].blocks_of(obs)
             if carries_values(BY_LEVEL[level]):
-                values = _values(obs)
-                rec.block_rows += [(level, str(obs.ball[i]), str(blocks[i]), values[i]) for i in rows[pid]]
+                labels, values = row_labels(BY_LEVEL[level], obs), row_values(BY_LEVEL[level], obs)
+                rec.block_rows += [(level, str(labels[i]), str(blocks[i]), values[i]) for i in rows[pid]]
             else:
                 rec.contacts += [(level, str(obs.ball[i]), str(blocks[i])) for i in rows[pid]]
         for level, (rows, balls, values) in generic_rows.items():
@@ -171,9 +189,10 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
         if carries_values(kind):
             vrows = [(r.pose, b, f, v) for r in records for lv, b, f, v in r.block_rows if lv == kind.level]
             if vrows:
-                setup_levels[kind.level] = kind.block_observations(
-                    np.array([p for p, _, _, _ in vrows], dtype=int), np.array([b for _, b, _, _ in vrows]),
-                    np.array([f for _, _, f, _ in vrows]), np.array([v for _, _, _, v in vrows], dtype=float))
+                setup_levels[kind.level] = block_observations(
+                    kind, np.array([p for p, _, _, _ in vrows], dtype=int), np.array([b for _, b, _, _ in vrows]),
+                    np.array([f for _, _, f, _ in vrows]), np.array([v for _, _, _, v in vrows], dtype=float),
+                    meta.setup)
             continue
         contact_rows = [(r.pose, b, f) for r in records for lv, b, f in r.contacts if lv == kind.level]
         if contact_rows:

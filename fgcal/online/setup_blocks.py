@@ -38,9 +38,9 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.measurements.setup import BLOCK_KINDS, SetupLayout, SetupSpec, distance_error
-from fgcal.online.records import PoseData, setup_types
+from fgcal.online.records import PoseData, block_observations, setup_types
 
-__all__ = ["FIT_MIN_ROWS", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup",
+__all__ = ["CAMERA_MIN_IMAGES", "FIT_MIN_ROWS", "PLANE_MIN_CONTACTS", "PLANE_MIN_SPREAD_MM", "WIDE_PRIOR_MM", "OnlineSetup",
            "SetupProposal"]
 
 log = logging.getLogger(__name__)
@@ -49,6 +49,7 @@ WIDE_PRIOR_MM = 100.0  # a new unknown block's prior sigma (mm; a plane's tilts:
 PLANE_MIN_CONTACTS = 3
 PLANE_MIN_SPREAD_MM = 10.0  # RMS distance of the contacts from their best line, for a plane fit
 FIT_MIN_ROWS = 3  # measurements of a block started by a fit of several (a station: a rigid fit of its centres)
+CAMERA_MIN_IMAGES = 6  # images of a camera's target before its hand-eye start (three determine it; six steady it)
 
 
 @dataclass
@@ -88,6 +89,7 @@ class SetupGroup:
     n: int
     current: bool
     fixtures: list = field(default_factory=list)  # the fixture of each contact
+    blocks: list = field(default_factory=list)  # the blocks each row depends on (a corner: camera, target)
 
 
 @dataclass
@@ -199,6 +201,22 @@ class OnlineSetup:
             f = self.spec.fixtures.get(name)
             if f is None or level not in kinds:
                 raise FgcalError(f"pose {rec.pose}: {name!r} is not in dataset.yaml's fixtures or stations")
+            need = _needs(kinds[level], name, ball, self.spec)
+            if all(n in order for n in need):
+                continue
+            if len(need) > 1:  # blocks started together from one fit of their rows (a camera and its target)
+                new = [n for n in need if n not in order]
+                unknown = {n for n in new if self.spec.fixtures[n].value is None}
+                if unknown:
+                    mine = [(p.q, p.ball, p.values) for p in self.pending if p.fixture == name]
+                    mine += [(rec.q, b, v) for lv, b, n, v in touches if n == name]
+                    fits = _fitted_starts(engine, theta, kinds[level], name, mine, unknown, self.spec)
+                    if fits is None:
+                        continue
+                    starts.update(fits)
+                order += new
+                started += new
+                continue
             if name in order:
                 continue
             if f.value is None and f.type == "point":
@@ -209,7 +227,7 @@ class OnlineSetup:
                 if f.type == "plane":
                     fit = _plane_fit(*_centres(engine, theta, [(q, b) for q, b, _ in mine]), engine.ds.tooling.radius)
                 else:
-                    fit = _fitted_start(engine, theta, kinds[level], name, mine)
+                    fit = (_fitted_starts(engine, theta, kinds[level], name, mine, {name}, self.spec) or {}).get(name)
                 if fit is None:
                     continue
                 starts[name] = fit
@@ -219,18 +237,22 @@ class OnlineSetup:
         n_before = self.n_free
         mean = layout.start[layout.free][n_before:] if layout is not None else np.zeros(0)
         prior = layout.prior()[1][n_before:] if layout is not None else np.zeros(0)
-        wide = np.concatenate([BLOCK_KINDS[self.spec.fixtures[n].type].prior_sigma(WIDE_PRIOR_MM)
-                               for n in started if not self.spec.fixtures[n].fixed] or [np.zeros(0)])
+        wide = np.concatenate([_wide_prior(self.spec.fixtures[n]) for n in started] or [np.zeros(0)])
         sigma = np.where(np.isfinite(prior), prior, wide)
+        def ready(t) -> bool:  # every block the row depends on is in the state
+            return layout is not None and all(n in layout.offset for n in _needs(kinds[t[0]], t[2], t[1], self.spec))
+
         groups = []
-        here = [t for t in touches if layout is not None and t[2] in layout.offset]
-        groups += _groups(kinds, here, rec.q, engine.ds.tooling, layout, current=True)
+        here = [t for t in touches if ready(t)]
+        groups += _groups(kinds, here, rec.q, engine.ds.tooling, layout, True, self.spec)
+        entering: dict = {}  # the pending rows that enter, by pose: one group per pose and level
         for p in self.pending:
-            if p.fixture in started:
-                groups += _groups(kinds, [p.touch], p.q, engine.ds.tooling, layout, False)
-        pending = [p for p in self.pending if p.fixture not in started]
-        pending += [Pending(rec.pose, rec.q.copy(), lv, b, n, v) for lv, b, n, v in touches
-                    if layout is None or n not in layout.offset]
+            if ready(p.touch):
+                entering.setdefault(p.pose, (p.q, []))[1].append(p.touch)
+        for q, touched in entering.values():
+            groups += _groups(kinds, touched, q, engine.ds.tooling, layout, False, self.spec)
+        pending = [p for p in self.pending if not ready(p.touch)]
+        pending += [Pending(rec.pose, rec.q.copy(), lv, b, n, v) for lv, b, n, v in touches if not ready((lv, b, n, v))]
         before = set(self.order)
         constraints = [c for c in self.spec.distances if {c.a, c.b} <= set(order) and not {c.a, c.b} <= before]
         return SetupProposal(layout, n_before, mean, sigma, groups, constraints, pending, started, starts)
@@ -276,49 +298,76 @@ class OnlineSetup:
         return {**self.layout.spec.to_dict(), "estimated": self.layout.describe(self.layout.full(values))}
 
 
-def _observations(kind, balls, blocks, values):
+def _needs(kind, block: str, ball: str, spec: SetupSpec) -> list:
+    """The blocks one row (of block ``block``, ball or label ``ball``) depends on: its block, or
+    those the type names (a corner: its camera and the target that has the point)."""
+    return kind.row_blocks(block, ball, spec.fixtures) if hasattr(kind, "row_blocks") else [block]
+
+
+def _wide_prior(f) -> np.ndarray:
+    """A new block's prior sigmas over its free entries: :data:`WIDE_PRIOR_MM` (over a 1 m lever for
+    angles; a camera's estimated intrinsics: the same in px, and over 1000 for the distortion)."""
+    kind = BLOCK_KINDS[f.type]
+    wide = kind.prior_sigma(WIDE_PRIOR_MM)
+    if f.type == "camera":  # the distortion is dimensionless: a tenth, as the angles
+        wide[10:] = WIDE_PRIOR_MM / 1000.0
+    return wide[np.asarray(f.entries_free(kind.size), dtype=bool)]
+
+
+def _observations(kind, balls, blocks, values, spec: SetupSpec):
     """The type's observations of one pose's rows (pose id 0): ``values`` None for a contact (the
     block alone), else the measured values (M, k) of a type that carries them."""
     pose = np.zeros(len(balls), dtype=int)
     if values is None:
         return kind.observations(pose, np.array(balls), np.array(blocks))
-    return kind.block_observations(pose, np.array(balls), np.array(blocks), np.array(values, dtype=float))
+    return block_observations(kind, pose, np.array(balls), np.array(blocks), np.array(values, dtype=float), spec)
 
 
-def _groups(kinds, touches, q, tooling, layout, current: bool) -> list:
+def _groups(kinds, touches, q, tooling, layout, current: bool, spec: SetupSpec) -> list:
     """One :class:`SetupGroup` per level of ``touches`` ((level, ball, block, values or None), one pose's)."""
     out = []
     for level in dict.fromkeys(t[0] for t in touches):
         rows = [t for t in touches if t[0] == level]
         kind = kinds[level]
         values = None if rows[0][3] is None else [t[3] for t in rows]
-        obs = _observations(kind, [t[1] for t in rows], [t[2] for t in rows], values)
+        obs = _observations(kind, [t[1] for t in rows], [t[2] for t in rows], values, spec)
         out.append(SetupGroup(np.asarray(q, dtype=float), kind, kind.terms(obs, tooling, {0: 0}, layout).data,
-                              len(rows), current, [t[2] for t in rows]))
+                              len(rows), current, [t[2] for t in rows],
+                              [_needs(kind, t[2], t[1], spec) for t in rows]))
     return out
 
 
-def _fitted_start(engine, theta, kind, name, rows):
-    """The start of block ``name`` from its measurements ``rows`` ((q, ball, values), ...) at the
-    robot's estimate ``theta`` by the type's ``block_starts`` (a station: the rigid fit of the
-    predicted centres to the measured ones), or None while they are fewer than :data:`FIT_MIN_ROWS`
-    or their values lie within :data:`PLANE_MIN_SPREAD_MM` of one line."""
+def _fitted_starts(engine, theta, kind, name, rows, unknown: set, spec: SetupSpec) -> dict | None:
+    """The starts of the blocks ``unknown`` measured through block ``name`` by its rows ``rows``
+    ((q, ball, values), ...) at the robot's estimate ``theta``, by the type's ``block_starts`` (a
+    station: the rigid fit of the predicted centres to the measured ones; a camera and its target:
+    per-image PnP and a hand-eye solve, from :data:`CAMERA_MIN_IMAGES` images), or None while the
+    rows are fewer than :data:`FIT_MIN_ROWS` or their values lie within :data:`PLANE_MIN_SPREAD_MM`
+    of one line (the type's own start refusing them: too few images)."""
     from fgcal.robots.kinematics import forward
 
     if len(rows) < FIT_MIN_ROWS:
         return None
     values = np.array([v for _, _, v in rows], dtype=float).reshape(len(rows), -1)
-    if values.shape[1] >= 3:
+    if getattr(kind, "block_specs", False):
+        if len({np.asarray(q, dtype=float).tobytes() for q, _, _ in rows}) < CAMERA_MIN_IMAGES:
+            return None
+    elif values.shape[1] >= 3:
         sv = np.linalg.svd(values[:, :3] - values[:, :3].mean(axis=0), compute_uv=False)
         if sv[1] / np.sqrt(len(rows)) < PLANE_MIN_SPREAD_MM:
             return None
-    T = forward(engine.params.full(theta, engine.held), np.array([q for q, _, _ in rows]), engine.model.chain)
-    obs = _observations(kind, [b for _, b, _ in rows], [name] * len(rows), values)
+    qs = np.array([q for q, _, _ in rows])
+    T = forward(engine.params.full(theta, engine.held), qs, engine.model.chain)
+    # one pose id per joint set: a camera's start takes the rows of one image together
+    _, image = np.unique(qs, axis=0, return_inverse=True)
+    obs = _observations(kind, [b for _, b, _ in rows], [name] * len(rows), values, spec)
+    obs.pose = np.asarray(image, dtype=int).reshape(-1)
     try:
-        return kind.block_starts(obs, T, engine.ds.tooling, {name}, "online")[name]
+        fits = kind.block_starts(obs, T, engine.ds.tooling, set(unknown), "online")
     except FgcalError as exc:
         log.info("block %s not started yet: %s", name, exc)
         return None
+    return fits if set(unknown) <= set(fits) else None
 
 
 def _centres(engine, theta, touches) -> tuple[np.ndarray, np.ndarray]:

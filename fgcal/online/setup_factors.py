@@ -13,34 +13,43 @@ from fgcal.measurements.setup import distance_error
 __all__ = ["contact_factor", "distance_constraint_factor", "joint_gaussian_factor"]
 
 
-def contact_factor(kind, data, layout, name, noise, index, held, chain, *, t_key, s_key=None, q_key=None,
+def contact_factor(kind, data, layout, names, noise, index, held, chain, *, t_key, s_keys, q_key=None,
                    q_fixed=None):
-    """One contact (``data``: one row of the type's terms over ``layout``) as a ``gtsam.CustomFactor``
-    on the parameters ``t_key``, the joints (``q_key``, or the constant ``q_fixed``) and the block
-    ``s_key`` of fixture ``name`` (None: the block is fixed at the layout's values)."""
+    """One row of a set-up type (``data``: one row of the type's terms over ``layout``: a contact,
+    a centre from a station, a corner's pixel) as a ``gtsam.CustomFactor`` on the parameters
+    ``t_key``, the joints (``q_key``, or the constant ``q_fixed``) and the variables of the blocks
+    ``names`` it depends on (``s_keys``: block -> its variable, which holds the block's free
+    entries; a block without one is fixed at the layout's values)."""
     import gtsam
 
     if (q_key is None) == (q_fixed is None):
         raise ValueError("give exactly one of q_key and q_fixed")
     index, held = np.array(index, dtype=int), np.array(held, dtype=float)
     q_const = None if q_fixed is None else np.array(q_fixed, dtype=float).reshape(1, -1)
-    k = layout.offset[name]
-    size = len(layout.block(layout.start, name))
     s0 = layout.start.copy()
-    keys = [t_key] + ([q_key] if q_key is not None else []) + ([s_key] if s_key is not None else [])
+    blocks = []  # (variable, the block's free entries' indices in s)
+    for name in dict.fromkeys(names):
+        if name in s_keys:
+            k = layout.offset[name]
+            size = len(layout.block(layout.start, name))
+            blocks.append((s_keys[name], k + np.nonzero(layout.free[k:k + size])[0]))
+    keys = [t_key] + ([q_key] if q_key is not None else []) + [key for key, _ in blocks]
+    first = len(keys) - len(blocks)
 
     def error(this, values, H):
         q = q_const if q_key is None else values.atVector(q_key)[None]
         s = s0.copy()
-        if s_key is not None:
-            s[k:k + size] = values.atVector(s_key)
-        e, J_t, J_q, J_s, _ = kind.setup_error(values.atVector(t_key), q, data, s, index, held, chain)
+        for key, idx in blocks:
+            s[idx] = values.atVector(key)
+        e, J_t, J_q, J_s, cols = kind.setup_error(values.atVector(t_key), q, data, s, index, held, chain)
         if H is not None:
             H[0] = J_t[0]
             if q_key is not None:
                 H[1] = J_q[0]
-            if s_key is not None:
-                H[len(keys) - 1] = J_s[0]
+            for b, (_, idx) in enumerate(blocks):
+                # the columns of the type's J_s that are this block's free entries
+                hit = cols[0][:, None] == idx[None, :]
+                H[first + b] = J_s[0] @ hit.astype(float)
         return e[0]
 
     return gtsam.CustomFactor(noise, keys, error)

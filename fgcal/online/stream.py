@@ -26,6 +26,8 @@ One record a line, comma-separated (lines starting with # and blank lines are ig
   distance,POSE,BALL,length          a ballbar length from the pivot (world origin) to BALL (mm)
   contact,POSE,BALL,FIXTURE          BALL seated at fixture point FIXTURE, or touching plane FIXTURE
                                      (a fixture of dataset.yaml's fixtures:)
+  pixels,POSE,CAMERA,POINT,u,v       target point POINT seen by CAMERA at pixel (u, v) (px; a camera
+                                     of dataset.yaml's cameras:, a point of one of its targets:)
   end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
 
 # A record's values are read by its measurement type's own parser, the one the dataset's files are
@@ -58,7 +60,8 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
     warn = warn or (lambda m: print(f"warning: {m}", file=sys.stderr))  # the stream goes on: a warning line
     current: PoseData | None = None
     n_joints = 6 if model is None else model.n_joints
-    widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "contact": 4, "end": 2}
+    widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "contact": 4, "pixels": 6,
+              "end": 2}
     by_kind = {getattr(k, "fixture_type", None): k.level for k in setup_types()}
     stations = [n for n, f in getattr(setup, "fixtures", {}).items() if f.type == "station"]
     for n, raw in enumerate(lines, start=1):
@@ -75,7 +78,8 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
         tag = f[0]
         try:
             if tag not in widths:
-                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, contact, end)")
+                raise ValueError(f"unknown record {tag!r} (joints, probe, centre, pose, distance, contact, pixels, "
+                                 "end)")
             station = f.pop() if tag == "centre" and len(f) == widths[tag] + 1 else None
             if len(f) != widths[tag]:
                 raise ValueError(f"{tag} takes {widths[tag] - 1} fields"
@@ -97,10 +101,12 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
                     raise ValueError(f"unknown fixture {f[3]!r} (dataset.yaml's fixtures: {names})")
                 current.contacts.append((by_kind[kind], f[2], f[3]))
                 continue
+            if tag == "pixels":
+                _check_corner(f[2], f[3], setup, "camera" in by_kind)
             if tag in _PARSED:
                 values = _parsed(tag, f, balls).tolist()
             else:
-                values = [float(v) for v in f[2:]]
+                values = [float(v) for v in f[4 if tag == "pixels" else 2:]]
                 if not all(np.isfinite(values)):
                     raise ValueError("a number is not finite")
         except ValueError as exc:
@@ -120,6 +126,8 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
             current.centres.append((f[2], np.array(values)))
         elif tag == "distance":
             current.distances.append((f[2], float(values[0])))
+        elif tag == "pixels":
+            current.block_rows.append((by_kind["camera"], f[3], f[2], np.array(values)))
         elif tag == "pose":
             current.T = pose_matrices(values[:3], np.array(values[3:]))
         else:  # end
@@ -127,3 +135,13 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
             current = None
     if current is not None:
         yield current
+
+
+def _check_corner(camera: str, point: str, setup, registered: bool) -> None:
+    """Raise ValueError unless ``camera`` is one of ``setup``'s cameras and ``point`` a point of one of its targets."""
+    fixtures = getattr(setup, "fixtures", {})
+    cams = [n for n, f in fixtures.items() if f.type == "camera"]
+    if camera not in cams or not registered:
+        raise ValueError(f"unknown camera {camera!r} (dataset.yaml's cameras: {', '.join(cams[:6]) or 'none'})")
+    if not any(f.type == "target" and point in f.points for f in fixtures.values()):
+        raise ValueError(f"point {point!r} is a point of no target in dataset.yaml's targets:")

@@ -46,6 +46,10 @@ def figures(result: CalibrationResult, verification: dict | None = None, volume=
     for level in plots.RESIDUAL_LEVELS:
         if result.residuals.get(level):
             out[f"residuals_{level}"] = plots.plot_residuals(result, level).figure
+    from fgcal.report.camera_report import image_plane_residuals, plot_image_plane
+
+    for ip in image_plane_residuals(result):
+        out[f"image_plane_{ip.camera}"] = plot_image_plane(ip).figure
     for unit in ("mm", "deg"):
         if any(p.unit == unit for p in result.parameters):
             out[f"sigma_{'lengths' if unit == 'mm' else 'angles'}"] = plots.plot_sigmas(result, unit).figure
@@ -87,6 +91,11 @@ def captions(names, tolerance: float | None = None, volume=None) -> dict[str, st
         text[f"residuals_{level}"] = (f"Calibration residuals of the {what} ({unit}) against the noise the "
                                       "calibration assumed: a wider histogram than the curve means more noise "
                                       "than assumed, or something the model misses.")
+    for n in names:
+        if n.startswith("image_plane_"):
+            text[n] = (f"Reprojection residuals of camera {n[len('image_plane_'):]} over its image: the RMS in each "
+                       "region (colour) and each corner's residual (arrows, magnified). Large residuals at the "
+                       "corners and edges, pointing along the radius, are a lens distortion the model misses.")
     return {n: text.get(n, n.replace("_", " ").capitalize() + ".") for n in names}
 
 

@@ -249,6 +249,9 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
             held.blocks.append(Block("p", f"Cannot say for this model ({exc})."))
         sections.append(held)
 
+    from fgcal.report.camera_report import camera_sections
+
+    sections += camera_sections(result)  # a camera's reprojection residuals per image and over the image
     header, rows, flagged = _parameter_rows(result)
     sections.append(Section("Parameters", [
         Block("p", "Estimates and intervals are rounded to the digits their standard deviation supports "

@@ -175,7 +175,8 @@ def noise_verdict(result: CalibrationResult) -> list[str]:
     out = []
     estimated = result.noise_mode in ("estimated", "reused")  # reused: the geometric fit's estimate
     off = []
-    for name, n in result.noise.items():
+    groups = result.noise_groups if len(result.noise_groups) > 1 else {}  # one camera's is its component's
+    for name, n in (*result.noise.items(), *groups.items()):  # each camera's besides
         ratio = np.sqrt(n.variance_factor) if np.isfinite(n.variance_factor) else float("nan")
         if n.p_value < NOISE_P and (ratio > NOISE_RATIO or ratio < 1 / NOISE_RATIO):
             off.append((name, n, ratio))

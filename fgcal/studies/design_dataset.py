@@ -34,6 +34,7 @@ from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import kinematic_levels
 from fgcal.robots.model import RobotModel
 from fgcal.studies.design import Candidates, design_plan, random_design_values
+from fgcal.studies.design_floor import floor_of, pose_misfit, weigh_by_misfit, with_floor
 from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
 
 __all__ = [
@@ -83,6 +84,10 @@ class DatasetDesign:
     stations : ndarray of str, shape (n,), or None
         The station each pose is to be measured from (a dataset with a ``station`` column,
         DESIGN.md 8.3); None for one station.
+    floor_mm : float
+        What no plan removes: the RMS position error at the dataset's poses after calibrating all
+        of them (mm; 0 when not known, the declared noise). The predicted error at new poses is
+        ``sqrt(floor^2 + pred^2)`` (:func:`predicted_with_floor`).
     """
 
     pose_ids: np.ndarray
@@ -98,6 +103,13 @@ class DatasetDesign:
     noise: dict = field(default_factory=dict)
     noise_mode: NoiseMode = NoiseMode.DECLARED
     stations: np.ndarray | None = None
+    floor_mm: float = 0.0
+
+    def predicted_with_floor(self) -> tuple[float, float]:
+        """Predicted position error RMS at new poses with the floor (mm): the plan's and the median
+        random plan's."""
+        return (with_floor(self.values["pred"], self.floor_mm),
+                with_floor(float(np.median(self.random_pred)), self.floor_mm))
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
@@ -108,10 +120,17 @@ class DatasetDesign:
         lo, med, hi = self.random_quartiles()
         lines = [f"designed {len(self.pose_ids)} poses from {self.n_usable} usable of {self.n_candidates} candidates "
                  f"({', '.join(self.levels)}) by {self.index} ({self.iterations} DETMAX steps)",
-                 "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")),
+                 "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")
+                                  if k in self.values),
                  f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
                  f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
                  f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
+        if self.floor_mm > 0:
+            mine, theirs = self.predicted_with_floor()
+            lines.append(f"  with the error no geometric calibration removes ({self.floor_mm:.4g} mm RMS at the dataset's "
+                         f"poses after calibrating all of them): {mine:.4g} mm at new poses against {theirs:.4g} mm for "
+                         f"the median random set, a gain of {100 * (1 - mine / theirs):.0f}% (of "
+                         f"{100 * (1 - self.values['pred'] / med):.0f}% on the estimation error alone)")
         if self.noise:
             lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
                 f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
@@ -141,6 +160,12 @@ class DesignNoise:
         Per variance component (:func:`fgcal.estimation.noise.component_table`): declared sigma, sigma designed
         for, unit.
     mode : NoiseMode
+    misfit : dict of int to float
+        Per pose id, its misfit at the calibration over the average (:func:`fgcal.studies.design_floor.pose_misfit`);
+        empty for the declared noise.
+    floor_mm : float
+        RMS position error at the dataset's poses after calibrating all of them: what no plan removes (mm; 0
+        for the declared noise).
     """
 
     sigmas: Sigmas | None
@@ -149,6 +174,8 @@ class DesignNoise:
     mode: NoiseMode
     actual: Sigmas | None = None
     joint_error: float = 0.0
+    misfit: dict = field(default_factory=dict)
+    floor_mm: float = 0.0
 
 
 def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ESTIMATED, progress=None) -> DesignNoise:
@@ -182,8 +209,9 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
         scaled[attr] = getattr(sig, attr) * (level.used / level.declared)
         levels[name] = (float(level.declared), float(level.used), level.unit)
     weights, slots = sig.replaced(**scaled), result.slot_vector(model)
+    floor = floor_of(result, ds, model)
     if np.any(np.asarray(sig.joint) > 0):  # the estimator models joint noise and estimated it
-        return DesignNoise(weights, slots, levels, mode)
+        return DesignNoise(weights, slots, levels, mode, misfit=_misfit(ds, model, slots, weights), floor_mm=floor)
     # The excess over the declared noise, as a joint-space error: a joint error of s rad adds
     # s^2 * sens / rows to a component's variance factor (pooled over the components).
     sens = joint_sensitivity(model, ds.joints_rad, dataset_layout(ds, model, slots=slots), sig, slots)
@@ -191,10 +219,17 @@ def dataset_noise(ds: Dataset, model: RobotModel, mode: NoiseMode = NoiseMode.ES
                  for c, (_, rows) in sens.items() if c in levels)
     total = sum(v for c, (v, _) in sens.items() if c in levels)
     if not excess > 0 or not total > 0:
-        return DesignNoise(weights, slots, levels, mode)
+        return DesignNoise(weights, slots, levels, mode, misfit=_misfit(ds, model, slots, weights), floor_mm=floor)
     joint_error = float(np.sqrt(excess / total))
     levels["unmodelled joint error"] = (0.0, float(np.degrees(joint_error)), "deg")
-    return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error)
+    return DesignNoise(weights, slots, levels, mode, actual=sig, joint_error=joint_error,
+                       misfit=_misfit(ds, model, slots, weights, sig, joint_error), floor_mm=floor)
+
+
+def _misfit(ds, model, slots, weights, actual=None, joint_error=0.0) -> dict:
+    from fgcal.studies import design_floor  # its NEIGHBOURS read at call time
+
+    return pose_misfit(ds, model, slots, weights, design_floor.NEIGHBOURS, actual, joint_error)
 
 
 def with_dataset_tooling(ds: Dataset, model: RobotModel) -> RobotModel:
@@ -277,7 +312,7 @@ def _linearisation_point(ds: Dataset, model: RobotModel):
 def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates=None, index: str = DATASET_INDEX,
                         random_sets: int = 200, rng: np.random.Generator | None = None, progress=None,
                         max_iterations: int = 200, noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED,
-                        per_placement: bool = False) -> DatasetDesign:
+                        per_placement: bool = False, misfit_weights: bool = True) -> DatasetDesign:
     """Choose ``n_poses`` of the dataset's poses (or of ``candidates``) for the dataset's robot,
     tool, measurement levels and noise.
 
@@ -296,6 +331,10 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         Contacts: ``n_poses`` at each placement (fixtures linked by known distances, one plate;
         :meth:`~fgcal.measurements.setup.SetupSpec.placements`) instead of ``n_poses`` in all;
         the random plans too.
+    misfit_weights : bool
+        Weigh each of the dataset's poses in the sandwich's middle by its own misfit at the
+        calibration of all of them (:mod:`fgcal.studies.design_floor`; default); False: every pose
+        alike (the joint-space error model alone).
 
     Raises
     ------
@@ -305,8 +344,18 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     """
     if n_poses < 1:
         raise FgcalError("--poses must be at least 1")
+    if "pixels" in ds.levels():  # a camera's: the target in view, varied distance and tilt (DESIGN.md 8.4)
+        if len(ds.levels()) > 1 or per_placement:
+            raise FgcalError(f"{ds.path or 'dataset'}: design for cameras takes pixels alone (this dataset has "
+                             f"{', '.join(ds.levels())})")
+        from fgcal.studies.design_camera import design_cameras
+
+        return design_cameras(ds, model, n_poses, candidates, random_sets, rng, progress, max_iterations)
     model = with_dataset_tooling(ds, model)  # the candidates measure the dataset's balls
     rng = rng if rng is not None else np.random.default_rng(0)
+    if candidates is None and ds.n_poses < n_poses and not per_placement:  # said before the long calibration
+        raise FgcalError(f"{ds.path or 'the dataset'}: {ds.n_poses} candidate poses for a plan of {n_poses}: "
+                         "fewer candidates than poses")
     found = noise if isinstance(noise, DesignNoise) else dataset_noise(ds, model, noise, progress)
     if candidates is None:
         ids, q_deg = ds.pose_ids, ds.joints_deg
@@ -333,6 +382,8 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         params = type(params)(model, tuple(n for n in params.names if not n.startswith("base.")))
     prep = Candidates.build(model, q, ds.noise, layout=layout, params=params, slots=found.slots,
                             sigmas=found.sigmas, actual=found.actual, joint_error=found.joint_error)
+    if candidates is None and found.misfit and misfit_weights:
+        prep = weigh_by_misfit(prep, np.array([found.misfit.get(int(p), 1.0) for p in ids]))
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
@@ -340,7 +391,8 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     rand = np.array([random_design_values(prep, n_poses, rng, groups)[1]["pred"] for _ in range(random_sets)])
     stations = ds.stations[d.chosen] if ds.stations is not None and candidates is None else None
     return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
-                         int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode, stations)
+                         int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode, stations,
+                         found.floor_mm)
 
 
 def placement_of(layout: Layout, spec) -> np.ndarray:

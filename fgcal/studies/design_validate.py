@@ -64,12 +64,14 @@ def _held_out_error(ds: Dataset, ids, held: Dataset, model: RobotModel, options:
 def compare_on_held_out(ds: Dataset, held: Dataset, model: RobotModel, n_poses: int, random_sets: int = 20,
                         rng: np.random.Generator | None = None, index: str = DATASET_INDEX,
                         options: CalibrationOptions = CalibrationOptions(),
-                        noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED) -> HeldOutComparison:
+                        noise: NoiseMode | DesignNoise = NoiseMode.ESTIMATED,
+                        misfit_weights: bool = True) -> HeldOutComparison:
     """Design ``n_poses`` of ``ds``'s poses (for ``noise``, see
     :func:`fgcal.design_dataset.design_from_dataset`), calibrate on them and on ``random_sets``
-    random plans of the same usable poses, and verify each at ``held``'s poses."""
+    random plans of the same usable poses, and verify each at ``held``'s poses (``misfit_weights``:
+    see :func:`~fgcal.studies.design_dataset.design_from_dataset`)."""
     rng = rng if rng is not None else np.random.default_rng(0)
-    plan = design_from_dataset(ds, model, n_poses, index=index, rng=rng, noise=noise)
+    plan = design_from_dataset(ds, model, n_poses, index=index, rng=rng, noise=noise, misfit_weights=misfit_weights)
     plan_mean, plan_rms = _held_out_error(ds, plan.pose_ids, held, model, options)
     usable = ds.pose_ids[dataset_layout(ds, model).usable()]
     errors: list[tuple[float, float]] = []
