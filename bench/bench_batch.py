@@ -95,7 +95,7 @@ def main() -> int:
             ds = Path(tmp) / f"puma{n}"
             run(FGCAL + ["simulate", str(ds), "--robot", "puma560", "--poses", str(n), "--seed", str(n)])
             out = {k: Path(tmp) / f"{k}{n}.json" for k in ("fgcal", "ref", "same")}
-            cmds = {"fgcal": FGCAL + ["calibrate", str(ds), "--out", str(out["fgcal"])],
+            cmds = {"fgcal": FGCAL + ["calibrate", str(ds), "--out", str(out["fgcal"]), "--force"],  # repeated: replace
                     "ref": [sys.executable, str(args.reference), str(ds), str(out["ref"]), "--quiet"]}
             if args.own:
                 cmds["own"] = [sys.executable, str(HERE / "scipy_reference.py"), str(ds)]

@@ -60,7 +60,7 @@ def main():
             cli = [sys.executable, "-m", "fgcal.cli"]
             best = {}
             for _ in range(args.repeat):  # interleaved: a slow spell of the machine hits every process alike
-                cpu, _, _ = run(cli + ["calibrate", str(path), "--out", str(Path(tmp) / f"b{n}.json")])
+                cpu, _, _ = run(cli + ["calibrate", str(path), "--out", str(Path(tmp) / f"b{n}.json"), "--force"])
                 best["batch"] = min(best.get("batch", (np.inf,)), (cpu,))
                 for engine in args.engines:
                     cpu, mb, t = run(cli + ["online", str(path), "--engine", engine, "--restart", "--out",

@@ -21,7 +21,7 @@ from .errors import (
     slots_of,
 )
 
-_GTSAM_NAMES = ("ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior",
+_GTSAM_NAMES = ("PoseKinematics", "ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior",
                 "kinematic_factor", "noise_model", "parameter_prior", "pose_centres_factor", "pose_factor",
                 "pose_probes_factor", "probe_factor", "probes_factor", "theta_key")
 
@@ -36,6 +36,7 @@ def __getattr__(name):
 
 
 __all__ = [
+    "PoseKinematics",
     "ball_centre_error",
     "ball_centre_factor",
     "ball_centres_factor",

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import fgcal.io.dataset_io as dio
+import fgcal.io.dataset_tables as tables
 from fgcal.errors import DatasetError
 from fgcal.estimation.build import _points_by_pose, _rows_of
 from fgcal.estimation.result import _dumps, _json_safe, load_result, save_result
@@ -25,8 +26,8 @@ def dataset(puma, tmp_path_factory):
 def _checked(monkeypatch, fn, *args):
     """``fn(*args)`` with the fast paths switched off: the row-by-row reader alone."""
     with monkeypatch.context() as m:
-        m.setattr(dio, "_fast_point_table", lambda *a: None)
-        m.setattr(dio, "_fast_joints", lambda *a: None)
+        m.setattr(tables, "_fast_point_table", lambda *a: None)
+        m.setattr(tables, "_fast_joints", lambda *a: None)
         return fn(*args)
 
 
@@ -38,7 +39,7 @@ def _same_points(a, b):
 
 def test_fast_readers_equal_checked(dataset, monkeypatch):
     ds = dio.load_dataset(dataset)
-    assert dio._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
+    assert tables._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
                                  {b: i for i, b in enumerate(ds.tooling.balls)}) is not None  # it was taken
     slow = _checked(monkeypatch, dio.load_dataset, dataset)
     _same_points(ds.probes, slow.probes)
@@ -56,13 +57,20 @@ def _rewrite(src, dst, edit):
 
 
 @pytest.mark.parametrize("edit", [
+    lambda name, t: t.rstrip("\n"),  # no line end after the last row
     lambda name, t: t.replace("\n", "\r\n"),  # Windows line ends: still the fast path
     lambda name, t: t.replace("\n", "\n\n", 3),  # blank lines: the checked path skips them
     lambda name, t: t.replace(",", ' ,', 7),  # spaces around cells
     lambda name, t: t.replace(",B,", ',"B",') if name == "probes.csv" else t,  # quoted cells
     lambda name, t: "\n".join(t.splitlines()[:1] + t.splitlines()[:0:-1]) + "\n",  # rows reversed
-], ids=["crlf", "blank", "spaces", "quoted", "reversed"])
-def test_unusual_files_read_alike(dataset, tmp_path, monkeypatch, edit):
+], ids=["no-end", "crlf", "blank", "spaces", "quoted", "reversed"])
+@pytest.mark.parametrize("chunk", [None, 97])
+def test_unusual_files_read_alike(dataset, tmp_path, monkeypatch, edit, chunk):
+    """Also read in chunks of 97 characters (a large file's way: lines and CRLFs cut at every place)."""
+    if chunk:
+        import fgcal.io.fast_tables as ft
+
+        monkeypatch.setattr(ft, "CHUNK_CHARS", chunk)
     path = _rewrite(dataset, tmp_path / "ds", edit)
     fast, slow = dio.load_dataset(path), _checked(monkeypatch, dio.load_dataset, path)
     _same_points(fast.probes, slow.probes)
@@ -130,3 +138,18 @@ def test_result_text_holds_the_same_values(dataset, tmp_path):
     assert back.pose_residuals == result.pose_residuals
     assert np.array_equal(back.covariance, result.covariance)
     assert _dumps({"a": [1.5, 2], "b": ["\0" + "0\0"]}) == '{\n "a": [1.5, 2],\n "b": [\n  "\\u00000\\u0000"\n ]\n}'
+
+
+def test_chunked_point_table_is_taken_and_equals_checked(dataset, monkeypatch):
+    """A probe file read in chunks of whole lines (as one beyond MAX_FAST_BYTES is) takes the fast
+    path and gives the checked reader's arrays."""
+    import fgcal.io.fast_tables as ft
+
+    ds = _checked(monkeypatch, dio.load_dataset, dataset)
+    monkeypatch.setattr(ft, "CHUNK_CHARS", 97)
+    chunks = list(ft.read_column_chunks(dataset / "probes.csv", dio.POINT_COLUMNS))
+    assert len(chunks) > 10 and None not in chunks
+    fast = tables._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
+                                 {b: i for i, b in enumerate(ds.tooling.balls)})
+    assert fast is not None
+    _same_points(fast, ds.probes)

@@ -33,3 +33,44 @@ def test_grouped_graph_has_the_rows_of_the_per_row_graph(puma):
     per_row, _ = nonlinear_graph(graph, state)
     assert grouped.size() < per_row.size()
     assert grouped.error(values) == pytest.approx(per_row.error(values), rel=1e-12)
+
+
+def test_shared_pose_kinematics_gives_the_factors_own_rows(puma):
+    """The pose-centre factors reading a filled factors.PoseKinematics linearise to the rows they
+    compute themselves (to rounding), and compute their own at values it was not filled at."""
+    import gtsam
+
+    from fgcal.estimation.build import build_graph
+    from fgcal.estimation.gtsam_graph import _nonlinear_graph, nonlinear_graph
+
+    ds, _ = simulate(puma, np.random.default_rng(19), SimulationSettings(n_poses=5))
+    graph, state, _ = build_graph(ds, puma, list(puma.parameters().names), CalibrationOptions())
+    own, values = nonlinear_graph(graph, state)
+    shared_graph, _, shared = _nonlinear_graph(graph, state)
+    assert shared is not None
+
+    def system(g, v):
+        A, b = g.linearize(v).jacobian()
+        return A, b
+
+    def fill(v):
+        q = [v.atVector(gtsam.symbol("q", i)) for i in range(graph.n_poses)]
+        shared.fill(v.atVector(gtsam.symbol("k", 0)), q)
+
+    fill(values)
+    assert shared.rows(0, [0], values.atVector(gtsam.symbol("k", 0)), values.atVector(gtsam.symbol("q", 0))) is not None
+    A0, b0 = system(own, values)
+    A1, b1 = system(shared_graph, values)
+    np.testing.assert_allclose(A1, A0, rtol=1e-9, atol=1e-9 * np.abs(A0).max())
+    np.testing.assert_allclose(b1, b0, rtol=1e-9, atol=1e-9 * np.abs(b0).max())
+    # Elsewhere (not filled there): each factor's own kinematics, so the same rows again.
+    delta, rng = gtsam.VectorValues(), np.random.default_rng(3)
+    for k in values.keys():
+        delta.insert(k, 1e-3 * rng.normal(size=values.atVector(k).shape))
+    moved = values.retract(delta)
+    assert shared.rows(0, [0], moved.atVector(gtsam.symbol("k", 0)), moved.atVector(gtsam.symbol("q", 0))) is None
+    A2, b2 = system(shared_graph, moved)
+    A3, b3 = system(own, moved)
+    np.testing.assert_allclose(A2, A3, rtol=0, atol=0)
+    np.testing.assert_allclose(b2, b3, rtol=0, atol=0)
+    assert not np.allclose(b2, b0)  # the move changed the rows: the comparison above can fail

@@ -71,9 +71,10 @@ def test_inertials_round_trip_and_bad_input():
         inertials_from_dict({"links": [{"mass": 1}]}, 6, "robot.yaml")
 
 
-def _simulate(rng, n, phi_true=None, spec=None, sigma_pos=0.02, sigma_rot=0.002, joint_resolution=0.0):
-    """Poses of a UR10 whose joints deviate from the readings by a known block (exact readings)."""
-    truth = draw_truth(UR10, rng)
+def _simulate(rng, n, phi_true=None, spec=None, sigma_pos=0.02, sigma_rot=0.002, joint_resolution=0.0, truth=None):
+    """Poses of a UR10 whose joints deviate from the readings by a known block (exact readings);
+    ``truth`` (slots) drawn from ``rng`` unless given."""
+    truth = draw_truth(UR10, rng) if truth is None else truth
     q_cmd = rng.uniform(LOW, HIGH, (n, 6))
     q_act = q_cmd
     if spec is not None:
@@ -293,7 +294,9 @@ def test_added_models_report_sigmas_at_their_own_noise():
         assert r.noise_mode == "estimated" and r.noise["poses"].note == OWN_NOTE
         assert abs(r.noise["poses"].used / 0.02 - 1) < 0.2 and geo.noise["poses"].used > 5 * r.noise["poses"].used
         ratio = r.sigma[-k:] / true.sigma[-k:]
-        assert np.all(np.abs(ratio - 1) < 0.2), ratio  # the sigmas at the true noise
+        # the sigmas at the true noise: a map's are the jackknife's (29 degrees of freedom: each
+        # within ~13% by chance), so within 35% each and 15% in the median
+        assert np.all(np.abs(ratio - 1) < 0.35) and abs(np.median(ratio) - 1) < 0.15, ratio
         assert np.all(reused.sigma[-k:] > 3 * true.sigma[-k:])
         for name, res in (("own", r), ("true", true), ("reused", reused)):
             est = np.array([p.estimate for p in res.parameters[-k:]])
@@ -320,3 +323,48 @@ def test_the_map_grid_grows_until_its_optimum_is_inside_or_says_it_stopped_at_th
     assert 3e-6 * 2 < chosen < grid[-1] / 2, chosen  # grown, and inside the grown grid
     assert any("largest number of harmonics tried (3)" in w for w in cm.warnings), cm.warnings
     assert not any("prior at the edge" in w for w in cm.warnings), cm.warnings
+
+
+def test_a_map_estimates_covariance_is_its_scatter_not_its_posterior():
+    """Issue 24: a MAP estimate's posterior covariance counts the prior's uncertainty, which is no
+    scatter: with a prior about as strong as the data (here 4 urad on the map terms) the posterior
+    sigmas exceed the scatter of the estimates over repeated measurements of one robot. The
+    reported covariance (fit_model: own noise, then the jackknife's variances) must match the
+    Monte-Carlo scatter over seeded datasets of the same robot and map."""
+    from dataclasses import replace
+
+    from fgcal.estimation.model_noise import fit_model
+    from fgcal.estimation.robust_cov import JACKKNIFE_GROUPS
+
+    spec = replace(SPEC, map_sigma=4e-6)
+    truth = draw_truth(UR10, np.random.default_rng(700))
+    est, reported, posterior = [], [], []
+    k = len(PHI)
+    for seed in range(16):
+        ds, _ = _simulate(np.random.default_rng(710 + seed), 60, PHI, spec, truth=truth)
+        geo = calibrate(ds, UR10)
+        r = fit_model(ds, UR10, CalibrationOptions(), spec, geo)
+        info = r.joint_errors["covariance"]
+        assert info["kind"] == "jackknife" and info["groups"] == JACKKNIFE_GROUPS
+        est.append(r.estimate[-k:])
+        reported.append(r.sigma[-k:])
+        C = np.asarray(r.covariance)
+        assert np.allclose(np.sqrt(np.diag(C)), r.sigma) and np.linalg.eigvalsh(0.5 * (C + C.T))[0] > -1e-9
+        posterior.append(_posterior_sigma(ds, r, spec))
+    scatter = np.std(est, axis=0, ddof=1)
+    ratio = scatter / np.sqrt(np.mean(np.square(reported), axis=0))
+    before = scatter / np.sqrt(np.mean(np.square(posterior), axis=0))
+    map_terms = slice(2, k)  # the compliances' weak prior leaves them data-determined
+    print("scatter/reported", np.round(ratio, 2), "scatter/posterior", np.round(before, 2))
+    assert 0.7 <= np.median(ratio[map_terms]) <= 1.4, ratio
+    assert np.median(before[map_terms]) < 0.75 * np.median(ratio[map_terms]), before
+
+
+def _posterior_sigma(ds, r, spec):
+    """The block's posterior sigmas: the same model calibrated at the result's own noise, without
+    the jackknife (the previous behaviour)."""
+    from dataclasses import replace
+
+    opts = CalibrationOptions(noise="declared", noise_scale=r.options["noise_scale"],
+                              joint_errors=replace(spec, map_sigma=r.joint_errors["spec"]["map_sigma_urad"] * 1e-6))
+    return calibrate(ds, UR10, opts).sigma[-len(PHI):]

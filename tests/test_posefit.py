@@ -81,3 +81,42 @@ def test_nearest_rotation_is_a_rotation():
     Q = nearest_rotation(M)
     np.testing.assert_allclose(Q @ Q.T, np.eye(3), atol=1e-12)
     assert np.linalg.det(Q) == pytest.approx(1.0)
+
+
+def test_triangles_are_judged_at_the_noise_the_other_poses_show():
+    """A tracker noisier than declared (0.03 against 0.02 mm): at the declared sigma good poses fail
+    the triangle test; at the sigma pooled over the other poses none does, and a pose with one
+    ball 0.5 mm out of the triangle still fails."""
+    from fgcal.measurements.posefit import rigid_fits_at_pooled_noise
+
+    rng = np.random.default_rng(57)
+    pairs = []
+    for k in range(40):
+        R, t = _truth(100 + k)
+        world = TOOL @ R.T + t + rng.normal(size=TOOL.shape) * 0.03
+        if k == 7:  # ball 2 moved 0.5 mm away from the others: the triangle is wrong
+            out = world[1] - world.mean(axis=0)
+            world[1] += 0.5 * out / np.linalg.norm(out)
+        pairs.append((TOOL, world))
+    at_declared = [rigid_fit(P, W, sigma=0.02).ok for P, W in pairs]
+    fits, pooled = rigid_fits_at_pooled_noise(pairs, declared=0.02)
+    good = np.arange(40) != 7
+    assert not np.all(np.array(at_declared)[good])  # the declared noise skips valid poses
+    assert all(f.ok for f, g in zip(fits, good) if g)
+    assert not fits[7].ok and "do not fit the tool" in fits[7].status
+    assert pooled is not None and 0.03 < pooled < 0.05  # the gross pose inflates the pooled value a little
+    # the gross pose does not inflate the others' limit beyond the clean pool (leave-one-out for itself only)
+    clean, _ = rigid_fits_at_pooled_noise([p for p, g in zip(pairs, good) if g], declared=0.02)
+    assert all(f.ok for f in clean)
+
+
+def test_pooled_noise_needs_degrees_of_freedom():
+    """One three-ball pose (3 dof from the others: none) keeps the declared sigma."""
+    from fgcal.measurements.posefit import rigid_fits_at_pooled_noise
+
+    R, t = _truth(58)
+    world = TOOL @ R.T + t
+    world[0] += 0.2 * (world[0] - world.mean(axis=0)) / np.linalg.norm(world[0] - world.mean(axis=0))
+    fits, pooled = rigid_fits_at_pooled_noise([(TOOL, world)], declared=0.01)
+    assert pooled is None and not fits[0].ok  # at 0.01 mm declared, a ball 0.2 mm out is a misfit
+    assert rigid_fit(TOOL, world, sigma=0.01).status == fits[0].status

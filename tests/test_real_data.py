@@ -58,6 +58,11 @@ def test_held_out_accuracy_matches_the_reference(series, tmp_path_factory):
             from fgcal.report.uncertainty import verdict
             v = verify(r, held, model).to_dict()
             assert any("no geometric model explains" in line for line in verdict(r, v))
+            # the first verdict: an error ~30 times the tracker's noise is the model's limit, not the noise's
+            from fgcal.report.report_sections import build_content
+            first = next(b.items for b in build_content(r, v).sections[0].blocks if b.kind == "ul")[0]
+            assert first.startswith("The model, not the noise, limits the accuracy") and \
+                "--model compliance+map" in first, first
             write_report(r, tmp_path_factory.mktemp("ur10-report"), v)
     # measured: 0.4045 and 0.3976 mm (base and tool only: 1.011 and 1.044 mm)
     assert np.mean(full) <= 0.405
@@ -128,7 +133,15 @@ def test_models_beyond_geometry_held_out(series):
     assert held_out["geometric"] == pytest.approx(0.4045, abs=0.002)
     assert held_out["compliance"] < held_out["geometric"]
     assert held_out["compliance+map"] <= 0.6 * held_out["geometric"]
-    assert sel.recommended == "compliance+map"
+    # Issue 24: the session drifts. At goals interleaved in time the map gains most (above), but fitted
+    # to the earlier training poses it predicts the later ones at ~0.48 mm (max 3.7) against ~0.12 mm
+    # from interleaved folds: for poses measured after the calibration compliance is recommended
+    # (on the time-ordered split of bench_models, 0.449 mm held-out against the map's 0.530, max 1.26
+    # against 3.41).
+    assert len(sel.drift) == 1 and "the data drift" in sel.drift[0]
+    assert sel.recommended == "compliance", sel.reason
+    later = {s.model: s.forward_error for s in sel.scores}
+    assert later["compliance+map"] > 2 * sel.score("compliance+map").cv_error
     comp = {p.name: p for p in results["compliance"].parameters}
     for j in (2, 3):
         p = comp[f"j{j}.compliance"]
@@ -138,5 +151,6 @@ def test_models_beyond_geometry_held_out(series):
     from fgcal.report.uncertainty import verdict
 
     lines = verdict(results["compliance+map"])
-    assert any("Recommended: compliance+map" in line and "held-out" in line for line in lines)
+    assert any("Recommended: compliance:" in line and "held-out" in line for line in lines)
+    assert any(line.startswith("Warning: The data drift") for line in lines)
     assert any("joint error map" in line and "q2 " in line for line in lines)

@@ -176,3 +176,40 @@ def test_pose_residuals_at_the_readings_are_kept_and_name_the_outlier(puma, tmp_
 
     text = "\n".join(calibration_summary(back))  # what `fgcal calibrate` prints
     assert f"outlier poses (residual at the joint readings): {bad} ({worst.rms_mm:.3g} mm)" in text
+
+
+def _first_verdict(result, verification):
+    from fgcal.report.report_sections import build_content
+
+    top = build_content(result, verification).sections[0]
+    items = next(b.items for b in top.blocks if b.kind == "ul")
+    return items[0]
+
+
+def test_the_verdict_budget_includes_the_joint_readings(puma):
+    """Purely geometric data whose joints are rounded to 0.05 deg: the error at new poses is what the
+    parameters, the tracker and the rounding explain. Without the joint readings in the budget
+    (the previous verdict) the same error would be blamed on the model."""
+    import copy
+
+    from fgcal.estimation.verification import verify
+    from fgcal.measurements.dataset import Noise
+    from fgcal.report.budget import error_budget
+
+    noise = Noise(cmm_sigma=0.005, joint_resolution=0.05)
+    settings = SimulationSettings(n_poses=40, noise=noise)
+    ds, _ = simulate(puma, np.random.default_rng(82), settings)
+    truth = puma.slots_from_file_units(np.array([ds.truth[n] for n in puma.slot_names]))
+    ver, _ = simulate(puma, np.random.default_rng(83), SimulationSettings(n_poses=30, noise=noise), truth=truth)
+    result = calibrate(ds, puma)
+    v = verify(result, ver, puma).to_dict()
+    first = _first_verdict(result, v)
+    assert "is what the parameters' uncertainty" in first and "joint readings" in first, first
+    joints = puma.joints_to_internal(np.array([p["joints_deg"] for p in v["poses"]]))
+    b = error_budget(result, joints, None)
+    # the rounding's share dominates the tracker's: sigma_q = 0.05/sqrt(12) deg through a ~1 m arm
+    assert b.joints_mm > 3 * b.instrument_mm
+    assert v["position_mm"]["rms"] > 2 * b.instrument_mm  # so the previous budget could not explain it
+    no_joints = copy.deepcopy(result)
+    del no_joints.noise["joints"]
+    assert _first_verdict(no_joints, v).startswith("The model, not the noise")

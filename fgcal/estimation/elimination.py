@@ -95,11 +95,13 @@ class ArrowElimination:
             for lo in range(0, n, POSE_CHUNK):
                 c = slice(lo, lo + POSE_CHUNK)
                 k = len(lin.r[c])
-                M = np.zeros((k, self.m + self.nz, self.nz + P))
+                pad = ~self.local_used[c]
+                extra = self.nz if pad.any() else 0  # no padding in the chunk: no unit rows (zero rows change no R)
+                M = np.zeros((k, self.m + extra, self.nz + P))
                 M[:, :self.m, :self.nz] = lin.J_local[c]
                 M[:, :mt, self.nz:] = lin.J_theta[c]
-                pad = ~self.local_used[c]
-                M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
+                if extra:
+                    M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
                 R = np.asarray(np.linalg.qr(M, mode="r"))[:, self.nz:, self.nz:]
                 S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
             lin.cache["reduced"] = (S, Dinv)

@@ -41,16 +41,25 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     """
     import gtsam
 
-    import factors as fx
+    import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
 
-    g, values = nonlinear_graph(graph, state)
+    g, values, shared = _nonlinear_graph(graph, state)
     keys = list(values.keys())
+    q_keys = [fx.joint_key(i) for i in range(graph.n_poses)] if graph.joint_vars else []
+
+    def at(v):  # the built-in pose factors' kinematics at v, all poses at once, then v itself
+        if shared is not None:
+            shared.fill(v.atVector(fx.theta_key()), [v.atVector(k) for k in q_keys] if q_keys else graph.readings)
+        return v
+
     dims = [values.atVector(k).shape[0] for k in keys]
+    eye = {d: np.eye(d) for d in set(dims)}
+    zero_of = {d: np.zeros(d) for d in eye}
     # Without a robust loss the error is the linearisation's at zero (0.5 |b|^2): each trial point
     # is linearised once, and an accepted one's linearisation is the next iteration's.
     exact = graph.robust is None
     zero = values.zeroVectors()
-    lin = g.linearize(values)
+    lin = g.linearize(at(values))
     error = lin.error(zero) if exact else g.error(values)
     lam, iterations, converged = 1e-5, 0, False  # GTSAM's lambdaInitial
     while iterations < max_iterations and not converged:
@@ -58,17 +67,17 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
         while True:
             assert lin is not None  # None only once converged
             damped = lin.clone()
-            model = {d: gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam)) for d in set(dims)}
+            model = {d: gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam)) for d in eye}
             for k, d in zip(keys, dims, strict=True):
-                damped.add(gtsam.JacobianFactor(k, np.eye(d), np.zeros(d), model[d]))
-            new = values.retract(damped.optimize())
+                damped.add(gtsam.JacobianFactor(k, eye[d], zero_of[d], model[d]))
+            new = at(values.retract(damped.optimize()))
             new_lin = g.linearize(new) if exact else None
             new_error = new_lin.error(zero) if new_lin is not None else g.error(new)
             log.debug("LM %d: lambda %.1e error %.12g -> %.12g", iterations, lam, error, new_error)
             if np.isfinite(new_error) and new_error <= error:
                 converged = error - new_error <= tolerance * max(error, 1e-300)
                 values, error, lam = new, new_error, max(lam / 10, 1e-12)
-                lin = new_lin if exact else (None if converged else g.linearize(values))
+                lin = new_lin if exact else (None if converged else g.linearize(at(values)))
                 break
             if np.isfinite(new_error) and new_error - error <= COST_ROUNDING * error:
                 converged = True  # the change is rounding: at the minimum (as the batch solve decides)
@@ -125,7 +134,7 @@ def gtsam_covariance(graph: Graph, state: State, lin=None) -> np.ndarray:
     """
     import gtsam
 
-    import factors as fx
+    import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
 
     lin = graph.linearise(state) if lin is None else lin
     J_theta = np.zeros((graph.n_poses, graph.m, len(state.theta)))
@@ -170,9 +179,16 @@ def nonlinear_graph(graph: Graph, state: State):
     batched solve (each custom factor is called from C++ with a copy of all values) but is the
     reference the batched solve is tested against.
     """
+    g, values, _ = _nonlinear_graph(graph, state, share=False)
+    return g, values
+
+
+def _nonlinear_graph(graph: Graph, state: State, share: bool = True):
+    """:func:`nonlinear_graph` and the :class:`factors.PoseKinematics` its pose-centre factors read
+    (None: ``share`` False, or no such factors); the optimiser that owns the values fills it."""
     import gtsam
 
-    import factors as fx
+    import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
 
     if graph.K:
         raise FgcalError("the GTSAM reference graph covers the geometric model only (no joint-error block)")
@@ -197,8 +213,11 @@ def nonlinear_graph(graph: Graph, state: State):
                 g.add(fx.joint_prior(fx.joint_key(i), graph.readings[i], sig.joint))
     for j in range(len(graph.ball_pose)):
         values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
+    shared = None
     if robust is None:  # grouped: one factor per pose's centres and one per pose's probes (same rows, fewer callbacks)
-        _grouped_ball_factors(g, graph, kept, qargs, t_key)
+        if share and len(graph.ball_pose):
+            shared = fx.PoseKinematics(graph.index, graph.held, graph.pose_offsets, graph.chain)
+        _grouped_ball_factors(g, graph, kept, qargs, t_key, shared)
     else:  # a robust loss is per row: one factor each
         for j, keep in enumerate(kept("kinematic", len(graph.ball_pose))):
             if keep:
@@ -226,21 +245,24 @@ def nonlinear_graph(graph: Graph, state: State):
     if graph.setup is not None:
         for i in range(len(graph.setup.spec.distances)):
             g.add(distance_constraint_factor(graph.setup, i, graph.n_geo + graph.K, t_key))
-    return g, values
+    return g, values, shared
 
 
-def _grouped_ball_factors(g, graph: Graph, kept, qargs, t_key: int) -> None:
+def _grouped_ball_factors(g, graph: Graph, kept, qargs, t_key: int, shared=None) -> None:
     """The kinematic rows of each pose's ball centres in one factor (one kinematics call for its
-    balls) and each pose's probe points in one factor; excluded rows are left out."""
-    import factors as fx
+    balls, or its rows of ``shared``, a :class:`factors.PoseKinematics`) and each pose's probe
+    points in one factor; excluded rows are left out."""
+    import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
 
     sig = graph.sigmas
     keep_c = np.flatnonzero(kept("kinematic", len(graph.ball_pose)))
     by_pose = keep_c[np.argsort(graph.ball_pose[keep_c], kind="stable")]
     for js in np.split(by_pose, _cuts(graph.ball_pose[by_pose])):
         if len(js):
+            pose = int(graph.ball_pose[js[0]])
             g.add(fx.pose_centres_factor(graph.index, graph.held, graph.ball_offset[js], sig.kinematic, t_key=t_key,
-                                         c_keys=[fx.centre_key(int(j)) for j in js], **qargs(graph.ball_pose[js[0]])))
+                                         c_keys=[fx.centre_key(int(j)) for j in js], **qargs(pose),
+                                         shared=None if shared is None else (shared, pose, graph.ball_slot[js])))
     if graph.probes is None:
         return
     var, xyz = graph.probes[1], graph.probes[2]
@@ -265,7 +287,7 @@ def distance_constraint_factor(setup, i: int, setup_column: int, t_key: int):
     error ``|p_a - p_b| - distance`` (mm), sigma the constraint's."""
     import gtsam
 
-    import factors as fx
+    import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
 
     free = np.nonzero(setup.free)[0]
     sigma = setup.spec.distances[i].sigma

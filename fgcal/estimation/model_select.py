@@ -6,13 +6,14 @@ to the others. The fits are linear least squares on the problem linearised at th
 solution, with the readings taken as exact, so that a whole grid of error maps (number of
 harmonics x prior strength) costs one linearisation. The map's size and prior are chosen by the
 cross-validated error; the recommended model is the simplest whose cross-validated error is within
-noise (two standard errors of the per-pose difference) of the best. The chosen models are then
+noise (two standard errors of the per-pose difference) of the best, among those whose largest
+error is no worse than a simpler model's, on the later poses predicted from the earlier ones where
+the data drift (:mod:`fgcal.estimation.time_validation`). The chosen models are then
 calibrated with the full factor graph (:func:`fgcal.estimation.calibrate.calibrate`). No I/O here.
 """
 from __future__ import annotations
 
 import logging
-import re
 from dataclasses import asdict, dataclass, field, replace
 from enum import Enum
 
@@ -23,6 +24,15 @@ from fgcal.estimation.calibrate import calibrate
 from fgcal.estimation.joint_errors import COMPLIANCE_MIN_NM, JointErrorSpec, ModelKind, compliance_joints
 from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.estimation.options import CalibrationOptions
+from fgcal.estimation.time_validation import (
+    FoldSums,
+    drift_sentences,
+    forward_errors,
+    harmonic,
+    later_poses,
+    model_columns,
+    recommend,
+)
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.gravity import Payload, gravity_torques, model_inertials
 from fgcal.robots.model import RobotModel
@@ -64,6 +74,9 @@ class ModelScore:
     condition_number: float | None = None
     correlations: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    cv_max: float | None = None  # the largest cross-validated error
+    forward_error: float | None = None  # later poses predicted from earlier ones (fgcal.estimation.time_validation)
+    forward_max: float | None = None
 
 
 @dataclass
@@ -74,14 +87,16 @@ class ModelSelection:
     recommended: str
     folds: int
     reason: str = ""
+    drift: list = field(default_factory=list)  # sentences: the data drift, and by how much
 
     def to_dict(self) -> dict:
         return {"scores": [asdict(s) for s in self.scores], "recommended": self.recommended, "folds": self.folds,
-                "reason": self.reason}
+                "reason": self.reason, "drift": list(self.drift)}
 
     @classmethod
     def from_dict(cls, d: dict) -> ModelSelection:
-        return cls([ModelScore(**s) for s in d["scores"]], d["recommended"], int(d["folds"]), d.get("reason", ""))
+        return cls([ModelScore(**s) for s in d["scores"]], d["recommended"], int(d["folds"]), d.get("reason", ""),
+                   list(d.get("drift", [])))
 
     def score(self, model) -> ModelScore:
         return next(s for s in self.scores if s.model == ModelKind(model).value)
@@ -113,12 +128,7 @@ class CVProblem:
     n_geometric: int
     groups: np.ndarray
     unit: str = "mm"
-
-
-def _harmonic(name: str) -> int:
-    """The harmonic number ending a map parameter's name (``map.j2.c3`` -> 3)."""
-    found = re.search(r"(\d+)$", name)
-    return int(found.group(1)) if found else 0
+    pose_ids: np.ndarray | None = None  # (N,) the rows' poses; their order is time order
 
 
 def _groups(q_rad, resolution_deg: float = 0.1) -> np.ndarray:
@@ -133,7 +143,7 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
     names = geo_names + spec_max.names(model.n_joints)
     opts = replace(options, joint_noise=False, robust=None, prior="none", joint_errors=spec_max)
     scale = {k: float(v) for k, v in (geometric_result.options.get("noise_scale") or {}).items()}
-    graph, state, _ = build_graph(ds, model, names, opts, scale=scale)
+    graph, state, pose_ids = build_graph(ds, model, names, opts, scale=scale)
     graph.held = geometric_result.slot_vector(model)
     state.theta = graph.params.take(graph.held)
     lin = graph.linearise(state)
@@ -158,7 +168,8 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
         first[pose[::-1]] = start[::-1]  # the first measured position of each pose
         rows = first[:, None] + np.arange(3)
         unit = "mm"
-    return CVProblem(r, J, rows, float(unit_scale), names, len(geo_names), _groups(graph.readings), unit)
+    return CVProblem(r, J, rows, float(unit_scale), names, len(geo_names), _groups(graph.readings), unit,
+                     np.asarray(pose_ids))
 
 
 class FoldOrder(str, Enum):
@@ -180,39 +191,6 @@ def _folds(groups, k: int, rng, order: FoldOrder = FoldOrder.RANDOM) -> np.ndarr
     return fold_of_group[groups]
 
 
-class _FoldSums:
-    """Normal equations per fold, over all columns, so that any column subset is cheap."""
-
-    def __init__(self, prob: CVProblem, fold: np.ndarray, k: int):
-        self.prob, self.fold, self.k = prob, fold, k
-        P = prob.J.shape[2]
-        self.A = np.zeros((k, P, P))
-        self.b = np.zeros((k, P))
-        for f in range(k):
-            Jf = prob.J[fold == f].reshape(-1, P)
-            self.A[f] = Jf.T @ Jf
-            self.b[f] = Jf.T @ prob.r[fold == f].reshape(-1)
-        self.A_all, self.b_all = self.A.sum(0), self.b.sum(0)
-
-    def held_out_errors(self, cols, prior_sigma) -> np.ndarray:
-        """(N,) error of each pose predicted by the fit to the other folds (columns ``cols``)."""
-        prob = self.prob
-        cols = np.asarray(cols)
-        lam = np.where(np.isfinite(prior_sigma), 1.0 / np.asarray(prior_sigma) ** 2, 0.0)
-        err = np.zeros(len(prob.r))
-        for f in range(self.k):
-            A = (self.A_all - self.A[f])[np.ix_(cols, cols)]
-            b = (self.b_all - self.b[f])[cols]
-            d = np.sqrt(np.maximum(np.diag(A), 1e-300))
-            As = A / np.outer(d, d) + np.diag(lam / d**2) + 1e-10 * np.eye(len(cols))
-            x = -np.linalg.solve(As, b / d) / d
-            sel = np.nonzero(self.fold == f)[0]
-            pred = prob.r[sel] + prob.J[sel][:, :, cols] @ x  # (n_f, m)
-            pos = np.take_along_axis(pred, prob.metric_rows[sel], axis=1) * prob.metric_scale
-            err[sel] = np.linalg.norm(pos, axis=1)
-        return err
-
-
 def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GRID, sigma_grid=SIGMA_GRID,
                    order: FoldOrder = FoldOrder.RANDOM):
     """Per-pose cross-validated errors of the candidate models.
@@ -227,7 +205,7 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
         cannot (the linearisation holds the largest only) and ``at_edge`` says so.
     """
     fold = _folds(prob.groups, folds, rng, order)
-    sums = _FoldSums(prob, fold, folds)
+    sums = FoldSums(prob, fold, folds)
     geo = list(range(prob.n_geometric))
     comp = [i for i, n in enumerate(prob.names) if n.endswith(".compliance")]
     inf = [np.inf] * len(geo)
@@ -237,7 +215,7 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
     best = None
     maps = {}
     for h in harmonics_grid:
-        mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and _harmonic(n) <= h]
+        mp = [i for i, n in enumerate(prob.names) if n.startswith("map.") and harmonic(n) <= h]
         if mp:
             maps[int(h)] = mp
     sigmas = sorted(float(s) for s in sigma_grid)
@@ -266,20 +244,6 @@ def cross_validate(prob: CVProblem, folds: int, rng, harmonics_grid=HARMONICS_GR
                         "lie beyond it")
         out[ModelKind.COMPLIANCE_MAP.value] = (best[0], {**best[1], "at_edge": edge})
     return out
-
-
-def _recommend(errors: dict) -> tuple[str, str]:
-    """The simplest model whose mean error is within two standard errors of the best's."""
-    kinds = [k for k in (m.value for m in ModelKind) if k in errors]
-    best = min(kinds, key=lambda k: errors[k].mean())
-    for k in kinds:
-        d = errors[k] - errors[best]
-        se = d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else 0.0
-        if d.mean() <= 2 * se:
-            why = "the best" if k == best else (f"within noise of {best} ({d.mean():.3g} above, standard error "
-                                                f"{se:.2g})")
-            return k, f"{k}: the simplest model within noise of the best cross-validated error ({why})"
-    return best, best
 
 
 def _identifiability(result, torques, q_deg) -> tuple[dict, list]:
@@ -397,14 +361,31 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
             results[kind] = fit_model(ds, model, options, spec, geo)
             log.info("calibrated %s (%d parameters)", kind, len(results[kind].parameters))
     errors = {k: v[0] for k, v in cv.items() if k in specs}
-    recommended, reason = _recommend(errors)
+    # Later poses predicted from earlier ones: where the data drift, the models are compared on
+    # those (the errors new poses will see), and a lower mean bought with a worse maximum is refused.
+    later = later_poses(prob.pose_ids) if prob.pose_ids is not None else np.zeros(len(prob.r), dtype=bool)
+    forward: dict[str, np.ndarray] = {}
+    if 3 <= later.sum() <= len(later) - 3:
+        for k in errors:
+            forward[k] = forward_errors(prob, *model_columns(prob, k, cv[k][1]), later)
+    drift = drift_sentences(forward, errors, later, unit) if forward else []
+    for d in drift:
+        log.warning("%s", d)
+    if drift:
+        recommended, reason = recommend({k: forward[k][later] for k in errors},
+                                        "error at the later poses predicted from the earlier ones")
+    else:
+        recommended, reason = recommend(errors)
     scores = []
     for kind, res in results.items():
         e = errors[kind]
         spec = specs[kind]
         score = ModelScore(kind, spec.to_dict() if spec is not None else {}, len(res.parameters), float(e.mean()),
                            float(e.std(ddof=1) / np.sqrt(len(e))), unit=unit,
-                           condition_number=float(res.condition_number))
+                           condition_number=float(res.condition_number), cv_max=float(e.max()))
+        if kind in forward:
+            score.forward_error = float(np.nanmean(forward[kind]))
+            score.forward_max = float(np.nanmax(forward[kind]))
         if specs[kind] is not None:
             score.correlations, score.warnings = _identifiability(res, torques, np.degrees(q))
             if kind == ModelKind.COMPLIANCE_MAP.value:
@@ -414,7 +395,7 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         if verification is not None:
             score.heldout_error = float(verify(res, verification, model).after.position_mm.mean())
         scores.append(score)
-    selection = ModelSelection(scores, recommended, folds, reason)
+    selection = ModelSelection(scores, recommended, folds, reason, drift)
     for res in results.values():
         res.joint_errors = {**res.joint_errors, "selection": selection.to_dict()}
     return results, selection

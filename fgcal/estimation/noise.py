@@ -19,13 +19,14 @@ Pure functions of a :class:`~fgcal.estimation.graph.Graph` and its linearisation
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
-from scipy import special
 
 from fgcal.measurements.types import BY_LEVEL, all_levels, kinematic_types
+from fgcal.util.chi2 import chi2_cdf, chi2_isf, chi2_sf
 
 __all__ = [
     "MIN_REDUNDANCY",
@@ -48,7 +49,7 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 MIN_REDUNDANCY = 5.0  # below this a variance factor is too uncertain (its relative sigma sqrt(2/r) > 0.6)
-OUTLIER_ALPHA = float(special.erfc(4.0 / np.sqrt(2.0)))  # a single-coordinate residual beyond 4 sigma (6.3e-5) ...
+OUTLIER_ALPHA = math.erfc(4.0 / math.sqrt(2.0))  # a single-coordinate residual beyond 4 sigma (6.3e-5) ...
 FAMILY_ALPHA = 0.01  # ... or below 1% false alarms over a level's measurements, whichever is stricter
 MAX_OUTLIER_FRACTION = 0.05  # more than this in a level is a heavy-tailed distribution, not gross errors
 SCALE_LIMITS = (1e-2, 1e3)  # an estimated sigma stays within these multiples of the declared one
@@ -191,12 +192,12 @@ def robust_scale(t, width: int, cut_alpha: float = SCALE_CUT_ALPHA) -> float:
     t = t[np.isfinite(t)]
     if not t.size:
         return float("nan")
-    scale = float(np.median(t) / special.chdtri(width, 0.5))
+    scale = float(np.median(t) / chi2_isf(width, 0.5))
     if not scale > 0:
         return scale
-    cut = float(special.chdtri(width, cut_alpha))
+    cut = float(chi2_isf(width, cut_alpha))
     # E[X | X < c] for X ~ chi-square(k): k P(chi2(k + 2) < c) / P(chi2(k) < c)
-    truncated_mean = width * special.chdtr(width + 2, cut) / special.chdtr(width, cut)
+    truncated_mean = width * chi2_cdf(width + 2, cut) / chi2_cdf(width, cut)
     for _ in range(20):
         new = float(np.mean(t[t <= cut * scale]) / truncated_mean)
         if abs(new - scale) <= 1e-9 * scale:
@@ -282,7 +283,7 @@ def _ratios(graph, lin, h, level, alpha: float = OUTLIER_ALPHA, h_in=None):
     scales = _column_scales(level, w2, ~excluded)
     if not np.all(scales > 0):
         return pose, None, excluded
-    ratio = (w2 / scales).max(axis=1) / special.chdtri(1, min(alpha, FAMILY_ALPHA / w2.size))
+    ratio = (w2 / scales).max(axis=1) / chi2_isf(1, min(alpha, FAMILY_ALPHA / w2.size))
     return pose, ratio, excluded
 
 
@@ -364,7 +365,7 @@ def fit_test(ssq: float, redundancy: float) -> float:
     """Two-sided p-value of ``ssq`` (sum of squared whitened residuals) against chi-square(redundancy)."""
     if redundancy <= 0:
         return float("nan")
-    return float(min(1.0, 2 * min(special.chdtr(redundancy, ssq), special.chdtrc(redundancy, ssq))))
+    return float(min(1.0, 2 * min(chi2_cdf(redundancy, ssq), chi2_sf(redundancy, ssq))))
 
 
 def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNoise]:

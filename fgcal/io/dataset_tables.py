@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import DatasetError
-from fgcal.io.fast_tables import float_columns, int_column, read_columns
+from fgcal.io.fast_tables import float_columns, int_column, read_column_chunks, read_columns
 from fgcal.io.setup_io import read_pixels
 from fgcal.measurements.cells import MAX_DEG, MAX_MM, ball_name, pose_id
 from fgcal.measurements.cells import integer as _integer
@@ -119,17 +119,26 @@ def _point_table(path: Path, known_poses: set, balls: dict) -> PointObservations
 
 def _fast_point_table(path: Path, known_poses: set, ball_index: dict) -> PointObservations | None:
     """:func:`_point_table` of a plain file whose every cell is valid, whole columns at once
-    (:mod:`fgcal.io.fast_tables`); None sends the file to the checked reader."""
-    cols = read_columns(path, POINT_COLUMNS)
-    if cols is None:
-        return None
-    pose = int_column(cols["pose"])
-    xyz = float_columns([cols[c] for c in POINT_COLUMNS[2:]], MAX_MM)
-    ball = [ball_index.get(b.strip()) for b in cols["ball"]]
-    if pose is None or xyz is None or None in ball or not np.isin(pose, list(known_poses)).all():
-        return None
+    (:mod:`fgcal.io.fast_tables`; a large file in chunks of whole lines, in memory linear in the rows
+    with a small constant); None sends the file to the checked reader."""
+    known = np.fromiter(known_poses, dtype=np.int64, count=len(known_poses))
     names = np.array(list(ball_index), dtype=str)
-    return PointObservations(pose.astype(int), names[np.array(ball, dtype=int)], xyz,
+    poses, balls, points = [], [], []
+    for cols in read_column_chunks(path, POINT_COLUMNS):
+        if cols is None:
+            return None
+        pose = int_column(cols["pose"])
+        xyz = float_columns([cols[c] for c in POINT_COLUMNS[2:]], MAX_MM)
+        ball = [ball_index.get(b.strip()) for b in cols["ball"]]
+        if pose is None or xyz is None or None in ball or not np.isin(pose, known).all():
+            return None
+        poses.append(pose)
+        balls.append(np.array(ball, dtype=np.int16))
+        points.append(xyz)
+    if not poses:
+        return None
+    pose = np.concatenate(poses).astype(int)
+    return PointObservations(pose, names[np.concatenate(balls)], np.concatenate(points),
                              np.arange(2, len(pose) + 2))
 
 

@@ -21,11 +21,13 @@ import numpy as np
 
 from fgcal.measurements.cells import MAX_ID
 
-__all__ = ["MAX_FAST_BYTES", "float_columns", "int_column", "read_columns"]
+__all__ = ["CHUNK_CHARS", "MAX_FAST_BYTES", "float_columns", "int_column", "read_column_chunks", "read_columns"]
 
 # Whole-file reading holds ~10 objects a row (text, cells): beyond this size the streaming checked
 # reader (memory linear in the rows with a small constant, tests/test_hostile_large.py) is used.
 MAX_FAST_BYTES = 2 << 20
+# A larger file is read in chunks of whole lines this long (characters) by read_column_chunks.
+CHUNK_CHARS = 1 << 19
 
 
 def read_columns(path: Path, columns, optional=()) -> dict[str, tuple[str, ...]] | None:
@@ -49,26 +51,75 @@ def read_columns(path: Path, columns, optional=()) -> dict[str, tuple[str, ...]]
         st = os.stat(path)
         if not stat.S_ISREG(st.st_mode) or st.st_size > MAX_FAST_BYTES:
             return None  # the checked reader refuses the first and streams the second in small memory
-        with open(path, encoding="utf-8", newline="") as fh:
-            text = fh.read()
-    except (OSError, UnicodeDecodeError, ValueError):
+    except (OSError, ValueError):
         return None
-    if '"' in text or "\r" in text.replace("\r\n", "\n"):
-        return None  # quoted cells or old Mac line ends: csv's own rules
-    lines = text.replace("\r\n", "\n").split("\n")
-    if lines and lines[-1] == "":
-        lines.pop()
-    if len(lines) < 2:
+    chunks = list(read_column_chunks(path, columns, optional, chunk_chars=MAX_FAST_BYTES + 1))
+    if not chunks or any(c is None for c in chunks):
         return None
-    header = [h.strip() for h in lines[0].split(",")]
-    allowed = set(columns) | set(optional)
-    if len(set(header)) != len(header) or not set(columns) <= set(header) or not set(header) <= allowed:
-        return None
-    body = lines[1:]
-    if set(map(str.count, body, repeat(","))) != {len(header) - 1}:
-        return None  # blank lines or ragged rows
-    cells = ",".join(body).split(",")  # row k's cells are cells[k * width : (k + 1) * width]
-    return {name: tuple(cells[k::len(header)]) for k, name in enumerate(header)}
+    out = chunks[0]
+    for c in chunks[1:]:  # a file grown since its size was read
+        assert c is not None
+        out = {k: out[k] + c[k] for k in out}
+    return out
+
+
+def read_column_chunks(path: Path, columns, optional=(), chunk_chars: int | None = None):
+    """:func:`read_columns` of a file of any size, ``chunk_chars`` characters of whole lines at a time.
+
+    Yields ``{column: cells}`` per chunk (rows in file order; the first chunk's row ``k`` is on line
+    ``k + 2``); yields None once and stops when the file needs the checked reader (the caller drops
+    what it read). Memory: the chunk's text and cells (~10 objects a row of it) and no more.
+    ``chunk_chars``: default :data:`CHUNK_CHARS`.
+    """
+    chunk_chars = CHUNK_CHARS if chunk_chars is None else chunk_chars
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            yield None
+            return
+        fh = open(path, encoding="utf-8", newline="")
+    except (OSError, ValueError):
+        yield None
+        return
+    with fh:
+        header: list[str] | None = None
+        carry = ""
+        while True:
+            try:
+                text = fh.read(chunk_chars)
+            except (OSError, UnicodeDecodeError, ValueError):
+                yield None
+                return
+            last = not text
+            text = carry + text
+            cut = len(text) if last else text.rfind("\n") + 1  # whole lines only; the rest waits
+            piece, carry = text[:cut], text[cut:]
+            if not piece:
+                if last:
+                    if header is None:
+                        yield None  # empty, or only a header without a line end: the checked reader
+                    return
+                continue
+            if '"' in piece or "\r" in piece.replace("\r\n", "\n"):
+                yield None  # quoted cells or old Mac line ends: csv's own rules
+                return
+            lines = piece.replace("\r\n", "\n").split("\n")
+            if lines[-1] == "":
+                lines.pop()
+            if header is None:
+                header = [h.strip() for h in lines[0].split(",")]
+                allowed = set(columns) | set(optional)
+                if (len(set(header)) != len(header) or not set(columns) <= set(header)
+                        or not set(header) <= allowed or len(lines) < 2):
+                    yield None
+                    return
+                lines = lines[1:]
+            if set(map(str.count, lines, repeat(","))) - {len(header) - 1}:
+                yield None  # blank lines or ragged rows
+                return
+            cells = ",".join(lines).split(",")  # row k's cells are cells[k * width : (k + 1) * width]
+            yield {name: tuple(cells[k::len(header)]) for k, name in enumerate(header)}
+            if last:
+                return
 
 
 def int_column(cells) -> np.ndarray | None:

@@ -19,7 +19,8 @@ import numpy as np
 
 from fgcal.measurements.spherefit import FALSE_ALARM, MIN_THRESHOLD_MM, chi2_quantile
 
-__all__ = ["RigidFit", "check_homogeneous", "homogeneity_errors", "nearest_rotation", "paper_pose", "rigid_fit"]
+__all__ = ["RigidFit", "check_homogeneous", "homogeneity_errors", "nearest_rotation", "paper_pose", "rigid_fit",
+           "rigid_fits_at_pooled_noise"]
 
 
 def _check_pair(tool_points, world_points, minimum: int):
@@ -155,3 +156,41 @@ def rigid_fit(tool_points, world_points, sigma: float = 0.01, threshold: float |
                         f"ball centres do not fit the tool: RMS {rms:.4g} mm above {threshold:.4g} mm "
                         f"(worst: ball {worst + 1}, {np.linalg.norm(resid[worst]):.4g} mm)")
     return RigidFit(T, resid, rms, cov, True, "ok")
+
+
+MIN_POOLED_DOF = 5  # degrees of freedom below which a pooled noise estimate is too uncertain to use
+
+
+def rigid_fits_at_pooled_noise(pairs, declared: float) -> tuple[list[RigidFit], float | None]:
+    """:func:`rigid_fit` of several poses, each judged at the noise the other poses' fits show.
+
+    A pose's ball triangle is tested against the chi-square limit at the sigma pooled over the
+    other poses' fits (their squared residuals over their ``3n - 6`` degrees of freedom): the
+    tracker's noise as these poses measure it, which a declared sigma may understate, and which
+    one gross pose cannot inflate for itself. Where the other poses have fewer than
+    :data:`MIN_POOLED_DOF` degrees of freedom, the ``declared`` sigma is used.
+
+    Parameters
+    ----------
+    pairs : sequence of (tool_points, world_points)
+        Per pose, arrays (n, 3) mm with n >= 3.
+    declared : float
+        The declared per-coordinate sigma of a centre (mm).
+
+    Returns
+    -------
+    fits : list of RigidFit
+        In the order of ``pairs``.
+    pooled : float or None
+        The sigma pooled over all poses (mm), None when too few degrees of freedom.
+    """
+    free = [rigid_fit(P, W, sigma=declared, threshold=np.inf) for P, W in pairs]
+    ssq = np.array([float(np.sum(f.residuals**2)) if np.isfinite(f.rms) else 0.0 for f in free])
+    dof = np.array([max(3 * len(P) - 6, 0) if np.isfinite(f.rms) else 0 for (P, _), f in zip(pairs, free)])
+    pooled = float(np.sqrt(ssq.sum() / dof.sum())) if dof.sum() >= MIN_POOLED_DOF else None
+    fits = []
+    for k, (P, W) in enumerate(pairs):
+        others = dof.sum() - dof[k]
+        sigma = float(np.sqrt((ssq.sum() - ssq[k]) / others)) if others >= MIN_POOLED_DOF else declared
+        fits.append(rigid_fit(P, W, sigma=sigma))
+    return fits, pooled

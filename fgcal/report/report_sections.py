@@ -23,6 +23,7 @@ from fgcal.report.accuracy import (
     tolerance_verdict,
     verification_joints,
 )
+from fgcal.report.budget import budget_sentence, error_budget
 from fgcal.report.uncertainty import parameter_table, verdict
 
 log = logging.getLogger(__name__)
@@ -87,38 +88,20 @@ STATS_HEADER = ["model vs reference", "poses", "mean (mm)", "std (mm)", "RMS (mm
                 "max (mm)", "mean error vector: length (x, y, z) (mm)", "predicted by the covariance (mm RMS)"]
 
 
-def _noise_3d(result: CalibrationResult) -> float | None:
-    """About the measurement noise of a tool position (mm, 3D RMS) from the result's levels."""
-    sig = [s.sigma for k, s in result.levels.items() if k in ("probes", "centres", "poses") and s.unit == "mm"]
-    return float(min(sig) * np.sqrt(3)) if sig else None
-
-
-def _next_steps(result, verification, tolerance, flags, predicted_rms) -> list[str]:
+def _next_steps(result, verification, tolerance, flags, predicted_rms, joints=None) -> list[str]:
+    """What to do next; its first verdict from the error budget (:mod:`fgcal.report.budget`) at the
+    verification ``joints`` (K, n; internal units, or None)."""
     out = []
     if verification is None:
         out.append("Verify the result on poses that were not used to calibrate (fgcal verify RESULT DATASET "
                    "--out verify.json) and give the report --verify verify.json: only errors at other poses "
                    "say whether the calibration is good enough.")
         return out
+    after = verification["position_mm"]["rms"]
+    if predicted_rms is not None or joints is not None:  # first: whether the noise or the model is the limit
+        out.append(budget_sentence(result, after, error_budget(result, joints, predicted_rms)))
     if tolerance is None:
         out.append("No tolerance was given: run the report with --tolerance MM for a pass or fail.")
-    after = verification["position_mm"]["rms"]
-    noise = _noise_3d(result)
-    if predicted_rms is not None:
-        explained = float(np.hypot(predicted_rms, noise or 0.0))
-        if after > 2.0 * explained:
-            out.append(f"The calibrated error ({num(after)} mm RMS) is {num(after / explained)} times what the "
-                       f"parameters' uncertainty ({num(predicted_rms)} mm) and the measurement noise "
-                       f"({num(noise) if noise else 'unknown'} mm) explain: the noise is larger than assumed, or the "
-                       "geometric model misses something (compliance, gears, temperature, outliers). More poses "
-                       "will not remove it; a model beyond geometry or cleaner measurements may.")
-        elif noise is not None and predicted_rms > noise:
-            out.append(f"The parameters' uncertainty ({num(predicted_rms)} mm RMS at the verification poses) "
-                       f"dominates the measurement noise ({num(noise)} mm): more, or better spread, calibration "
-                       "poses (fgcal design) will lower the error.")
-        else:
-            out.append(f"The calibrated error ({num(after)} mm RMS) is what the parameters' uncertainty and the "
-                       "measurement noise explain: it is near what these measurements can verify.")
     outliers = [f.pose for f in flags if any(x.startswith("outlier") for x in f.flags)]
     if outliers:
         out.append(f"Outliers at poses {_listed(outliers)}: check or re-measure them before trusting the statistics.")
@@ -182,7 +165,7 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
         top.blocks.append(Block("banner", "No verdict: the report has no verification (--verify verify.json).",
                                 status="none"))
     top.blocks.append(Block("p", "What next:"))
-    top.blocks.append(Block("ul", items=_next_steps(result, verification, tolerance, flags, predicted)))
+    top.blocks.append(Block("ul", items=_next_steps(result, verification, tolerance, flags, predicted, joints)))
     top.blocks.append(Block("p", "What the calibration says about itself:"))
     top.blocks.append(Block("ul", items=verdict(result, verification)))
     sections = [top]

@@ -111,6 +111,10 @@ def joint_error_verdict(result: CalibrationResult) -> list[str]:
         unit = sel["scores"][0]["unit"] if sel["scores"] else ""
         out.append(f"Models compared by {sel['folds']}-fold cross-validation on the training poses (mean position "
                    f"error, {unit}, cross-validated{held}): {rows}. Recommended: {sel['reason']}.")
+        for d in sel.get("drift", []):  # later poses predicted from earlier ones (fgcal.estimation.time_validation)
+            later = "; ".join(f"{s['model']} {s['forward_error']:.3g} (max {s['forward_max']:.3g})"
+                              for s in sel["scores"] if s.get("forward_error") is not None)
+            out.append(f"Warning: {d[0].upper()}{d[1:]} (mean error at the later poses, {unit}: {later}).")
         for s in sel["scores"]:
             out += [f"Warning: {w}" for w in s.get("warnings", [])]
     if info.get("validity"):

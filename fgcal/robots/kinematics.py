@@ -125,6 +125,13 @@ class Chain:
         self._const_rot = [[k for k, op in enumerate(ops) if op.kind == "R" and op.joint is None and op.axis == a]
                            for a in range(3)]
         self._joint_rot = [k for k, op in enumerate(ops) if op.kind == "R" and op.joint is not None]
+        self._slot_ops = np.array([k for k, op in enumerate(ops) if op.slot is not None], dtype=int)
+        self._slot_cols = self.slot_of_op[self._slot_ops]
+        self._joint_ops = np.array([k for k, op in enumerate(ops) if op.joint is not None], dtype=int)
+        self._joint_cols = self.joint_of_op[self._joint_ops]
+        # The gathers of jacobians_walk need each slot and joint in one operation at most.
+        assert len(set(self._slot_cols.tolist())) == len(self._slot_cols)
+        assert len(set(self._joint_cols.tolist())) == len(self._joint_cols)
         self.single_pose = OperationTables(self)  # for one joint set (fgcal.robots.single_pose)
 
     def __repr__(self) -> str:
@@ -261,9 +268,14 @@ class Chain:
         # A rotation moves a point by axis x (point - origin); a translation by the axis itself.
         d_pos = np.where(rot_ops, _cross(axes, p_tool[None] - p_before), axes)
         d_rot = np.where(rot_ops, axes, 0.0)
-        d_pose = np.concatenate([d_pos, d_rot], axis=2)  # (K, N, 6)
-        pose_slots = np.einsum("knr,ks->nrs", d_pose, self.slot_map)
-        pose_joints = self._to_readings(np.einsum("knr,kj->nrj", d_pose, self.joint_op_map))
+        d_pose = np.concatenate([d_pos, d_rot], axis=2).transpose(1, 2, 0)  # (N, 6, K)
+        # Each slot and each joint variable enters one operation: its column is that operation's
+        # screw (a gather, not a product with the 0/1 map).
+        pose_slots = np.zeros((n, 6, self.n_slots))
+        pose_slots[:, :, self._slot_cols] = d_pose[:, :, self._slot_ops]
+        pose_values = np.zeros((n, 6, self.n_joints))
+        pose_values[:, :, self._joint_cols] = d_pose[:, :, self._joint_ops]
+        pose_joints = self._to_readings(pose_values)
         out = ChainJacobians(T=T, pose_slots=pose_slots, pose_joints=pose_joints)
         if offsets is not None:
             offsets = np.asarray(offsets, dtype=float)
@@ -271,16 +283,24 @@ class Chain:
             if offsets.ndim == 3 and offsets.shape[0] != n:
                 raise ValueError(f"per-pose offsets must have shape ({n}, B, 3), got {offsets.shape}")
             points = tool_points(T, offsets)
-            d_pts = np.where(rot_ops[..., None], _cross(axes[:, :, None, :], points[None] - p_before[:, :, None, :]),
-                             axes[:, :, None, :])  # (K, N, B, 3)
             out.points = points
-            out.point_slots = np.einsum("knbr,ks->nbrs", d_pts, self.slot_map)
-            out.point_joints = self._to_readings(np.einsum("knbr,kj->nbrj", d_pts, self.joint_op_map))
+            # A point on the tool moves with it: dp = dp_tool + w x (point - p_tool).
+            arm = (points - p_tool[:, None, :])[..., None]  # (N, B, 3, 1)
+            out.point_slots = _moved_points(pose_slots, arm)
+            out.point_joints = _moved_points(pose_joints, arm)
         return out
 
     def _to_readings(self, J_values):
         """Chain rule from joint variables to readings: ``dv/dr = M``."""
         return J_values if self.joint_map is None else J_values @ self.joint_map
+
+
+def _moved_points(J_pose, arm) -> np.ndarray:
+    """Jacobians (N, B, 3, C) of tool points at ``arm`` (N, B, 3, 1) from the tool's ``J_pose`` (N, 6, C)."""
+    dp, w = J_pose[:, None, :3, :], J_pose[:, None, 3:, :]
+    a0, a1, a2 = arm[:, :, 0], arm[:, :, 1], arm[:, :, 2]
+    w0, w1, w2 = w[:, :, 0], w[:, :, 1], w[:, :, 2]
+    return dp + np.stack([w1 * a2 - w2 * a1, w2 * a0 - w0 * a2, w0 * a1 - w1 * a0], axis=2)
 
 
 def _homogeneous(R, p) -> np.ndarray:
