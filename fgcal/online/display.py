@@ -89,4 +89,5 @@ def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: floa
             if is_last and not settled:
                 break
             display.show(run.feed(rec))
+        run.sync()  # on the disk before the wait
         time.sleep(interval)
