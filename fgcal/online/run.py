@@ -44,9 +44,10 @@ class OnlineRun:
 
     The checkpoint is an append-only journal (one JSON line per pose, written to the file before
     the next pose is taken, so that a crash or an interrupt of the process loses nothing; flushed
-    to the disk with ``fsync`` at most every :data:`SYNC_INTERVAL` seconds while poses come, before
-    each snapshot, when the run ends and when it waits for a followed dataset: a power loss may cost the poses of the last interval, which a
-    resume then takes again) under an exclusive lock,
+    to the disk with ``fsync`` at once for a streamed pose (its record is nowhere else), else at
+    most every :data:`SYNC_INTERVAL` seconds while poses come, before each snapshot, when the run
+    ends and when it waits for a followed dataset: a power loss may cost the poses of the last
+    interval, which a resume then takes again) under an exclusive lock,
     plus, for the filters, a snapshot of the state every :data:`SNAPSHOT_EVERY` poses
     (``CHECKPOINT.snapshot``, written atomically). Resuming restores the snapshot and replays the
     poses journalled after it (iSAM2, whose graph cannot be stored, replays all accepted poses):
@@ -158,9 +159,12 @@ class OnlineRun:
         entry.update(journal or {})
         if entry["accepted"]:
             entry["history"] = self.history[-1]
-        if entry["pose"] in self.streamed:
+        streamed = entry["pose"] in self.streamed
+        if streamed:
             entry["record"] = record_to_json(self.streamed[entry["pose"]])
         self._append(entry)
+        if streamed:  # a streamed pose is nowhere else: on the disk before the next is taken
+            self.sync()
         if len(self.processed) % SNAPSHOT_EVERY == 0:
             self._snapshot()
 
