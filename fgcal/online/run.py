@@ -125,7 +125,9 @@ class OnlineRun:
     def close(self) -> None:
         """Release the checkpoint (its lock); the state stays on disk for a resume."""
         if self._fd is not None:
-            self.sync()
+            if self._unsynced:  # (no clock here: close may run at interpreter exit, from __del__)
+                os.fsync(self._fd)
+                self._unsynced = False
             os.close(self._fd)
             self._fd = None
 
