@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import fgcal.io.dataset_io as dio
+import fgcal.io.dataset_tables as tables
 from fgcal.errors import DatasetError
 from fgcal.estimation.build import _points_by_pose, _rows_of
 from fgcal.estimation.result import _dumps, _json_safe, load_result, save_result
@@ -25,8 +26,8 @@ def dataset(puma, tmp_path_factory):
 def _checked(monkeypatch, fn, *args):
     """``fn(*args)`` with the fast paths switched off: the row-by-row reader alone."""
     with monkeypatch.context() as m:
-        m.setattr(dio, "_fast_point_table", lambda *a: None)
-        m.setattr(dio, "_fast_joints", lambda *a: None)
+        m.setattr(tables, "_fast_point_table", lambda *a: None)
+        m.setattr(tables, "_fast_joints", lambda *a: None)
         return fn(*args)
 
 
@@ -38,7 +39,7 @@ def _same_points(a, b):
 
 def test_fast_readers_equal_checked(dataset, monkeypatch):
     ds = dio.load_dataset(dataset)
-    assert dio._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
+    assert tables._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
                                  {b: i for i, b in enumerate(ds.tooling.balls)}) is not None  # it was taken
     slow = _checked(monkeypatch, dio.load_dataset, dataset)
     _same_points(ds.probes, slow.probes)
@@ -148,7 +149,7 @@ def test_chunked_point_table_is_taken_and_equals_checked(dataset, monkeypatch):
     monkeypatch.setattr(ft, "CHUNK_CHARS", 97)
     chunks = list(ft.read_column_chunks(dataset / "probes.csv", dio.POINT_COLUMNS))
     assert len(chunks) > 10 and None not in chunks
-    fast = dio._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
+    fast = tables._fast_point_table(dataset / "probes.csv", set(ds.pose_ids.tolist()),
                                  {b: i for i, b in enumerate(ds.tooling.balls)})
     assert fast is not None
     _same_points(fast, ds.probes)

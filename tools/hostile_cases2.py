@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 
 from hostile_workspace import REPO, Case, chain, edit, fgcal, line, write
 
@@ -170,6 +171,11 @@ def special_cases() -> list[Case]:
         Case("online checkpoint over own robot", ["online", "ds", "--checkpoint", "ds/arm.yaml"], _own_robot()),
         Case("online checkpoint over joints", ["online", "ds", "--checkpoint", "ds/joints.csv"]),
         Case("calibrate out over ARM.YAML", ["calibrate", "ds", "--out", "ds/ARM.YAML"], _own_robot("ARM.YAML")),
+        *[Case(f"{cmd[0]} out over own URDF robot", cmd, chain(lambda w: shutil.copy(w / "mk.urdf", w / "ds" / "arm.urdf"),
+                                                                edit(DS_YAML, "robot: puma560", "robot: arm.urdf")),
+               tags=["contacts"])
+          for cmd in (["calibrate", "ds", "--out", "ds/arm.urdf"], ["verify", R, "ds", "--out", "ds/arm.urdf"],
+                      ["online", "ds", "--out", "ds/ARM.URDF"])],
         Case("check robot ARM.YAML in the dataset's folder", ["check", "ds"], _own_robot("ARM.YAML"), expect="ok"),
         Case("calibrate two datasets out over the second's joints", ["calibrate", "ds", "full", "--out",
                                                                     "full/joints.csv"], guard=("ds", "full")),
@@ -207,9 +213,10 @@ def special_cases() -> list[Case]:
         Case("pose id 2^70 check", ["check", "ds"], _ids("ds/joints.csv", "1", str(2**70))),
         Case("pose id -1 online isam2", ["online", "ds"],
              chain(_ids("ds/joints.csv", "1", "-1"), _ids("ds/probes.csv", "1", "-1"))),
-        Case("pose id 2^64 stdin", ["online", "ds", "--stdin", "--engine", "ekf"], expect="warn",
+        # a stream of no usable pose: each line named, then no result (a result from no pose is refused)
+        Case("pose id 2^64 stdin", ["online", "ds", "--stdin", "--engine", "ekf"], expect="error",
              words=("out of range",), stdin=f"joints,{2**64},1,2,3,4,5,6\nend,{2**64}\n".encode()),
-        Case("stream line of 10 MB", ["online", "ds", "--stdin", "--engine", "ekf"], expect="warn",
+        Case("stream line of 10 MB", ["online", "ds", "--stdin", "--engine", "ekf"], expect="error",
              words=("characters)",), stdin=b"x" * (10 << 20) + b",1\n"),
         # numbers and names
         Case("exclude every parameter", ["calibrate", "ds", "--out", "x.json", "--exclude", names]),

@@ -34,6 +34,15 @@ def leftovers(work: Path) -> list[str]:
             if p.name.endswith(".tmp") or (p.name.startswith(".") and p.is_dir())]
 
 
+def changes(work: Path, guard: dict) -> list[str]:
+    """Inputs whose digest changed and temporary files left behind, as findings."""
+    problems = [f"input {g} changed" for g, digest in guard.items() if files_digest(work / g) != digest]
+    left = leftovers(work)
+    if left:
+        problems.append(f"left behind: {', '.join(left[:3])}")
+    return problems
+
+
 def run_case(case: Case, base: Path, timeout: float) -> tuple[str, str, float]:
     with tempfile.TemporaryDirectory(prefix="sweep-") as tmp:
         work = Path(tmp) / "w"
@@ -52,13 +61,7 @@ def run_case(case: Case, base: Path, timeout: float) -> tuple[str, str, float]:
             return "traceback", err.strip().splitlines()[-1][:200], dt
         if code < 0 or "out of memory" in err or "MemoryError" in err:
             return "killed", f"status {code}: {err.strip()[-200:]}", dt
-        problems = []
-        for g, digest in guard.items():
-            if files_digest(work / g) != digest:
-                problems.append(f"input {g} changed")
-        left = leftovers(work)
-        if left:
-            problems.append(f"left behind: {', '.join(left[:3])}")
+        problems = changes(work, guard)
         err_lines = [ln for ln in err.splitlines()  # warnings before an error are lines of their own
                      if ln.strip() and not ln.lower().startswith(("warning:", "note:"))]
         if case.expect == "error" or (case.expect == "either" and code != 0):

@@ -9,6 +9,7 @@ import numpy as np
 from fgcal.api.notes import note, warn
 from fgcal.api.selection import as_result
 from fgcal.errors import FgcalError
+from fgcal.util.parsing import finite_floats
 
 __all__ = ["Commands", "compensate", "parse_branch", "parse_seed_joints", "parse_tcp"]
 
@@ -57,25 +58,16 @@ class Commands:
         write_csv(path, self.columns, self.rows())
 
 
-def _finite_list(value, sizes) -> list[float] | None:
-    """``"a,b,c"`` or a sequence as finite floats when its length is one of ``sizes``, else None."""
-    try:
-        v = [float(t) for t in (value.split(",") if isinstance(value, str) else value)]
-    except (TypeError, ValueError):
-        return None
-    return v if len(v) in sizes and bool(np.all(np.isfinite(v))) else None
-
-
 def parse_tcp(value):
     """The 4x4 TCP transform from ``"X,Y,Z[,RX,RY,RZ]"`` or a sequence (mm, deg), or None."""
     from fgcal.robots.compensate import tcp_matrix
 
     if value is None:
         return None
-    v = _finite_list(value, (3, 6))
+    v = finite_floats(value, (3, 6))
     if v is None:
         raise FgcalError(f"--tcp {value!r}: give X,Y,Z or X,Y,Z,RX,RY,RZ (mm, deg) in the tool frame")
-    return tcp_matrix(v[:3], v[3:] or (0.0, 0.0, 0.0))
+    return tcp_matrix(v[:3], v[3:] if len(v) == 6 else (0.0, 0.0, 0.0))
 
 
 def parse_branch(text):
@@ -94,7 +86,7 @@ def parse_seed_joints(value, model):
     """``"q1,..,qn"`` or a sequence (deg; mm for prismatic joints) to internal units (rad, mm), or None."""
     if value is None:
         return None
-    v = _finite_list(value, (model.n_joints,))
+    v = finite_floats(value, (model.n_joints,))
     if v is None:
         raise FgcalError(f"--seed-joints {value!r}: give {model.n_joints} joint values "
                          f"({','.join(model.joint_names)}; {', '.join(sorted(set(model.joint_units)))})")

@@ -13,8 +13,12 @@ __all__ = ["calibrated_model", "export", "export_camera_info", "export_deltas", 
 
 
 def _refuse_existing(path, force: bool) -> None:
+    from fgcal.util.yamlio import must_be_new
+
     if path is not None and Path(path).exists() and not force:
         raise FgcalError(f"{path}: already exists (use --force to replace it)")
+    if path is not None and not force:
+        must_be_new(path)
 
 
 def calibrated_model(result):
@@ -205,6 +209,8 @@ def export(result, *, model=None, urdf=None, deltas=None, ur_kinematics=None, ur
 
     if model is None and urdf is None and deltas is None and ur_kinematics is None:
         raise FgcalError("export: give --model FILE, --urdf FILE, --deltas FILE and/or --ur-kinematics FILE")
+    if ur_hash is not None and ur_kinematics is None:  # it names a file that is not written: said, not dropped
+        raise FgcalError("export: --ur-hash is the hash of the --ur-kinematics file; give --ur-kinematics FILE")
     outputs = [Path(p).absolute() for p in (model, urdf, deltas, ur_kinematics) if p is not None]
     if len(set(outputs)) < len(outputs):
         raise FgcalError("export: --model, --urdf, --deltas and --ur-kinematics must be different files")

@@ -72,6 +72,11 @@ def report(result, out, verification=None, tolerance: float | None = None, *, fo
     existing = [Path(out) / name for name in REPORT_FILES if (Path(out) / name).exists()]
     if existing and not force:
         raise FgcalError(f"{existing[0]}: already exists (use --force to replace it)")
+    if not force:
+        from fgcal.util.yamlio import must_be_new
+
+        for page in REPORT_FILES:
+            must_be_new(Path(out) / page)
     name = result if isinstance(result, str | Path) else "the result"
     result = as_result(result)
     ver = None if verification is None else verification_dict(verification)

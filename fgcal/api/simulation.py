@@ -10,6 +10,7 @@ import numpy as np
 from fgcal.api.notes import note
 from fgcal.api.selection import MAX_POSES
 from fgcal.errors import FgcalError
+from fgcal.util.parsing import chain_links, finite_floats
 
 if TYPE_CHECKING:
     from fgcal.measurements.dataset import Dataset
@@ -115,11 +116,7 @@ def _simulate(robot, poses, seed, plan, cmm_sigma, joint_resolution, repeatabili
     if (poses or 0) > MAX_POSES or probes_per_ball > 1000:
         raise FgcalError(f"--poses at most {MAX_POSES} and --probes-per-ball at most 1000 (a dataset that large "
                          "would not fit in memory)")
-    if isinstance(chain, str):
-        parts = chain.split(",")
-        if len(parts) != 2 or not all(parts):
-            raise FgcalError(f"--chain: expected BASE,TIP (URDF link names), got {chain!r}")
-        chain = {"base": parts[0], "tip": parts[1]}
+    chain = chain_links(chain)
     model = robot if isinstance(robot, RobotModel) else load_model(str(robot), chain=chain)
     if reflector is not None and tool_ball is not None:
         raise FgcalError("--reflector and --tool-ball: give one tool (a reflector, or a ball that touches)")
@@ -161,11 +158,8 @@ def _simulate(robot, poses, seed, plan, cmm_sigma, joint_resolution, repeatabili
 
 
 def _floats(value, n: int, option: str) -> np.ndarray:
-    try:
-        values = np.array([float(v) for v in (value.split(",") if isinstance(value, str) else value)])
-    except (TypeError, ValueError):
-        values = np.zeros(0)
-    if values.shape != (n,) or not np.all(np.isfinite(values)):
+    values = finite_floats(value, (n,))
+    if values is None:
         raise FgcalError(f"{option}: expected {n} comma-separated numbers, got {value!r}")
     return values
 

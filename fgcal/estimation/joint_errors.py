@@ -26,6 +26,7 @@ import numpy as np
 from fgcal.robots.gravity import Inertials, Payload, gravity_torques, model_inertials
 
 __all__ = [
+    "COMPLIANCE_MIN_NM",
     "BlockParameters",
     "JointErrorBlock",
     "JointErrorSpec",
@@ -111,7 +112,10 @@ class JointErrorSpec:
                    Payload(float(p.get("mass", 0.0)), tuple(p.get("com", (0.0, 0.0, 0.0)))))
 
 
-def compliance_joints(torques, fraction: float = 0.1, minimum_nm: float = 1.0) -> tuple:
+COMPLIANCE_MIN_NM = 1.0  # N m: a joint whose gravity torque varies less carries no identifiable compliance
+
+
+def compliance_joints(torques, fraction: float = 0.1, minimum_nm: float = COMPLIANCE_MIN_NM) -> tuple:
     """Joints (1-based) whose gravity torque varies enough over the poses to carry a compliance.
 
     A joint qualifies when the spread (max - min) of its torque is at least ``fraction`` of the

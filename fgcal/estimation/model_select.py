@@ -21,7 +21,7 @@ import numpy as np
 
 from fgcal.estimation.build import build_graph
 from fgcal.estimation.calibrate import calibrate
-from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind, compliance_joints
+from fgcal.estimation.joint_errors import COMPLIANCE_MIN_NM, JointErrorSpec, ModelKind, compliance_joints
 from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.time_validation import (
@@ -148,6 +148,8 @@ def cv_problem(ds: Dataset, model: RobotModel, geometric_result, spec_max: Joint
     state.theta = graph.params.take(graph.held)
     lin = graph.linearise(state)
     r, J = lin.r, lin.J_theta
+    if J.shape[1] < r.shape[1]:  # J_theta holds each pose's first rows; the later ones (probes) do not see theta
+        J = np.concatenate([J, np.zeros((J.shape[0], r.shape[1] - J.shape[1], J.shape[2]))], axis=1)
     if graph.nz:  # project out per-pose variables (ball centres): what remains sees theta only
         Q, _ = np.linalg.qr(lin.J_local)
         r = r - np.einsum("nmz,nz->nm", Q, np.einsum("nmz,nm->nz", Q, r))
@@ -325,6 +327,13 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
         torques = gravity_torques(geo.slot_vector(model), q, inertials, payload, model.chain)
         revolute = np.asarray(model.joint_is_angle, dtype=bool)
         joints = tuple(j for j in compliance_joints(torques) if revolute[j - 1])  # prismatic: no torsion
+        if not joints:  # the compliance models would be the geometric one under another name
+            from fgcal.errors import ModelError
+
+            spread = float(np.ptp(torques, axis=0).max(initial=0.0)) if torques.size else 0.0
+            raise ModelError(f"robot model {model.name}: no revolute joint's gravity torque varies by "
+                             f"{COMPLIANCE_MIN_NM:g} N m over these poses (largest spread {spread:.3g} N m; are the "
+                             "inertials' masses zero?), so there is no compliance to estimate: use --model geometric")
         map_joints = () if revolute.all() else tuple(int(j) + 1 for j in np.nonzero(revolute)[0])
         spec_max = JointErrorSpec(compliance=joints, payload=payload, map_joints=map_joints,
                                   harmonics=max(harmonics_grid) if up_to is ModelKind.COMPLIANCE_MAP else 0)

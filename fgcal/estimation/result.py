@@ -402,7 +402,15 @@ def _check_setup(setup, names) -> dict:
 
 
 def save_result(result: CalibrationResult, path) -> None:
-    """Write ``result`` as ``fgcal-result/1`` JSON, atomically."""
+    """Write ``result`` as ``fgcal-result/1`` JSON, atomically.
+
+    Raises
+    ------
+    FgcalError
+        When the result is from no pose (only the prior): no reader would take it.
+    """
+    if result.n_poses < 1:
+        raise FgcalError(f"{path}: not written: the result is from no pose (only the prior; nothing was calibrated)")
     atomic_write_text(path, _dumps(result.to_dict()) + "\n")
 
 

@@ -20,7 +20,6 @@ __all__ = ["PSD_TOLERANCE", "validate_result"]
 PSD_TOLERANCE = 1e-9  # smallest eigenvalue allowed, relative to the largest (round-off of a PSD matrix)
 SIGMA_TOLERANCE = 1e-6  # relative agreement of a sigma with the square root of its covariance entry
 _JOINT_ERROR = re.compile(r"^(?:j(\d+)\.compliance|map\.j(\d+)\.(?:sin|cos)(\d+))$")
-_SETUP_KINDS = ("fixture", "plane", "station")
 
 
 def _is_setup_parameter(name: str, blocks: set) -> bool:
@@ -28,9 +27,8 @@ def _is_setup_parameter(name: str, blocks: set) -> bool:
     ``setup`` names (a kind registered by the user's code, which this process may not have)."""
     from fgcal.estimation.setup_params import is_setup_name
 
-    kind, _, rest = name.partition(".")
-    block = rest.rpartition(".")[0]
-    return kind in _SETUP_KINDS or is_setup_name(name) or (bool(block) and block in blocks)
+    block = name.partition(".")[2].rpartition(".")[0]
+    return is_setup_name(name) or (bool(block) and block in blocks)
 
 
 def _short(name) -> str:
@@ -116,6 +114,8 @@ def _check_levels(result) -> None:
                 raise FgcalError(f"noise.{_short(key)}.{field}: {_short(v)!r} is not a finite number >= 0")
     if not isinstance(result.n_poses, int) or result.n_poses < 0:
         raise FgcalError(f"n_poses: {_short(result.n_poses)!r} is not a count")
+    if result.n_poses == 0:  # only the prior: nothing was calibrated (an online run that took no pose)
+        raise FgcalError("n_poses: 0, a result from no pose (only the prior) is not a calibration")
 
 
 def validate_result(result) -> None:

@@ -162,8 +162,8 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         rows_fit = rows_fit[np.linspace(0, len(rows_fit) - 1, MAX_FIT_ROWS).round().astype(int)]
     if m.R is None:
         slots, rms = fit_base_and_point(model, m.joints_rad[rows_fit], m.xyz[rows_fit])
-    else:
-        slots, rms = fit_base_and_tool(model, m.joints_rad[rows_fit], m.T[rows_fit])
+    else:  # poses of the fit's rows only ((N, 4, 4) of every row is 128 bytes a row)
+        slots, rms = fit_base_and_tool(model, m.joints_rad[rows_fit], m.subset(rows_fit).T)
     fit = check_fit(model, slots, m.joints_rad[rows_fit], m.xyz[rows_fit], None if m.R is None else m.R[rows_fit])
     log.info("base and tool fitted to %d rows: RMS %.3g mm%s", len(rows_fit), rms,
              "" if fit.rotation_rms_deg is None else f", {fit.rotation_rms_deg:.3g} deg")
@@ -191,7 +191,7 @@ def to_datasets(m: Measurements, robot: str = "ur10", position_only: bool = Fals
         ds = Dataset(robot="robot.yaml", tooling=tooling, noise=noise, provenance=prov, pose_ids=ids[mask],
                      joints_deg=np.degrees(m.joints_rad[mask]))
         if points:
-            ds.centres = PointObservations(ids[mask], np.array([PROBE] * int(mask.sum())), m.xyz[mask])
+            ds.centres = PointObservations(ids[mask], np.full(int(mask.sum()), PROBE), m.xyz[mask])
         else:
             ds.poses = PoseObservations(ids[mask], m.xyz[mask], matrix_to_quaternion(m.R[mask]))
         return ds

@@ -12,8 +12,10 @@ import csv
 import math
 import re
 from array import array
+from collections import Counter
 from dataclasses import dataclass, field
 from enum import Enum
+from itertools import chain, islice
 from pathlib import Path
 
 import numpy as np
@@ -267,14 +269,16 @@ def rotation_from_columns(values, spec: ColumnSpec) -> np.ndarray:
     return Rotation.from_quat(xyzw).as_matrix()
 
 
-MAX_TABLE_BYTES = 512 << 20  # an import reads about 10 bytes of memory a byte of table: beyond this, refused
+MAX_TABLE_LINE = 1 << 20  # bytes of a line: a row is a few kB; a longer line is refused before it is read whole
+MAX_TABLE_BYTES = 2 << 30  # a table is streamed (bench/bench_memory.py): beyond this, refused, naming the size
 
 
-def read_lines(path: Path) -> list[str]:
-    """The lines of a text file (UTF-8, byte-order mark ignored); :class:`DatasetError` when unreadable."""
-    from fgcal.util.yamlio import read_text_file
+def read_lines(path: Path):
+    """The lines of a text file (UTF-8, byte-order mark ignored), read as they are used (an iterator:
+    the memory of one line); :class:`DatasetError` naming the file when unreadable."""
+    from fgcal.util.yamlio import text_lines
 
-    return read_text_file(path, DatasetError, MAX_TABLE_BYTES).removeprefix("\ufeff").splitlines()
+    return text_lines(path, DatasetError, MAX_TABLE_BYTES, MAX_TABLE_LINE)
 
 
 def _csv_rows(reader, path):
@@ -289,7 +293,9 @@ def _csv_rows(reader, path):
 def _rows(path: Path, delimiter: str | None, decimal_comma: bool | None):
     """``(header, decimal_comma, iterator of (line, fields))``."""
     lines = read_lines(path)
-    delimiter, comma = detect_format(lines[:50], delimiter)
+    head = list(islice(lines, 50))
+    delimiter, comma = detect_format(head, delimiter)
+    lines = chain(head, lines)
     decimal_comma = comma if decimal_comma is None else decimal_comma
     if delimiter == " ":
         rows = ((i + 1, ln.split()) for i, ln in enumerate(lines))
@@ -360,8 +366,7 @@ def read_columns(path, required, optional=(), delimiter: str | None = None, deci
             columns[n].append(values[n])
     if not kept:
         raise DatasetError(f"{path}: no usable rows ({len(skipped)} skipped{': ' + bounded(skipped[0]) if skipped else ''})")
-    return (np.frombuffer(kept, dtype=np.int64).astype(int),
-            {n: np.frombuffer(columns[n], dtype=float).copy() for n in wanted}, skipped)
+    return (np.frombuffer(kept, dtype=np.int64), {n: np.frombuffer(columns[n], dtype=float) for n in wanted}, skipped)
 
 
 def read_measurements(path, spec: ColumnSpec) -> Measurements:
@@ -377,16 +382,23 @@ def read_measurements(path, spec: ColumnSpec) -> Measurements:
     lines, values, skipped = read_columns(path, spec.required, optional, spec.delimiter, spec.decimal_comma,
                                           spec.label, quaternion_norm if spec.quaternion_order else None)
 
-    def table(names, scale=1.0):
-        return np.stack([values[n] for n in names], axis=1) * scale
+    uses = Counter(n for c in (spec.joints, spec.point or spec.pose or (), *optional) for n in c)
+
+    def table(names, scale=1.0):  # a column given up at its last use: one copy of the numbers at a time
+        out = np.stack([values[n] for n in names], axis=1)
+        for n in names:
+            uses[n] -= 1
+            if uses[n] == 0:
+                values.pop(n)
+        return out * scale if scale != 1.0 else out
 
     angle = 1.0 if spec.joint_unit is AngleUnit.RAD else math.pi / 180.0
     cols = spec.point or spec.pose or ()
     has: dict[tuple | None, bool] = {c: all(n in values for n in c) for c in optional}
+    joints, xyz = table(spec.joints, angle), table(cols[:3], spec.length_unit.to_mm)
+    R = None if spec.pose is None else rotation_from_columns(table(spec.pose[3:]), spec)
     return Measurements(
-        line=lines, joints_rad=table(spec.joints, angle),
-        xyz=table(cols[:3], spec.length_unit.to_mm),
-        R=None if spec.pose is None else rotation_from_columns(table(spec.pose[3:]), spec),
+        line=lines, joints_rad=joints, xyz=xyz, R=R,
         position_std=table(spec.position_std, spec.length_unit.to_mm) if has.get(spec.position_std) else None,
         rotation_std_deg=table(spec.rotation_std, 1.0 if spec.rotation_unit is AngleUnit.DEG else 180.0 / math.pi)
         if has.get(spec.rotation_std) else None,

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import DatasetError
-from fgcal.io.dataset_io import _read_table, joint_columns
+from fgcal.io.dataset_tables import _read_table, joint_columns
 from fgcal.measurements.cells import MAX_DEG, integer, number
 from fgcal.measurements.pose import POSE
 from fgcal.robots.transforms import pose_matrices

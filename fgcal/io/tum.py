@@ -9,6 +9,7 @@ tolerance; poses without one are named and skipped.
 from __future__ import annotations
 
 import math
+from array import array
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ def _is_number(text: str) -> bool:
 
 def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
     """``(line, t, xyz, R, skipped)`` of a TUM trajectory file; xyz (N, 3) in mm, R (N, 3, 3)."""
-    rows, lines, skipped = [], [], []
+    rows, lines, skipped = array("d"), array("q"), []  # 8 bytes a value, not a Python float
     for i, raw in enumerate(read_lines(path), start=1):
         s = raw.strip()
         if not s or s.startswith("#"):
@@ -52,13 +53,13 @@ def read_tum(path, length_unit: LengthUnit = LengthUnit.M):
         if abs(np.linalg.norm(v[4:]) - 1.0) > QUATERNION_NORM_TOLERANCE:
             skipped.append(f"line {i}: quaternion norm {np.linalg.norm(v[4:]):.4g} is not 1")
             continue
-        rows.append(v)
+        rows.extend(v)
         lines.append(i)
-    if not rows:
+    if not lines:
         raise DatasetError(f"{path}: no usable TUM rows ({len(skipped)} skipped{': ' + bounded(skipped[0]) if skipped else ''})")
-    a = np.array(rows)
-    return np.array(lines), a[:, 0], a[:, 1:4] * LengthUnit(length_unit).to_mm, Rotation.from_quat(a[:, 4:]).as_matrix(), \
-        skipped
+    a = np.frombuffer(rows, dtype=float).reshape(-1, 8)
+    return np.frombuffer(lines, dtype=np.int64), a[:, 0].copy(), a[:, 1:4] * LengthUnit(length_unit).to_mm, \
+        Rotation.from_quat(a[:, 4:]).as_matrix(), skipped
 
 
 def join_by_time(t_measured, t_log, tolerance: float):
@@ -99,13 +100,39 @@ def read_tum_with_joint_log(trajectory, joint_log, joints, time_column: str = "t
     Measurements
         Pose id = line of the TUM file; poses without a joint reading near enough are in ``skipped``.
     """
+    joints = tuple(joints or ())
+    if not joints:
+        raise DatasetError("--joints: give the joint log's joint columns in chain order")
     line, t, xyz, R, skipped = read_tum(trajectory, length_unit)
     log_lines, values, log_skipped = read_columns(joint_log, [time_column, *joints], delimiter=delimiter,
                                                   decimal_comma=decimal_comma)
-    skipped += [f"{Path(joint_log).name} {s}" for s in log_skipped]
-    index, ok, gap = join_by_time(t, values[time_column], tolerance)
+    log_name = Path(joint_log).name
+    skipped += [f"{log_name} {s}" for s in log_skipped]
+    t_log = values[time_column]
+    # A timestamp the log repeats is ambiguous (which reading was at that time?): only its first
+    # reading is kept, the others named.
+    _, first = np.unique(t_log, return_index=True)
+    repeated = np.setdiff1d(np.arange(len(t_log)), first)
+    skipped += [f"{log_name} line {log_lines[i]}: timestamp {t_log[i]:.17g} repeats an earlier reading's (ignored)"
+                for i in repeated]
+    first.sort()
+    index, ok, gap = join_by_time(t, t_log[first], tolerance)
+    index = first[index]
     skipped += [f"line {ln}: no joint reading within {tolerance:g} (nearest {g:.3g} away)"
                 for ln, g in zip(line[~ok], gap[~ok])]
+    # One reading is one configuration: when several poses are nearest the same reading, the one
+    # nearest in time keeps it and the others are named (a wide tolerance would pair them all).
+    order = np.lexsort((gap, index))
+    taken = np.zeros(len(index), dtype=bool)
+    seen = -1
+    for k in order:
+        if ok[k] and index[k] != seen:
+            taken[k], seen = True, index[k]
+    for k in np.flatnonzero(ok & ~taken):
+        keeper = int(line[np.flatnonzero(taken & (index == index[k]))[0]])
+        skipped.append(f"line {line[k]}: its nearest joint reading ({log_name} line {log_lines[index[k]]}) is "
+                       f"taken by line {keeper}, nearer in time (one reading, one pose)")
+    ok = taken
     if not ok.any():
         raise DatasetError(f"{trajectory}: no pose has a joint reading of {joint_log} within {tolerance:g}; do the "
                            "clocks agree?")

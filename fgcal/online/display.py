@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgcal.errors import DatasetError
+from fgcal.errors import DatasetError, FgcalError
 from fgcal.io.dataset_io import load_dataset
 from fgcal.online.run import OnlineRun
 
@@ -52,16 +52,44 @@ class Display:
         self._drawn = len(lines)
 
 
+def _fingerprints(ds, poses) -> dict:
+    """Per pose of ``poses`` in ``ds``: its joint readings and its number of rows at each level."""
+    row = {int(p): i for i, p in enumerate(ds.pose_ids.tolist())}
+    counts = {}
+    for level in ds.levels():
+        ids, n = np.unique(getattr(ds, level).pose, return_counts=True)
+        counts[level] = dict(zip(ids.tolist(), n.tolist()))
+    return {p: (tuple(ds.joints_deg[row[p]].tolist()), tuple((lv, c.get(p, 0)) for lv, c in counts.items()))
+            for p in poses if p in row}
+
+
+def _rewritten(path, taken: dict, ds) -> None:
+    """Refuse a dataset in which a pose already taken is gone or changed (a file truncated,
+    rotated or rewritten under ``--follow``): the estimate holds the old readings."""
+    now = _fingerprints(ds, taken)
+    gone = [p for p in taken if p not in now]
+    changed = [p for p in taken if p in now and now[p] != taken[p]]
+    if gone or changed:
+        what = (f"pose(s) {', '.join(map(str, gone[:5]))} already taken are gone" if gone else
+                f"the rows of pose(s) {', '.join(map(str, changed[:5]))} already taken changed")
+        raise FgcalError(f"{path}: {what} ({len(gone) + len(changed)} pose(s): a file truncated, rotated or "
+                         "rewritten while following; the estimate holds the old rows); run again with --restart "
+                         "to start over")
+
+
 def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: float = 2.0, stop=None) -> None:
     """Keep reading the dataset for appended poses until interrupted (or ``stop()`` is true).
 
     A pose is taken when a later pose exists in ``joints.csv`` or the files have not changed for
     ``settle`` seconds (so a pose whose probe points are still being written is not cut short).
-    A file caught half-written is read again at the next poll.
+    A file caught half-written is read again at the next poll. The dataset may only grow: a pose
+    already taken that is gone or whose rows changed (a file truncated, rotated or rewritten) ends
+    the run with an error.
     """
     if run.ds.path is None:
         raise ValueError("following a dataset needs its folder (the dataset was made in memory)")
     path = Path(run.ds.path)
+    taken = _fingerprints(run.ds, [p["pose"] for p in run.processed])
     last_change = time.monotonic()
     last_sig = None
     last_error = loaded_sig = None
@@ -79,6 +107,7 @@ def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: floa
                 time.sleep(interval)
                 continue
             loaded_sig, last_error = sig, None
+            _rewritten(path, taken, ds)
             run.ds = ds
             run.engine.ds = ds
         ds = run.ds
@@ -88,5 +117,6 @@ def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: floa
             is_last = rec.pose == int(ds.pose_ids[-1])
             if is_last and not settled:
                 break
+            taken.update(_fingerprints(ds, [rec.pose]))
             display.show(run.feed(rec))
         time.sleep(interval)

@@ -5,8 +5,12 @@ import sys
 
 import numpy as np
 
+from fgcal.errors import DatasetError
 from fgcal.io.skipped import bounded
 from fgcal.measurements.cells import MAX_ID
+from fgcal.measurements.distance import DISTANCE
+from fgcal.measurements.point import POINT
+from fgcal.measurements.pose import POSE
 from fgcal.online.records import PoseData, setup_types
 
 __all__ = ["STREAM_FORMAT", "read_stream"]
@@ -26,6 +30,21 @@ One record a line, comma-separated (lines starting with # and blank lines are ig
                                      of dataset.yaml's cameras:, a point of one of its targets:)
   end,POSE                           POSE is complete (so is it when the next pose's joints come)"""
 
+# A record's values are read by its measurement type's own parser, the one the dataset's files are
+# read with: a value a file may not hold (a negative ballbar length, a quaternion not of norm 1,
+# a point beyond the absurd-size bound) is refused on the stream too.
+_PARSED = {"probe": (POINT, ("ball", "x", "y", "z")), "centre": (POINT, ("ball", "x", "y", "z")),
+           "pose": (POSE, ("x", "y", "z", "qw", "qx", "qy", "qz")), "distance": (DISTANCE, ("ball", "length"))}
+
+
+def _parsed(tag: str, fields: list, balls) -> np.ndarray:
+    kind, names = _PARSED[tag]
+    record = dict(zip(names, fields[2:], strict=True))
+    try:
+        return kind.parse("stdin", record, balls)[1]
+    except DatasetError as exc:
+        raise ValueError(str(exc).removeprefix("stdin: ")) from None
+
 
 def read_stream(lines, balls, warn=None, model=None, setup=None):
     """Pose records from a stream of lines (:data:`STREAM_FORMAT`), each as soon as it is complete.
@@ -38,7 +57,7 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
     """
     from fgcal.robots.transforms import pose_matrices
 
-    warn = warn or (lambda m: print(m, file=sys.stderr))
+    warn = warn or (lambda m: print(f"warning: {m}", file=sys.stderr))  # the stream goes on: a warning line
     current: PoseData | None = None
     n_joints = 6 if model is None else model.n_joints
     widths = {"joints": n_joints + 2, "probe": 6, "centre": 6, "pose": 9, "distance": 4, "contact": 4, "pixels": 6,
@@ -84,9 +103,12 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
                 continue
             if tag == "pixels":
                 _check_corner(f[2], f[3], setup, "camera" in by_kind)
-            values = [float(v) for v in f[{"probe": 3, "centre": 3, "distance": 3, "pixels": 4}.get(tag, 2):]]
-            if not all(np.isfinite(values)):
-                raise ValueError("a number is not finite")
+            if tag in _PARSED:
+                values = _parsed(tag, f, balls).tolist()
+            else:
+                values = [float(v) for v in f[4 if tag == "pixels" else 2:]]
+                if not all(np.isfinite(values)):
+                    raise ValueError("a number is not finite")
         except ValueError as exc:
             warn(f"stdin: line {n} skipped: {bounded(str(exc))}")
             continue
@@ -107,11 +129,7 @@ def read_stream(lines, balls, warn=None, model=None, setup=None):
         elif tag == "pixels":
             current.block_rows.append((by_kind["camera"], f[3], f[2], np.array(values)))
         elif tag == "pose":
-            q = np.array(values[3:])
-            if abs(np.linalg.norm(q) - 1) > 1e-3:
-                warn(f"stdin: line {n} skipped: quaternion norm {np.linalg.norm(q):.6g}, expected 1")
-                continue
-            current.T = pose_matrices(values[:3], q)
+            current.T = pose_matrices(values[:3], np.array(values[3:]))
         else:  # end
             yield current
             current = None

@@ -15,8 +15,10 @@ standard library's XML parser; nothing of ROS is needed. No file I/O here but
 """
 from __future__ import annotations
 
+import io
 import logging
 import xml.etree.ElementTree as ET
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +44,8 @@ def rpy_matrix(r, p, y) -> np.ndarray:
 
 class UrdfJoint:
     """One URDF joint: name, type, parent and child links, origin (4, 4; mm), unit axis, limits."""
+
+    __slots__ = ("axis", "child", "kind", "lower", "mimic", "name", "origin", "parent", "upper")
 
     def __init__(self, name, kind, parent, child, origin, axis, lower, upper, mimic):
         self.name, self.kind, self.parent, self.child = name, kind, parent, child
@@ -73,44 +77,68 @@ def parse_urdf(text: str, source: str = "<urdf>") -> tuple[str, dict[str, UrdfJo
     """
     if "<!ENTITY" in text:  # URDFs declare none; expanded ones made 18 MB a 1.5 GB document, below expat's guard
         raise ModelError(f"{source}: declares XML entities (<!ENTITY ...>); a URDF has none: refusing to expand them")
+    links: list[str] = []
+    joints: dict = {}
+    name_of_robot = None
+    depth = 0
+    root = None
+    # Streamed (iterparse): each top-level <link> and <joint> is read at its end and cleared, so the
+    # document's tree is never held whole (a URDF of 100,000 frames took 14 times its size).
     try:
-        root = ET.fromstring(text)
+        for event, e in ET.iterparse(io.StringIO(text), events=("start", "end")):
+            if event == "start":
+                depth += 1
+                if depth == 1:
+                    root = e
+                    if e.tag != "robot":
+                        raise ModelError(f"{source}: the root element is <{e.tag}>, expected <robot>")
+                    name_of_robot = e.get("name")
+                continue
+            depth -= 1
+            if depth != 1:
+                continue
+            if e.tag == "link":
+                links.append(str(e.get("name")))
+            elif e.tag == "joint":
+                _read_joint(e, source, joints)
+            e.clear()
+            if root is not None:
+                root.clear()  # the children read so far
     except ET.ParseError as exc:
         raise ModelError(f"{source}: not a valid URDF (XML): {exc}") from None
-    if root.tag != "robot":
-        raise ModelError(f"{source}: the root element is <{root.tag}>, expected <robot>")
-    links = [str(e.get("name")) for e in root.findall("link")]
-    twice = sorted({k for k in links if links.count(k) > 1}) if len(set(links)) < len(links) else []
-    if twice:
+    if len(set(links)) < len(links):
+        twice = sorted(k for k, n in Counter(links).items() if n > 1)
         raise ModelError(f"{source}: link name(s) {short_repr(', '.join(twice[:3]), 60)} used twice")
-    joints: dict = {}
-    for e in root.findall("joint"):
-        name, kind = e.get("name"), e.get("type")
-        where = f"{source}: joint {short_repr(name, 60)}"
-        if name in joints:
-            raise ModelError(f"{where}: joint name used twice")
-        parent, child = e.find("parent"), e.find("child")
-        if not name or kind is None or parent is None or child is None:
-            raise ModelError(f"{where}: needs a name, a type, <parent link=...> and <child link=...>")
-        T = np.eye(4)
-        o = e.find("origin")
-        if o is not None:
-            T[:3, 3] = 1000.0 * _floats(o.get("xyz", "0 0 0"), 3, f"{where}: origin xyz")
-            T[:3, :3] = rpy_matrix(*_floats(o.get("rpy", "0 0 0"), 3, f"{where}: origin rpy"))
-        a = e.find("axis")
-        axis = _floats(a.get("xyz", "1 0 0"), 3, f"{where}: axis") if a is not None else np.array([1.0, 0, 0])
-        norm = np.linalg.norm(axis)
-        if kind in _MOVING and norm < 1e-9:
-            raise ModelError(f"{where}: axis is zero")
-        lim = e.find("limit")
-        scale = 1000.0 if kind == "prismatic" else 1.0
-        lower = upper = None
-        if lim is not None and kind != "continuous":
-            lower = scale * _limit(lim.get("lower"), f"{where}: limit lower") if lim.get("lower") is not None else None
-            upper = scale * _limit(lim.get("upper"), f"{where}: limit upper") if lim.get("upper") is not None else None
-        joints[name] = UrdfJoint(name, kind, parent.get("link"), child.get("link"), T, axis / max(norm, 1e-300),
-                                 lower, upper, e.find("mimic") is not None)
-    return str(root.get("name") or "robot"), joints, links
+    return str(name_of_robot or "robot"), joints, links
+
+
+def _read_joint(e, source: str, joints: dict) -> None:
+    """One ``<joint>`` element into ``joints`` (by name)."""
+    name, kind = e.get("name"), e.get("type")
+    where = f"{source}: joint {short_repr(name, 60)}"
+    if name in joints:
+        raise ModelError(f"{where}: joint name used twice")
+    parent, child = e.find("parent"), e.find("child")
+    if not name or kind is None or parent is None or child is None:
+        raise ModelError(f"{where}: needs a name, a type, <parent link=...> and <child link=...>")
+    T = np.eye(4)
+    o = e.find("origin")
+    if o is not None:
+        T[:3, 3] = 1000.0 * _floats(o.get("xyz", "0 0 0"), 3, f"{where}: origin xyz")
+        T[:3, :3] = rpy_matrix(*_floats(o.get("rpy", "0 0 0"), 3, f"{where}: origin rpy"))
+    a = e.find("axis")
+    axis = _floats(a.get("xyz", "1 0 0"), 3, f"{where}: axis") if a is not None else np.array([1.0, 0, 0])
+    norm = np.linalg.norm(axis)
+    if kind in _MOVING and norm < 1e-9:
+        raise ModelError(f"{where}: axis is zero")
+    lim = e.find("limit")
+    scale = 1000.0 if kind == "prismatic" else 1.0
+    lower = upper = None
+    if lim is not None and kind != "continuous":
+        lower = scale * _limit(lim.get("lower"), f"{where}: limit lower") if lim.get("lower") is not None else None
+        upper = scale * _limit(lim.get("upper"), f"{where}: limit upper") if lim.get("upper") is not None else None
+    joints[name] = UrdfJoint(name, kind, parent.get("link"), child.get("link"), T, axis / max(norm, 1e-300),
+                             lower, upper, e.find("mimic") is not None)
 
 
 def urdf_chain(joints: dict[str, UrdfJoint], links: list[str], base: str | None, tip: str | None,

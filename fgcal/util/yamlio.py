@@ -21,16 +21,21 @@ import yaml
 from fgcal.errors import FgcalError
 
 __all__ = [
+    "MAX_LINE_BYTES",
     "MAX_YAML_BYTES",
     "MAX_YAML_DEPTH",
     "atomic_write_bytes",
+    "atomic_write_chunks",
     "atomic_write_text",
     "check_regular_file",
     "dump_yaml",
     "make_dir",
+    "may_replace",
+    "must_be_new",
     "read_text_file",
     "read_yaml",
     "short_repr",
+    "text_lines",
 ]
 
 MAX_YAML_BYTES = 16 * 1024 * 1024  # model files and dataset.yaml are a few kB
@@ -70,17 +75,24 @@ def check_regular_file(path, error=FgcalError, max_bytes: int | None = None) -> 
     return st.st_size
 
 
-def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
-    """The UTF-8 text of a regular file; every problem raises ``error`` naming the file (not its content)."""
-    path = Path(path)
+def _open_regular(path: Path, error, max_bytes: int | None):
+    """A binary file object of the regular file ``path`` (a FIFO or device is refused without blocking)."""
     check_regular_file(path, error, max_bytes)
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
         raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
-    with os.fdopen(fd, "rb") as fh:
-        if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the check
-            raise error(f"{path}: not a regular file; refusing to read it")
+    fh = os.fdopen(fd, "rb")
+    if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):  # replaced since the check
+        fh.close()
+        raise error(f"{path}: not a regular file; refusing to read it")
+    return fh
+
+
+def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
+    """The UTF-8 text of a regular file; every problem raises ``error`` naming the file (not its content)."""
+    path = Path(path)
+    with _open_regular(path, error, max_bytes) as fh:
         try:
             data = fh.read() if max_bytes is None else fh.read(max_bytes + 1)
         except OSError as exc:
@@ -92,6 +104,45 @@ def read_text_file(path, error=FgcalError, max_bytes: int | None = None) -> str:
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
         raise error(f"{path}: line {line}: not UTF-8 text") from None
+
+
+MAX_LINE_BYTES = 1 << 20  # a line of a table or trajectory: a few kB; beyond this it is not one
+
+
+def text_lines(path, error=FgcalError, max_bytes: int | None = None, max_line: int = MAX_LINE_BYTES):
+    """The lines of a regular UTF-8 file (line ends and a byte-order mark removed), read as they are
+    used: memory of one line, not of the file. Problems raise ``error`` naming the file and line (not
+    its content), as :func:`read_text_file`'s do; the checks before the first line are made at the call.
+    A line longer than ``max_line`` bytes is an error (it is not read whole).
+    """
+    path = Path(path)
+    return _lines_of(_open_regular(path, error, max_bytes), path, error, max_bytes, max_line)
+
+
+def _lines_of(fh, path, error, max_bytes, max_line):
+    with fh:
+        read = 0
+        n = 0
+        while True:
+            try:
+                raw = fh.readline(max_line + 1)
+            except OSError as exc:
+                raise error(f"{path}: cannot read: {exc.strerror or exc}") from None
+            if not raw:
+                return
+            n += 1
+            if len(raw) > max_line:
+                raise error(f"{path}: line {n}: longer than {max_line} bytes; not a line of text such a file has")
+            read += len(raw)
+            if max_bytes is not None and read > max_bytes:  # grown since the check
+                raise error(f"{path}: more than the {max_bytes} bytes such a file can be")
+            try:
+                text = raw.decode("utf-8")
+            except UnicodeDecodeError:
+                raise error(f"{path}: line {n}: not UTF-8 text") from None
+            if n == 1:
+                text = text.removeprefix("\ufeff")
+            yield from text.splitlines()  # as str.splitlines of the whole text: old Mac line ends too
 
 
 # YAML 1.1 wants a dot in a float ("1.0e-2"); people write 1e-2 and 5e2. Accept them as numbers.
@@ -209,16 +260,58 @@ def atomic_write_bytes(path, data: bytes) -> None:
     The file gets the permissions the umask gives (as ``open`` would); on any error or
     interruption the temporary file is removed and ``path`` is left as it was.
     """
+    atomic_write_chunks(path, (data,))
+
+
+_NEW_FILES: set[str] = set()  # outputs checked absent (no --force): written only if still absent
+
+
+def must_be_new(path) -> None:
+    """Mark the output ``path`` (checked absent, no ``--force``) so that its atomic write creates it
+    and never replaces a file another run wrote meanwhile (two runs on one output, started together:
+    the later one fails naming it, instead of both saying they wrote)."""
+    _NEW_FILES.add(os.path.abspath(path))
+
+
+def may_replace(path) -> None:
+    """Undo :func:`must_be_new` (``--force``)."""
+    _NEW_FILES.discard(os.path.abspath(path))
+
+
+def _publish(tmp, path: Path) -> None:
+    key = os.path.abspath(path)
+    if key not in _NEW_FILES:
+        os.replace(tmp, path)
+        return
+    try:
+        os.link(tmp, path)  # fails if path exists: create-if-absent, atomically
+    except FileExistsError:
+        raise FgcalError(f"{path}: already exists (written meanwhile by another run; use --force to replace "
+                         "it)") from None
+    except OSError:  # a file system without hard links: the check, then the rename
+        if os.path.lexists(path):
+            raise FgcalError(f"{path}: already exists (written meanwhile by another run; use --force to "
+                             "replace it)") from None
+        os.replace(tmp, path)
+    else:
+        os.unlink(tmp)
+    _NEW_FILES.discard(key)
+
+
+def atomic_write_chunks(path, chunks) -> None:
+    """Write the byte strings of the iterable ``chunks`` to ``path`` atomically, as :func:`atomic_write_bytes`
+    does, holding one chunk at a time (a large table is written in bounded memory)."""
     path = Path(path)
     tmp = None
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as fh:
             os.fchmod(fh.fileno(), 0o666 & ~_umask())
-            fh.write(data)
+            for data in chunks:
+                fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        _publish(tmp, path)
         tmp = None
     except OSError as exc:
         if exc.filename is None:  # a failed write names no file: name the one being written

@@ -14,6 +14,7 @@ from pathlib import Path
 from fgcal.api.selection import MAX_BATCH_ROWS, MAX_POSES, parameter_names
 from fgcal.cli.commands.options import count, finite, nonnegative, positive
 from fgcal.errors import FgcalError
+from fgcal.util.yamlio import may_replace, must_be_new
 
 __all__ = [
     "MAX_BATCH_ROWS",
@@ -108,6 +109,10 @@ def check_output_file(path, inputs=(), option: str = "--out", force: bool | None
     for src in inputs:
         if src is not None and os.path.lexists(src) and _same(path, Path(src)):
             raise FgcalError(f"{option} {path}: is an input of this run ({src}); refusing to overwrite it")
+    if force is False and st is None:
+        must_be_new(path)
+    elif force:
+        may_replace(path)
     return path
 
 
@@ -129,6 +134,8 @@ def check_output_dir(path, inputs=(), option: str = "--out", must_be_new: bool =
             raise FgcalError(f"{path}: already exists (use --force to replace it)")
         if not must_be_new and not os.access(path, os.W_OK | os.X_OK):
             raise FgcalError(f"{option} {path}: folder is not writable")
+        if not must_be_new and os.path.lexists(path / "dataset.yaml"):  # written into, it would mix with one
+            raise FgcalError(f"{option} {path}: is a dataset folder; choose another folder")
     ancestor = path.parent if must_be_new or not os.path.lexists(path) else path
     while not os.path.lexists(ancestor) and ancestor != ancestor.parent:
         ancestor = ancestor.parent

@@ -10,6 +10,7 @@ import numpy as np
 from fgcal.cli.commands.checks import check_output_dir
 from fgcal.cli.commands.options import fraction, nonnegative_deg, positive, positive_deg, positive_mm, seed
 from fgcal.errors import FgcalError
+from fgcal.util.parsing import chain_links
 
 __all__ = ["add_import_parser"]
 
@@ -52,16 +53,6 @@ def _measurements(args):
     return read_measurements(args.file, spec), args.robot, None, {"columns": spec.describe()}
 
 
-def _chain(text: str | None) -> dict | None:
-    """``--chain BASE,TIP`` as the ``{"base": .., "tip": ..}`` of :func:`fgcal.robots.robot_file.load_model`."""
-    if text is None:
-        return None
-    parts = [p.strip() for p in text.split(",")]
-    if len(parts) != 2 or not all(parts):
-        raise FgcalError(f"--chain {text!r}: expected BASE,TIP (two link names)")
-    return {"base": parts[0], "tip": parts[1]}
-
-
 def _with_chain_hint(load, *args, **kw):
     """``load(*args, **kw)``; a loader's hint about dataset.yaml's chain becomes the import's option."""
     try:
@@ -92,7 +83,7 @@ def _cmd_import(args) -> int:
                               rng=np.random.default_rng(args.seed), position_sigma=args.sigma,
                               orientation_sigma=args.orientation_sigma, joint_resolution=args.joint_resolution,
                               name=name, provenance={"importer": f"fgcal import {args.format}", **settings},
-                              chain=_chain(getattr(args, "chain", None)), accept_fit=args.accept_fit)
+                              chain=chain_links(getattr(args, "chain", None)), accept_fit=args.accept_fit)
     written = result.save(args.out, overwrite=args.force)
     kind = "positions" if result.calibration.centres is not None else "full poses"
     print(f"wrote {written[0]}: {result.calibration.n_poses} poses ({kind}); {len(m.skipped)} row(s) skipped; "
@@ -235,7 +226,7 @@ def _cmd_import_mukca(args) -> int:
     from fgcal.util.resources import builtin_robot_names, builtin_robot_path
     from fgcal.util.yamlio import read_text_file
 
-    chain = _chain(args.chain)
+    chain = chain_links(args.chain)
     held = _columns(args.holdout_placements) or ()
     if args.holdout_placements is not None and not held:
         raise FgcalError(f"--holdout-placements {args.holdout_placements!r}: no placement named "

@@ -8,6 +8,7 @@ import numpy as np
 
 from fgcal.cli.commands.checks import check_output_file, dataset_inputs
 from fgcal.errors import FgcalError
+from fgcal.io.skipped import bounded
 
 log = logging.getLogger("fgcal")
 
@@ -83,6 +84,10 @@ def _cmd_online(args) -> int:
     for p in rejected:
         print(f"rejected pose {p['pose']}: {p['reason']}")
     result = run.result()
+    if result.n_poses == 0:
+        first = f"; pose {rejected[0]['pose']}: {bounded(rejected[0]['reason'])}" if rejected else ""
+        raise FgcalError(f"{args.dataset}: no pose taken ({len(rejected)} rejected{first}); "
+                         f"{'nothing written' if args.out else 'no result'} (state in {checkpoint})")
     if args.out:
         save_result(result, args.out)
         print(f"wrote {args.out} ({result.n_poses} poses, engine {args.engine})")

@@ -144,6 +144,9 @@ _ADDRESS = re.compile(r"(?:(tcp|tls|inproc|ucx|ws|wss)://)?([A-Za-z0-9_.\-]+|\[[
 def scheduler_address(text: str) -> str:
     """An argparse type: a Dask scheduler address ``[PROTOCOL://]HOST[:PORT]``."""
     m = _ADDRESS.fullmatch(text.strip())
+    if m and m.group(3) is None and m.group(1) != "inproc":  # Dask's client needs the port of a host
+        raise argparse.ArgumentTypeError(f"not a scheduler address: {_quote(text)} has no port (expected "
+                                         "tcp://HOST:PORT)")
     if not m or (m.group(3) is not None and not 0 < int(m.group(3)) < 65536):
         raise argparse.ArgumentTypeError(f"not a scheduler address: {_quote(text)} (expected tcp://HOST:PORT)")
     return text.strip()
