@@ -62,6 +62,12 @@ class PoseColumns:
         out *= (self.cols < self.P)[:, :, None]
         return out
 
+    def place_rows(self, Bc: np.ndarray) -> np.ndarray:
+        """(N, P, k) zeros but ``Bc`` (N, c, k) on each pose's columns: the inverse of :meth:`gather_rows`."""
+        out = np.zeros((len(Bc), self.P + 1, Bc.shape[2]))
+        np.put_along_axis(out, self.cols[:, :, None], Bc, axis=1)
+        return out[:, :self.P]
+
     def gather_matrix(self, M: np.ndarray) -> np.ndarray:
         """The (P, P) ``M`` on each pose's columns: (N, c, c)."""
         padded = np.zeros((self.P + 1, self.P + 1))

@@ -76,15 +76,19 @@ class ArrowElimination:
         blocks = list(self._blocks(lin))
         if blocks[0][1] is None:
             A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
-        else:  # each pose's product on its own columns (the others are zero in its rows)
+            B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
+        else:  # each pose's products on its own columns (the others are zero in its rows)
+            Jc_all = lin.cache["columns"].gather(lin.J_theta)  # (N, mt, c)
             A = lin.prior_J.T @ lin.prior_J
             for c, pc in blocks:
                 assert pc is not None  # one choice for all chunks
-                Jc = pc.gather(lin.J_theta[c])
-                A = A + pc.inner(Jc, Jc)
+                A = A + pc.inner(Jc_all[c], Jc_all[c])
+            # B on each pose's columns (N, c, nz), kept for the Schur complement and the leverage,
+            # and placed into the (N, P, nz) the step uses.
+            lin.cache["B_own"] = np.matmul(Jc_all.transpose(0, 2, 1), lin.J_local[:, :mt])
+            B = lin.cache["columns"].place_rows(lin.cache["B_own"])
         g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
         JzT = lin.J_local.transpose(0, 2, 1)
-        B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
         D = np.matmul(JzT, lin.J_local)
         g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
         # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
@@ -114,7 +118,8 @@ class ArrowElimination:
                 if rhs is not None:
                     rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
                 continue
-            Bc = pc.gather_rows(B[c])  # (n, c, nz): B's rows off a pose's columns are zero
+            # (n, c, nz): B's rows off a pose's columns are zero
+            Bc = lin.cache["B_own"][c] if lin is not None and "B_own" in lin.cache else pc.gather_rows(B[c])
             BD = np.matmul(Bc, Dinv[c])
             S -= pc.inner(BD.transpose(0, 2, 1), Bc.transpose(0, 2, 1))
             if rhs is not None:
@@ -226,7 +231,7 @@ class ArrowElimination:
             if not self.nz:
                 h[c, :mt] = np.einsum("nmp,nmp->nm", Jt @ St, Jt)
                 continue
-            Bc = B[c] if pc is None else pc.gather_rows(B[c])
+            Bc = B[c] if pc is None else lin.cache["B_own"][c]
             E = -np.matmul(Dinv[c], Bc.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
             Szt = E @ St  # (n, nz, P)
             Szz = Dinv[c] + np.matmul(Szt, E.transpose(0, 2, 1))
