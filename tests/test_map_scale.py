@@ -11,7 +11,7 @@ from fgcal.estimation.model_select import CVProblem, _folds
 from fgcal.estimation.time_validation import FoldSums
 from fgcal.robots.gravity import model_inertials
 from fgcal.robots.robot_file import load_model
-from tests.test_joint_errors import PHI, SPEC, _simulate
+from test_joint_errors import PHI, SPEC, _simulate
 
 UR10 = load_model("ur10")
 

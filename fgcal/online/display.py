@@ -119,4 +119,5 @@ def follow(run: OnlineRun, display: Display, interval: float = 1.0, settle: floa
                 break
             taken.update(_fingerprints(ds, [rec.pose]))
             display.show(run.feed(rec))
+        run.sync()  # on the disk before the wait
         time.sleep(interval)

@@ -146,7 +146,7 @@ class PoseMeasurement:
         for block in blocks:
             self.R0[k:k + len(block), k:k + len(block)] = block
             k += len(block)
-        self.Rj = np.diag(np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)))
+        self.rj = np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)).copy()  # (n,) rad^2
         self._last = None  # (theta's bytes, value) of the last call
 
     def __call__(self, theta):
@@ -201,8 +201,8 @@ class PoseMeasurement:
         if others:
             e = np.concatenate([e] + [o[0] for o in others])
             Jt = np.vstack([Jt] + [o[1] for o in others])
-        Rj = np.kron(np.eye(1 + len(others)), self.Rj)
-        return e, Jt, self.R0 + Jq_all @ Rj @ Jq_all.T  # joint noise folded in
+        rj = np.tile(self.rj, 1 + len(others))  # the joints' variances, each pose's joints apart
+        return e, Jt, self.R0 + (Jq_all * rj) @ Jq_all.T  # joint noise folded in (diagonal: no product with it)
 
 
 def _generic_terms(engine, rec: PoseData) -> list:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,17 +29,25 @@ from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.robots.robot_file import model_to_dict
 from fgcal.util.yamlio import atomic_write_text
 
-__all__ = ["SNAPSHOT_EVERY", "OnlineRun"]
+__all__ = ["SNAPSHOT_EVERY", "SYNC_INTERVAL", "OnlineRun"]
 
 log = logging.getLogger(__name__)
+
+# Seconds between two flushes of the journal to the disk: an fsync per pose cost a third of the
+# EKF's step; what only the page cache holds survives the process, not a power loss.
+SYNC_INTERVAL = 0.5
 
 
 @dataclass
 class OnlineRun:
     """One engine fed with a dataset's poses in order, with a checkpoint file.
 
-    The checkpoint is an append-only journal (one JSON line per pose, flushed to disk with
-    ``fsync`` before the next pose is taken: constant time per pose) under an exclusive lock,
+    The checkpoint is an append-only journal (one JSON line per pose, written to the file before
+    the next pose is taken, so that a crash or an interrupt of the process loses nothing; flushed
+    to the disk with ``fsync`` at once for a streamed pose (its record is nowhere else), else at
+    most every :data:`SYNC_INTERVAL` seconds while poses come, before each snapshot, when the run
+    ends and when it waits for a followed dataset: a power loss may cost the poses of the last
+    interval, which a resume then takes again) under an exclusive lock,
     plus, for the filters, a snapshot of the state every :data:`SNAPSHOT_EVERY` poses
     (``CHECKPOINT.snapshot``, written atomically). Resuming restores the snapshot and replays the
     poses journalled after it (iSAM2, whose graph cannot be stored, replays all accepted poses):
@@ -65,6 +74,8 @@ class OnlineRun:
     def __post_init__(self):
         self.engine = make_engine(self.engine_kind, self.ds, self.model, self.options, **self.engine_kw)
         self._fd = None
+        self._synced = time.monotonic()  # when the journal was last flushed to the disk
+        self._unsynced = False
         self._done = {p["pose"] for p in self.processed}
         self._is_angle = self.engine.params.is_angle
         self._file_units = None
@@ -114,6 +125,9 @@ class OnlineRun:
     def close(self) -> None:
         """Release the checkpoint (its lock); the state stays on disk for a resume."""
         if self._fd is not None:
+            if self._unsynced:  # (no clock here: close may run at interpreter exit, from __del__)
+                os.fsync(self._fd)
+                self._unsynced = False
             os.close(self._fd)
             self._fd = None
 
@@ -122,10 +136,20 @@ class OnlineRun:
 
     def _append(self, record: dict) -> None:
         os.write(self._fd, (json.dumps(record) + "\n").encode("utf-8"))
-        os.fsync(self._fd)
+        self._unsynced = True
+        if time.monotonic() - self._synced >= SYNC_INTERVAL:
+            self.sync()
+
+    def sync(self) -> None:
+        """Flush what the journal has been given to the disk (``fsync``), if anything is pending."""
+        if self._fd is not None and self._unsynced:
+            os.fsync(self._fd)
+            self._unsynced = False
+        self._synced = time.monotonic()
 
     def _snapshot(self) -> None:
         if self.engine.snapshots:
+            self.sync()  # the journal on the disk holds at least the poses the snapshot counts
             atomic_write_text(self.snapshot_path, json.dumps({"n": len(self.processed), "state": self.engine.state()}) + "\n")
 
     def save(self, journal: dict | None = None) -> None:
@@ -137,9 +161,12 @@ class OnlineRun:
         entry.update(journal or {})
         if entry["accepted"]:
             entry["history"] = self.history[-1]
-        if entry["pose"] in self.streamed:
+        streamed = entry["pose"] in self.streamed
+        if streamed:
             entry["record"] = record_to_json(self.streamed[entry["pose"]])
         self._append(entry)
+        if streamed:  # a streamed pose is nowhere else: on the disk before the next is taken
+            self.sync()
         if len(self.processed) % SNAPSHOT_EVERY == 0:
             self._snapshot()
 
@@ -235,6 +262,7 @@ class OnlineRun:
         return self._file_units
 
     def result(self) -> CalibrationResult:
+        self.sync()
         self.engine.finish()
         theta, cov = self.engine.estimate()
         params = self.engine.params
