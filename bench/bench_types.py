@@ -14,7 +14,8 @@ at the default options; the figure is process CPU time (user + system, best of `
 equation, and its ratio to the point type's. Contact poses are found by a damped least-squares IK
 on the perturbed model (not timed). Single-threaded BLAS.
 
-Run: ``python bench/bench_types.py [--rows 3000] [--repeat 3]``.
+Run: ``python bench/bench_types.py [--rows 3000] [--repeat 3] [--data DIR]`` (``--data``: the datasets are
+kept in DIR and reused by later runs with the same ``--rows`` and ``--seed``; generating 3,000 rows takes minutes).
 """
 from __future__ import annotations
 
@@ -183,6 +184,23 @@ def make_planes(root, model, x, rng, rows):
     return len(q)
 
 
+def _datasets(root: Path, model, x, rng, n_rows: int) -> dict[str, int]:
+    """The four datasets under ``root`` and their equation counts; ones already there (from an earlier
+    run with the same ``--rows`` and ``--seed``) are reused, not generated again."""
+    import json
+
+    saved = root / "rows.json"
+    if saved.exists():
+        return {k: int(v) for k, v in json.loads(saved.read_text()).items()}
+    root.mkdir(parents=True, exist_ok=True)
+    rows = {"centres": make_centres(root, model, x, rng, n_rows),
+            "stations": make_stations(root, model, x, rng, n_rows),
+            "contacts": make_contacts(root, model, x, rng, n_rows),
+            "planes": make_planes(root, model, x, rng, n_rows)}
+    saved.write_text(json.dumps(rows))
+    return rows
+
+
 def cpu_of(path, repeat):
     """Best process CPU time (s) of a default calibration of the dataset at ``path``."""
     from fgcal.estimation.calibrate import CalibrationOptions, calibrate
@@ -203,6 +221,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rows", type=int, default=3000, help="equations per dataset (about; default 3000)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per dataset, best taken (default 3)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--data", type=Path, default=None,
+                    help="keep the generated datasets here and reuse them on later runs (default: a temporary folder)")
     args = ap.parse_args(argv)
     from fgcal.robots.robot_file import load_model
 
@@ -210,11 +230,8 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(args.seed)
     x = _truth(model, rng)
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp)
-        rows = {"centres": make_centres(root, model, x, rng, args.rows),
-                "stations": make_stations(root, model, x, rng, args.rows),
-                "contacts": make_contacts(root, model, x, rng, args.rows),
-                "planes": make_planes(root, model, x, rng, args.rows)}
+        root = Path(tmp) if args.data is None else args.data
+        rows = _datasets(root, model, x, rng, args.rows)
         print(f"UR10, about {args.rows} equations a type; CPU s best of {args.repeat}; single-threaded BLAS")
         print("equations: the measurement rows; with joints: plus one row per joint reading (each pose's joints are")
         print("variables with their own noise, so a type with fewer rows per pose pays more per measurement row)")

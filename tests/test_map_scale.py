@@ -3,6 +3,7 @@ products and the warm-started refits give the plain computation's numbers."""
 
 import numpy as np
 import pytest
+from test_joint_errors import PHI, SPEC, _simulate
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.estimation.graph_block import compact_design as _compact_design
@@ -11,7 +12,6 @@ from fgcal.estimation.model_select import CVProblem, _folds
 from fgcal.estimation.time_validation import FoldSums
 from fgcal.robots.gravity import model_inertials
 from fgcal.robots.robot_file import load_model
-from test_joint_errors import PHI, SPEC, _simulate
 
 UR10 = load_model("ur10")
 

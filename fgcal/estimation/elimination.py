@@ -6,9 +6,12 @@ the rows' leverage. A mixin of :class:`fgcal.estimation.graph.Graph`, which supp
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from fgcal.estimation.column_groups import PoseColumns, active_columns, pose_columns
 
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
     from fgcal.estimation.graph import Linearisation, State
@@ -40,6 +43,27 @@ class ArrowElimination:
     def factor_rows(self, level: str) -> tuple[np.ndarray, np.ndarray]:
         raise NotImplementedError  # Graph's
 
+    def _blocks(self, lin: Linearisation) -> Iterator[tuple[slice, PoseColumns | None]]:
+        """Chunks of at most ``POSE_CHUNK`` poses and the theta columns their rows touch.
+
+        The columns None: the dense products over all of theta (no set-up columns, or too few
+        skipped to pay: :func:`fgcal.estimation.column_groups.pose_columns`).
+        """
+        if "columns" not in lin.cache:
+            active = active_columns(lin.J_theta)
+            last = getattr(self, "_last_columns", None)
+            # The pattern is the graph's structure, the same at every linearisation of a solve: the
+            # columns (a sort per pose) are reused while the pattern is exactly the same.
+            if last is not None and last[0].shape == active.shape and np.array_equal(last[0], active):
+                lin.cache["columns"] = last[1]
+            else:
+                lin.cache["columns"] = pose_columns(active)
+                self._last_columns: tuple[np.ndarray, PoseColumns | None] = (active, lin.cache["columns"])
+        pc = lin.cache["columns"]
+        for lo in range(0, self.n_poses, POSE_CHUNK):
+            c = slice(lo, lo + POSE_CHUNK)
+            yield c, None if pc is None else pc.take(c)
+
     def normal_equations(self, lin: Linearisation):
         """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
 
@@ -49,10 +73,22 @@ class ArrowElimination:
             return lin.cache["normal"]
         n, mt, P = lin.J_theta.shape
         Jt2 = lin.J_theta.reshape(-1, P)
-        A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+        blocks = list(self._blocks(lin))
+        if blocks[0][1] is None:
+            A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+            B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
+        else:  # each pose's products on its own columns (the others are zero in its rows)
+            Jc_all = lin.cache["columns"].gather(lin.J_theta)  # (N, mt, c)
+            A = lin.prior_J.T @ lin.prior_J
+            for c, pc in blocks:
+                assert pc is not None  # one choice for all chunks
+                A = A + pc.inner(Jc_all[c], Jc_all[c])
+            # B on each pose's columns (N, c, nz), kept for the Schur complement and the leverage,
+            # and placed into the (N, P, nz) the step uses.
+            lin.cache["B_own"] = np.matmul(Jc_all.transpose(0, 2, 1), lin.J_local[:, :mt])
+            B = lin.cache["columns"].place_rows(lin.cache["B_own"])
         g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
         JzT = lin.J_local.transpose(0, 2, 1)
-        B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
         D = np.matmul(JzT, lin.J_local)
         g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
         # Padding columns (poses with fewer balls) get a unit diagonal: they stay at zero.
@@ -62,12 +98,36 @@ class ArrowElimination:
         lin.cache["normal"] = (A, B, D, g_t, g_z)
         return lin.cache["normal"]
 
-    def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0):
-        """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses."""
+    def reduced(self, A, B, D, g_t=None, g_z=None, damping: float = 0.0, lin: Linearisation | None = None):
+        """Schur complement on theta: ``S``, right-hand side, and the per-pose inverses.
+
+        ``lin``: the linearisation ``B`` and ``D`` come from, whose pose columns the products use
+        (None: dense products over all columns).
+        """
         if damping:
             A = A + damping * np.diag(np.maximum(np.diag(A), 1e-12))
         S = A.copy()
         rhs = None if g_t is None else g_t.copy()
+        Dinv = self._inverses(D, damping)
+        blocks = self._blocks(lin) if lin is not None else \
+            ((slice(lo, lo + POSE_CHUNK), None) for lo in range(0, len(D), POSE_CHUNK))
+        for c, pc in blocks:
+            if pc is None:
+                BD = np.matmul(B[c], Dinv[c])
+                S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
+                if rhs is not None:
+                    rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
+                continue
+            # (n, c, nz): B's rows off a pose's columns are zero
+            Bc = lin.cache["B_own"][c] if lin is not None and "B_own" in lin.cache else pc.gather_rows(B[c])
+            BD = np.matmul(Bc, Dinv[c])
+            S -= pc.inner(BD.transpose(0, 2, 1), Bc.transpose(0, 2, 1))
+            if rhs is not None:
+                rhs -= pc.scatter_vector(np.matmul(BD, g_z[c][:, :, None])[:, :, 0])
+        return S, rhs, Dinv
+
+    def _inverses(self, D, damping: float = 0.0) -> np.ndarray:
+        """The per-pose inverses (N, nz, nz) of ``D``, its diagonal damped by ``damping``."""
         Dinv = np.empty_like(D)
         idx = np.arange(self.nz)
         for lo in range(0, len(D), POSE_CHUNK):  # in chunks of poses: no temporaries of N blocks
@@ -77,11 +137,7 @@ class ArrowElimination:
                 Dc = Dc.copy()
                 Dc[:, idx, idx] += damping * np.maximum(Dc[:, idx, idx], 1e-12)
             Dinv[c] = np.linalg.inv(Dc) if self.nz else Dc
-            BD = np.matmul(B[c], Dinv[c])
-            S -= np.tensordot(BD, B[c], axes=([0, 2], [0, 2]))
-            if rhs is not None:
-                rhs -= np.tensordot(BD, g_z[c], axes=([0, 2], [0, 1]))
-        return S, rhs, Dinv
+        return Dinv
 
     def _reduced_at(self, lin: Linearisation):
         """The undamped ``(S, Dinv)`` of ``lin``, formed once."""
@@ -89,31 +145,33 @@ class ArrowElimination:
             A = self.normal_equations(lin)[0]
             lin.cache["reduced"] = (A, np.zeros((self.n_poses, 0, 0)))
         if "reduced" not in lin.cache:
-            A, B, D, _, _ = self.normal_equations(lin)
-            _, _, Dinv = self.reduced(A, B, D)
+            Dinv = self._inverses(self.normal_equations(lin)[2])
             # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
             # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
             n, mt, P = lin.J_theta.shape
             S = lin.prior_J.T @ lin.prior_J
-            for lo in range(0, n, POSE_CHUNK):
-                c = slice(lo, lo + POSE_CHUNK)
+            for c, pc in self._blocks(lin):
                 k = len(lin.r[c])
                 pad = ~self.local_used[c]
                 extra = self.nz if pad.any() else 0  # no padding in the chunk: no unit rows (zero rows change no R)
-                M = np.zeros((k, self.m + extra, self.nz + P))
+                width = P if pc is None else pc.cols.shape[1]  # zero columns would give zero rows of R
+                M = np.zeros((k, self.m + extra, self.nz + width))
                 M[:, :self.m, :self.nz] = lin.J_local[c]
-                M[:, :mt, self.nz:] = lin.J_theta[c]
+                M[:, :mt, self.nz:] = lin.J_theta[c] if pc is None else pc.gather(lin.J_theta[c])
                 if extra:
                     M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
                 R = np.asarray(np.linalg.qr(M, mode="r"))[:, self.nz:, self.nz:]
-                S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
+                if pc is None:
+                    S = S + np.tensordot(R, R, axes=([0, 1], [0, 1]))
+                else:
+                    S = S + pc.inner(R, R)
             lin.cache["reduced"] = (S, Dinv)
         return lin.cache["reduced"]
 
     def step(self, state: State, lin: Linearisation, damping: float):
         """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
         A, B, D, g_t, g_z = self.normal_equations(lin)
-        S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping)
+        S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping, lin=lin)
         d_theta = -np.linalg.solve(S, rhs)
         d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
         new = state.copy()
@@ -158,21 +216,23 @@ class ArrowElimination:
             return cached[1]
         _, B, _, _, _ = self.normal_equations(lin)
         _, Dinv = self._reduced_at(lin)
-        St = covariance  # (P, P) = S^-1
         Jt_all, Jz_all = lin.J_theta, lin.J_local
         mt = Jt_all.shape[1]
         h = np.zeros(lin.r.shape)
         # In chunks of poses: the temporaries are as large as J_theta (on 8,000 poses with a
         # 392-parameter map, 160 MB each).
-        for lo in range(0, self.n_poses, POSE_CHUNK):
-            c = slice(lo, lo + POSE_CHUNK)
-            Jt, Jz = Jt_all[c], Jz_all[c]
+        for c, pc in self._blocks(lin):
+            # A pose's rows are zero off its columns: only that block of Sigma reaches them.
+            Jz = Jz_all[c]
+            Jt = Jt_all[c] if pc is None else pc.gather(Jt_all[c])
+            St = covariance if pc is None else pc.gather_matrix(covariance)  # (P, P) or (n, c, c)
             # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt
             # rows of a pose depend on theta.
             if not self.nz:
                 h[c, :mt] = np.einsum("nmp,nmp->nm", Jt @ St, Jt)
                 continue
-            E = -np.matmul(Dinv[c], B[c].transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
+            Bc = B[c] if pc is None else lin.cache["B_own"][c]
+            E = -np.matmul(Dinv[c], Bc.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
             Szt = E @ St  # (n, nz, P)
             Szz = Dinv[c] + np.matmul(Szt, E.transpose(0, 2, 1))
             h[c] = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)

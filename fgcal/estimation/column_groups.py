@@ -1,0 +1,144 @@
+"""Each pose's theta columns, for the elimination's products on the columns a pose touches.
+
+Set-up unknowns (socket points, planes, station frames) are columns of theta that only the poses
+measuring that fixture touch: a contact row depends on the kinematic parameters and on the 3
+coordinates of one socket. With 66 sockets the dense per-pose products of
+:class:`fgcal.estimation.elimination.ArrowElimination` cost ``N * P**2`` with P = 219 where a pose's
+rows reach ~24 columns. :class:`PoseColumns` lists each pose's nonzero columns (padded to one width
+with a column that is always zero), so the products run batched on (N, c) blocks and their sums are
+scattered into the (P, P) matrices. The skipped columns are exact zeros: the sums are the same, to the
+rounding of another summation order. No I/O here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+
+__all__ = ["PoseColumns", "active_columns", "pose_columns"]
+
+COMMON_SHARE = 0.5  # a column nonzero in at least this share of the poses is taken for every pose
+MIN_SAVING = 0.5  # the per-pose width squared must be at most this share of P**2 to leave the dense products
+
+
+def active_columns(J_theta: np.ndarray) -> np.ndarray:
+    """Which theta columns (N, P) of ``J_theta`` (N, m_theta, P) each pose's rows touch."""
+    return np.any(J_theta != 0.0, axis=1)
+
+
+@dataclass(frozen=True)
+class PoseColumns:
+    """The theta columns each pose's rows touch.
+
+    Attributes
+    ----------
+    cols : ndarray of int, shape (N, c)
+        The ``k`` common columns first (the same for every pose), then the pose's own ones,
+        padded with ``P`` (a column outside theta, zero in every product).
+    P : int
+        Theta's size.
+    k : int
+        How many leading columns are common to all poses (the kinematic ones).
+    """
+
+    cols: np.ndarray
+    P: int
+    k: int
+
+    def take(self, c: slice) -> PoseColumns:
+        """The columns of the poses ``c``."""
+        return PoseColumns(cols=self.cols[c], P=self.P, k=self.k)
+
+    def gather(self, J: np.ndarray) -> np.ndarray:
+        """``J`` (N, m, P) on each pose's columns: (N, m, c)."""
+        out = np.take_along_axis(J, np.minimum(self.cols, self.P - 1)[:, None, :], axis=2)
+        out *= (self.cols < self.P)[:, None, :]  # the padding: zero
+        return out
+
+    def gather_rows(self, B: np.ndarray) -> np.ndarray:
+        """``B`` (N, P, k) on each pose's columns: (N, c, k)."""
+        out = np.take_along_axis(B, np.minimum(self.cols, self.P - 1)[:, :, None], axis=1)
+        out *= (self.cols < self.P)[:, :, None]
+        return out
+
+    def place_rows(self, Bc: np.ndarray) -> np.ndarray:
+        """(N, P, k) zeros but ``Bc`` (N, c, k) on each pose's columns: the inverse of :meth:`gather_rows`."""
+        out = np.zeros((len(Bc), self.P + 1, Bc.shape[2]))
+        np.put_along_axis(out, self.cols[:, :, None], Bc, axis=1)
+        return out[:, :self.P]
+
+    def gather_matrix(self, M: np.ndarray) -> np.ndarray:
+        """The (P, P) ``M`` on each pose's columns: (N, c, c)."""
+        padded = np.zeros((self.P + 1, self.P + 1))
+        padded[:self.P, :self.P] = M
+        return padded[self.cols[:, :, None], self.cols[:, None, :]]
+
+    def scatter(self, X: np.ndarray) -> np.ndarray:
+        """The (P, P) sum over poses of ``X`` (N, c, c) placed on each pose's columns."""
+        n, k = self.P + 1, self.k
+        own = self.cols[:, k:]
+        s = own.shape[1]
+        common = self.cols[0, :k] if len(self.cols) else np.zeros(0, dtype=int)
+        out = np.zeros((n, n))
+        out[np.ix_(common, common)] = X[:, :k, :k].sum(axis=0)  # the common block: one sum over poses
+        if s:
+            # The common-by-own blocks: (k, N s) times a one-hot (N s, P + 1) of the own columns.
+            onehot = sparse.csr_matrix((np.ones(own.size), (np.arange(own.size), own.reshape(-1))),
+                                       shape=(own.size, n))
+            cross = np.asarray(onehot.T @ X[:, :k, k:].transpose(0, 2, 1).reshape(-1, k))  # (P + 1, k)
+            out[:, common] += cross
+            out[common, :] += cross.T
+            flat = (own[:, :, None] * n + own[:, None, :]).reshape(-1)
+            out += np.bincount(flat, weights=X[:, k:, k:].reshape(-1), minlength=n * n).reshape(n, n)
+        return out[:self.P, :self.P]
+
+    def inner(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """The (P, P) sum over poses of ``X_n^T Y_n``, both (N, m, c) on each pose's columns.
+
+        Without per-pose products: the common columns as one dense (N m, k) matrix (BLAS), a pose's
+        own columns as a sparse (N m, P + 1) one.
+        """
+        n, k = self.P + 1, self.k
+        common = self.cols[0, :k] if len(self.cols) else np.zeros(0, dtype=int)
+        Xd, Yd = X[:, :, :k].reshape(-1, k), Y[:, :, :k].reshape(-1, k)
+        out = np.zeros((n, n))
+        out[np.ix_(common, common)] = Xd.T @ Yd
+        own = self.cols[:, k:]
+        if own.shape[1]:
+            m = X.shape[1]
+            rows = np.broadcast_to(np.arange(len(own) * m).reshape(len(own), m, 1), (len(own), m, own.shape[1]))
+            cols = np.broadcast_to(own[:, None, :], rows.shape)
+
+            def own_part(V):
+                return sparse.csr_matrix((V[:, :, k:].reshape(-1), (rows.reshape(-1), cols.reshape(-1))),
+                                         shape=(len(own) * m, n))
+
+            Xs, Ys = own_part(X), own_part(Y)
+            out[:, common] += np.asarray(Xs.T @ Yd)
+            out[common, :] += np.asarray(Ys.T @ Xd).T
+            out += (Xs.T @ Ys).toarray()
+        return out[:self.P, :self.P]
+
+    def scatter_vector(self, v: np.ndarray) -> np.ndarray:
+        """The (P,) sum over poses of ``v`` (N, c) placed on each pose's columns."""
+        return np.bincount(self.cols.reshape(-1), weights=v.reshape(-1), minlength=self.P + 1)[:self.P]
+
+
+def pose_columns(active: np.ndarray) -> PoseColumns | None:
+    """Each pose's columns from ``active`` (N, P) (:func:`active_columns`); None when the products on
+    them would not save enough over the dense ones (the caller then keeps its dense products)."""
+    n, P = active.shape
+    if n == 0 or P == 0:
+        return None
+    common = active.mean(axis=0) >= COMMON_SHARE
+    own = active & ~common
+    width = int(common.sum()) + int(own.sum(axis=1).max())
+    if width**2 > MIN_SAVING * P**2:
+        return None
+    # Each pose's own columns (ascending), then the padding: a stable sort of "not own".
+    n_own = width - int(common.sum())
+    order = np.argsort(~own, axis=1, kind="stable")[:, :n_own]
+    cols = np.concatenate([np.broadcast_to(np.flatnonzero(common), (n, int(common.sum()))),
+                           np.where(np.take_along_axis(own, order, axis=1), order, P)], axis=1)
+    return PoseColumns(cols=cols, P=P, k=int(common.sum()))
