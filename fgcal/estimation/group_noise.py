@@ -15,7 +15,7 @@ import logging
 
 import numpy as np
 
-from fgcal.estimation.noise import MIN_REDUNDANCY, LevelNoise, NoiseMode, component_table, fit_test
+from fgcal.estimation.noise import MIN_REDUNDANCY, LevelNoise, NoiseMode, component_table, noise_row
 from fgcal.measurements.types import BY_LEVEL
 
 __all__ = ["group_noise", "update_groups"]
@@ -100,16 +100,5 @@ def group_noise(graph, lin, h, declared_sigmas, mode: NoiseMode) -> dict[str, Le
         for name, (ssq, red) in _factors(graph, lin, h, level, groups).items():
             row = int(np.argmax(groups[name]))
             used, decl = used_c / float(weight[row]), decl_c / float(declared[row])
-            ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")
-            vf = ssq / red * ratio2 if red > 0 else float("nan")
-            estimable = red >= MIN_REDUNDANCY
-            if mode is NoiseMode.DECLARED:
-                note = "declared (--noise declared)"
-            elif not estimable:
-                note = f"declared: redundancy {red:.3g} is too small to estimate it (needs {MIN_REDUNDANCY:g})"
-            else:
-                note = "estimated"
-            estimated = float(decl * np.sqrt(vf) * k) if estimable and np.isfinite(vf) else None
-            out[f"{comp}.{name}"] = LevelNoise(unit, float(decl * k), float(used * k), estimated, float(red),
-                                               float(vf), fit_test(ssq * ratio2, red), note)
+            out[f"{comp}.{name}"] = noise_row(unit, k, used, decl, ssq, red, mode)
     return out

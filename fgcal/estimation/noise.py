@@ -368,6 +368,23 @@ def fit_test(ssq: float, redundancy: float) -> float:
     return float(min(1.0, 2 * min(chi2_cdf(redundancy, ssq), chi2_sf(redundancy, ssq))))
 
 
+def noise_row(unit: str, k: float, used: float, decl: float, ssq: float, red: float, mode: NoiseMode) -> LevelNoise:
+    """One row of a noise table: a component (or one group of it) with weighted residual sum of squares
+    ``ssq`` and redundancy ``red`` at the sigma ``used``, declared ``decl`` (``k``: the unit's scale)."""
+    ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")
+    vf_declared = ssq / red * ratio2 if red > 0 else float("nan")
+    estimable = red >= MIN_REDUNDANCY
+    if mode is NoiseMode.DECLARED:
+        note = "declared (--noise declared)"
+    elif not estimable:
+        note = f"declared: redundancy {red:.3g} is too small to estimate it (needs {MIN_REDUNDANCY:g})"
+    else:
+        note = "estimated"
+    estimated = float(decl * np.sqrt(vf_declared) * k) if estimable and np.isfinite(vf_declared) else None
+    return LevelNoise(unit, float(decl * k), float(used * k), estimated, float(red), float(vf_declared),
+                      fit_test(ssq * ratio2, red), note)
+
+
 def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNoise]:
     """The noise table of a finished solve: ``comps`` at the final ``sigmas``."""
     out = {}
@@ -375,16 +392,5 @@ def level_noise(comps, sigmas, declared, mode: NoiseMode) -> dict[str, LevelNois
         _, _, field, unit, k = component_table()[name]
         used = float(np.max(getattr(sigmas, field)))  # joints: the largest (one scale for all of them)
         decl = float(np.max(getattr(declared, field)))
-        ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")
-        vf_declared = ssq / red * ratio2 if red > 0 else float("nan")
-        estimable = red >= MIN_REDUNDANCY
-        if mode is NoiseMode.DECLARED:
-            note = "declared (--noise declared)"
-        elif not estimable:
-            note = f"declared: redundancy {red:.3g} is too small to estimate it (needs {MIN_REDUNDANCY:g})"
-        else:
-            note = "estimated"
-        estimated = float(decl * np.sqrt(vf_declared) * k) if estimable and np.isfinite(vf_declared) else None
-        out[name] = LevelNoise(unit, float(decl * k), float(used * k), estimated, float(red), float(vf_declared),
-                               fit_test(ssq * ratio2, red), note)
+        out[name] = noise_row(unit, k, used, decl, ssq, red, mode)
     return out
