@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import sparse
 
 __all__ = ["PoseColumns", "active_columns", "pose_columns"]
 
@@ -83,6 +82,8 @@ class PoseColumns:
         out = np.zeros((n, n))
         out[np.ix_(common, common)] = X[:, :k, :k].sum(axis=0)  # the common block: one sum over poses
         if s:
+            from scipy import sparse  # only on this path: the default calibration imports no scipy
+
             # The common-by-own blocks: (k, N s) times a one-hot (N s, P + 1) of the own columns.
             onehot = sparse.csr_matrix((np.ones(own.size), (np.arange(own.size), own.reshape(-1))),
                                        shape=(own.size, n))
@@ -106,6 +107,8 @@ class PoseColumns:
         out[np.ix_(common, common)] = Xd.T @ Yd
         own = self.cols[:, k:]
         if own.shape[1]:
+            from scipy import sparse  # only on this path: the default calibration imports no scipy
+
             m = X.shape[1]
             rows = np.broadcast_to(np.arange(len(own) * m).reshape(len(own), m, 1), (len(own), m, own.shape[1]))
             cols = np.broadcast_to(own[:, None, :], rows.shape)
