@@ -138,7 +138,9 @@ def test_trial_equals_the_slow_path(study, index):
     if study == "fig13":
         assert ref["n_measured"] == 48  # the two rejections are part of what is compared
     for k in ("position_rms_mm", "position_max_mm", "orientation_rms_deg", "orientation_max_deg"):
-        assert row[k] == ref[k], k  # the calibration's input is bit for bit the same
+        # The calibration's input is the same; the two paths' arithmetic differs in order only: they
+        # agreed bit for bit until numpy 2.4.6, which leaves them 2e-10 to 5e-9 apart (relative).
+        assert row[k] == pytest.approx(ref[k], rel=1e-7, abs=0), k
     for k in ("measured_position_rms_mm", "measured_orientation_rms_deg"):
         assert row[k] == pytest.approx(ref[k], rel=1e-9, abs=0), k
 

@@ -127,10 +127,11 @@ class DatasetDesign:
                  f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
         if self.floor_mm > 0:
             mine, theirs = self.predicted_with_floor()
+            gain = f", a gain of {100 * (1 - mine / theirs):.0f}%" if theirs > 0 else ""
+            alone = f" (of {100 * (1 - self.values['pred'] / med):.0f}% on the estimation error alone)" if med > 0 else ""
             lines.append(f"  with the error no geometric calibration removes ({self.floor_mm:.4g} mm RMS at the dataset's "
                          f"poses after calibrating all of them): {mine:.4g} mm at new poses against {theirs:.4g} mm for "
-                         f"the median random set, a gain of {100 * (1 - mine / theirs):.0f}% (of "
-                         f"{100 * (1 - self.values['pred'] / med):.0f}% on the estimation error alone)")
+                         f"the median random set{gain}{alone}")
         if self.noise:
             lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
                 f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
