@@ -142,7 +142,7 @@ def test_trial_equals_the_slow_path(study, index):
         # agreed bit for bit until numpy 2.4.6, which leaves them 2e-10 to 5e-9 apart (relative).
         assert row[k] == pytest.approx(ref[k], rel=1e-7, abs=0), k
     for k in ("measured_position_rms_mm", "measured_orientation_rms_deg"):
-        assert row[k] == pytest.approx(ref[k], rel=1e-9, abs=0), k
+        assert row[k] == pytest.approx(ref[k], rel=1e-7, abs=0), k
 
 
 def test_simulated_probes_are_measure_s(puma):
