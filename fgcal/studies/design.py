@@ -51,7 +51,6 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 INDICES = ("O1", "O2", "O3", "O4", "O5", "pred")
-RANK_RTOL = 1e-12  # smallest over largest eigenvalue of the scale-free information that counts as determined
 
 
 def pose_information(model: RobotModel, q, noise: Noise, params: ParameterSet | None = None, slots=None,
@@ -76,20 +75,13 @@ def verification_weight(model: RobotModel, q_verify, params: ParameterSet | None
 def predicted_rms(info, W, middle=None) -> float:
     """Predicted position error RMS (mm) at the verification poses of ``W``, given information
     (and the sandwich's middle ``B``: covariance ``info^-1 B info^-1``)."""
-    info = np.asarray(info, dtype=float)
-    d = np.sqrt(np.clip(np.diag(info), 0.0, None))
-    if not np.all(d > 0) or not np.all(np.isfinite(info)):
+    try:
+        cov = np.linalg.inv(info)
+        if middle is not None:
+            cov = cov @ middle @ cov
+        return float(np.sqrt(max(np.trace(W @ cov), 0.0)))
+    except np.linalg.LinAlgError:
         return float("inf")
-    # Singular in the scale-free (correlation) form: a plan that leaves a direction undetermined
-    # predicts no finite accuracy (an inverse of a near-singular matrix gives 1e5 mm or, clipped
-    # from a negative trace, 0).
-    w, V = np.linalg.eigh(info / np.outer(d, d))
-    if w[0] <= RANK_RTOL * w[-1]:
-        return float("inf")
-    cov = (V / w) @ V.T / np.outer(d, d)
-    if middle is not None:
-        cov = cov @ middle @ cov
-    return float(np.sqrt(max(np.trace(W @ cov), 0.0)))
 
 
 def marginal(info, n_setup: int):
