@@ -28,6 +28,7 @@ from fgcal.estimation.time_validation import (
     FoldSums,
     drift_sentences,
     forward_errors,
+    forward_sums,
     harmonic,
     later_poses,
     model_columns,
@@ -360,8 +361,9 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     later = later_poses(prob.pose_ids) if prob.pose_ids is not None else np.zeros(len(prob.r), dtype=bool)
     forward: dict[str, np.ndarray] = {}
     if 3 <= later.sum() <= len(later) - 3:
+        sums = forward_sums(prob, later)  # one pass over the Jacobian for every model compared
         for k in errors:
-            forward[k] = forward_errors(prob, *model_columns(prob, k, cv[k][1]), later)
+            forward[k] = forward_errors(prob, *model_columns(prob, k, cv[k][1]), later, sums)
     drift = drift_sentences(forward, errors, later, unit) if forward else []
     del prob  # its Jacobian (poses x rows x all candidate parameters) is not needed by the fits
     # The added models: fitted as the cross-validation weighted them (the geometric fit's noise),

@@ -18,8 +18,8 @@ import numpy as np
 
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind
 
-__all__ = ["FORWARD_FRACTION", "MAX_TOLERANCE", "FoldSums", "drift_sentences", "forward_errors", "harmonic",
-           "later_poses", "model_columns", "recommend"]
+__all__ = ["FORWARD_FRACTION", "MAX_TOLERANCE", "FoldSums", "drift_sentences", "forward_errors", "forward_sums",
+           "harmonic", "later_poses", "model_columns", "recommend"]
 
 FORWARD_FRACTION = 0.6  # the earlier share of the training poses that predicts the rest
 DRIFT_RATIO = 1.25  # later poses predicted this much worse than interleaved ones (and beyond noise): drift
@@ -111,11 +111,19 @@ def later_poses(pose_ids, fraction: float = FORWARD_FRACTION) -> np.ndarray:
     return rank >= int(np.ceil(fraction * len(rank)))
 
 
-def forward_errors(prob, cols, prior_sigma, later) -> np.ndarray:
-    """(N,) errors; at the ``later`` poses each predicted by the fit to the earlier ones, NaN elsewhere."""
-    fold = np.asarray(later, dtype=int)  # fold 0: earlier (fitted), fold 1: later (predicted)
-    err = FoldSums(prob, fold, 2).held_out_errors(cols, prior_sigma)
-    return np.where(later, err, np.nan)
+def forward_errors(prob, cols, prior_sigma, later, sums: FoldSums | None = None) -> np.ndarray:
+    """(N,) errors; at the ``later`` poses each predicted by the fit to the earlier ones, NaN elsewhere.
+
+    ``sums``: the fold sums of ``later`` (:func:`forward_sums`), shared by every model compared
+    (forming them is the cost: a pass over the whole Jacobian)."""
+    if sums is None:
+        sums = forward_sums(prob, later)
+    return np.where(later, sums.held_out_errors(cols, prior_sigma), np.nan)
+
+
+def forward_sums(prob, later) -> FoldSums:
+    """The normal equations of the earlier (fold 0, fitted) and the ``later`` poses (fold 1, predicted)."""
+    return FoldSums(prob, np.asarray(later, dtype=int), 2)
 
 
 def drift_sentences(forward: dict, interleaved: dict, later, unit: str = "mm",
