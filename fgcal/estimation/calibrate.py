@@ -20,7 +20,7 @@ from fgcal._version import __version__
 from fgcal.errors import FgcalError
 from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, setup_size, tool_is_free, world_is_fixed
+from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, gauge_holds, setup_size
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.group_noise import group_noise, update_groups
 from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
@@ -155,8 +155,7 @@ def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptio
     noise), linearised at the nominal model with the base fitted to the data.
     """
     names = model.parameters(extra=options.extra, exclude=options.exclude).names
-    if not world_is_fixed(ds, _levels(ds, options)):
-        names = tuple(n for n in names if not n.startswith("base."))
+    names = gauge_holds(ds, model, names, _levels(ds, options), tool=False)[0]  # the world frame's and scale's
     graph, state, _ = build_graph(ds, model, names, options)
     return _identifiability(graph, state)
 
@@ -262,20 +261,9 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         names += options.joint_errors.names(model.n_joints)
     levels = _levels(ds, options)
     ds, refused = admit_rows(ds, model, levels)
-    held_info = []
-    if not world_is_fixed(ds, levels):  # the gauge: nothing in the data fixes the world frame
-        for n in [n for n in names if n.startswith("base.")]:
-            held_info.append({"name": n, "value": float(model.slots_to_file_units(model.nominal)[model.slot(n)]),
-                              "reason": GAUGE_REASON})
-        names = [n for n in names if not n.startswith("base.")]
-        if held_info:
-            log.info("the world frame: %s", GAUGE_REASON)
-    if tool_is_free(ds, levels):  # a target (or camera) of unknown pose on the tool: the tool's frame is its
-        for n in [n for n in names if n.startswith("tool.")]:
-            held_info.append({"name": n, "value": float(model.slots_to_file_units(model.nominal)[model.slot(n)]),
-                              "reason": TOOL_GAUGE_REASON})
-        names = [n for n in names if not n.startswith("tool.")]
-        log.info("%s", TOOL_GAUGE_REASON)
+    # the gauges: the base where nothing fixes the world frame, the tool where the cameras see it only
+    # through an unknown pose on it, a link length where nothing fixes the scale (a decision of the held ones)
+    names, held_info = gauge_holds(ds, model, names, levels, scale=decide_held)
     _check_equations(ds, levels, len(names) + setup_size(ds, levels))
 
     priors = dict(priors or {})

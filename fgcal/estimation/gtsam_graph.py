@@ -12,7 +12,7 @@ import numpy as np
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.calibrate import _unidentifiable
-from fgcal.estimation.gauge import world_is_fixed
+from fgcal.estimation.gauge import gauge_holds
 from fgcal.estimation.graph import Graph, State
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.solve import COST_ROUNDING
@@ -109,14 +109,14 @@ def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = Calib
     values : gtsam.Values
     names : list of str
         The parameters of ``theta_key()``; parameters the data cannot identify are left out (held),
-        and so is the base when nothing fixes the world frame (contacts at unknown fixtures). The
+        and so is the base when nothing fixes the world frame (contacts at unknown fixtures), and the
+        longest link length when nothing fixes the scale either (no known distance). The
         free set-up entries (``fixture.NAME.x``, ``plane.NAME.tilt_u``, ...) close the vector.
     pose_ids : ndarray of int
         The dataset pose id of each joint key index.
     """
     names = model.parameters(extra=options.extra, exclude=options.exclude).names
-    if not world_is_fixed(ds, _levels(ds, options)):  # the gauge, as calibrate holds it
-        names = tuple(n for n in names if not n.startswith("base."))
+    names = gauge_holds(ds, model, names, _levels(ds, options), tool=False)[0]  # the gauges, as calibrate holds them
     graph, state, pose_ids = build_graph(ds, model, names, options)
     redundant = _unidentifiable(graph, state)
     if redundant:

@@ -187,6 +187,7 @@ class PointContact(SetupMeasurement):
 
     level = "contacts"
     fixture_type = "point"
+    measures_length = False  # at unknown points: scaling the robot and the points scales the errors alike
     width = 3
     title = "contacts at fixture points"
     noise_components = (NoiseComponent("contacts", slice(0, 3), "contact"),)
@@ -219,6 +220,7 @@ class PlaneContact(SetupMeasurement):
 
     level = "plane_contacts"
     fixture_type = "plane"
+    measures_length = False  # on unknown planes: scaling the robot and the offsets scales the errors alike
     width = 1
     title = "contacts on planes"
     sigma_field = "plane_contact"  # declared as contact_sigma, estimated apart from the points'
