@@ -262,6 +262,7 @@ class Graph(ArrowElimination, JointErrorColumns):
         q = self.joints(state)
         cost = 0.0
         raw = {}
+        excluded_rows: list = []
 
         def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0, block=False):
             """Whitened rows of one level; ``block``: ``J_t`` holds the geometric columns only and
@@ -272,10 +273,11 @@ class Graph(ArrowElimination, JointErrorColumns):
             ew = e / sigma
             s = np.linalg.norm(ew, axis=1)
             w, rho = _robust(s, self.robust if level == "probes" or level in BY_LEVEL else None, self.robust_k)
-            if level in self.excluded:  # excluded measurements: zero weight, no cost
-                w = np.where(self.excluded[level], 0.0, w)
-                rho = np.where(self.excluded[level], 0.0, rho)
-            raw[level] = (e, s, w)
+            out = self.excluded.get(level)
+            out = out if out is not None and out.any() else None
+            if out is not None:  # excluded measurements: zero weight, no cost (their rows zeroed below)
+                rho = np.where(out, 0.0, rho)
+            raw[level] = (e, s, w if out is None else np.where(out, 0.0, w))
             cost += float(rho.sum())
             sw = np.sqrt(w)[:, None] / sigma
             rows_ = start[:, None] + np.arange(width)
@@ -303,6 +305,13 @@ class Graph(ArrowElimination, JointErrorColumns):
             if J_c is not None:
                 cols = c_col[:, None] + np.arange(3)
                 Jz[pose[:, None, None], rows_[:, :, None], cols[:, None, :]] = J_c * sw[:, :, None]
+            if out is not None:  # kept as they would be included (included_leverage), then zeroed
+                at_ex = (pose[out, None], rows_[out])
+                with_t = J_t is not None and not residuals_only
+                excluded_rows.append((*at_ex, r[at_ex].copy(), Jz[at_ex].copy(), Jt[at_ex].copy() if with_t else None))
+                r[at_ex], Jz[at_ex] = 0.0, 0.0
+                if with_t:
+                    Jt[at_ex] = 0.0
 
         if self.probes is not None:
             pose_i, ball_var, xyz = self.probes
@@ -370,7 +379,7 @@ class Graph(ArrowElimination, JointErrorColumns):
             prior_r, prior_J = np.concatenate([prior_r, c_r]), np.vstack([prior_J, c_J])
             raw["constraints"] = (c_e[:, None], np.abs(c_r), np.ones(len(c_r)))
             cost += 0.5 * float(c_r @ c_r)
-        return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw)
+        return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw, excluded_rows=excluded_rows)
 
     def cost(self, state: State) -> float:
         return self.linearise(state).cost

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-__all__ = ["Linearisation", "Sigmas", "State"]
+__all__ = ["Linearisation", "Sigmas", "State", "included"]
 
 
 @dataclass(frozen=True)
@@ -71,8 +71,12 @@ class Linearisation:
     prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
     cost : float
         Half the (robust) sum of squares.
-    weights : dict of level to ndarray
-        Robust weights per factor.
+    raw : dict
+        ``{level: (e, s, w)}``: raw errors, whitened norms and weights per factor.
+    excluded_rows : list
+        The rows of the excluded measurements as they would be included (zero in ``r`` and the
+        Jacobians): ``(pose (k, 1), rows (k, w), r, J_local, J_theta or None)`` per level, for
+        :func:`included`.
     """
 
     r: np.ndarray
@@ -83,6 +87,22 @@ class Linearisation:
     cost: float
     raw: dict = field(default_factory=dict)
     cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
+    excluded_rows: list = field(default_factory=list)
+
+
+def included(lin: Linearisation) -> Linearisation:
+    """``lin`` with its excluded measurements' rows put back (the linearisation at the same state with
+    nothing excluded, without evaluating the factors again; its ``cost`` is not formed: nan), or
+    ``lin`` itself when nothing was excluded."""
+    if not lin.excluded_rows:
+        return lin
+    r, J_theta, J_local = lin.r.copy(), lin.J_theta.copy(), lin.J_local.copy()
+    for pose, rows, r_ex, Jz_ex, Jt_ex in lin.excluded_rows:
+        r[pose, rows] = r_ex
+        J_local[pose, rows] = Jz_ex
+        if Jt_ex is not None:
+            J_theta[pose, rows] = Jt_ex
+    return Linearisation(r, J_theta, J_local, lin.prior_r, lin.prior_J, float("nan"), lin.raw)
 
 
 def _robust(s, kind, k):

@@ -25,6 +25,7 @@ from enum import Enum
 
 import numpy as np
 
+from fgcal.estimation.graph_types import included
 from fgcal.measurements.types import BY_LEVEL, all_levels, kinematic_types
 from fgcal.util.chi2 import chi2_cdf, chi2_isf, chi2_sf
 
@@ -242,12 +243,8 @@ def _row_statistics(graph, lin, h, level, h_in=None):
 
 def included_leverage(graph, state) -> np.ndarray:
     """The rows' leverage (N, m) at ``state`` as if no measurement were excluded (see :func:`_row_statistics`)."""
-    kept, graph.excluded = graph.excluded, {}
-    try:
-        lin = graph.linearise(state, remember=False)  # the graph keeps the one with the exclusions
-        return graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
-    finally:
-        graph.excluded = kept
+    lin = included(graph.linearise(state))  # the excluded rows put back: no second evaluation
+    return graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
 
 
 def _column_scales(level, w2, kept) -> np.ndarray:

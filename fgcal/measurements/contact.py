@@ -165,12 +165,14 @@ class SetupMeasurement(KinematicMeasurement):
             if self.fixture_type == "point":
                 out[f] = c.mean(axis=0)
                 continue
-            spread = np.linalg.svd(c - c.mean(0), compute_uv=False)[1] / np.sqrt(len(c)) if len(c) >= 3 else 0.0
-            if len(c) < 3 or spread < PLANE_MIN_SPREAD:
+            # one thin SVD for the spread and the normal (the full one formed a (k, k) U: 1000 contacts, 8 MB)
+            sv, vt = np.linalg.svd(c - c.mean(0), full_matrices=False)[1:] if len(c) >= 3 else (None, None)
+            spread = sv[1] / np.sqrt(len(c)) if sv is not None else 0.0
+            if vt is None or spread < PLANE_MIN_SPREAD:
                 raise FgcalError(f"{where}: plane {f} needs contacts at three or more points spread over an area, "
                                  f"not near one point or one line (it has {len(c)}, {spread:.3g} mm across (RMS) "
                                  f"in its narrower direction; at least {PLANE_MIN_SPREAD:g})")
-            n = np.linalg.svd(c - c.mean(0))[2][2]
+            n = vt[2]
             if np.mean((T[sel, :3, 3] - c) @ n) < 0:
                 n = -n
             out[f] = (n, float(np.mean(c @ n)) - tooling.radius)
