@@ -207,6 +207,7 @@ class Solution:
     priors: dict = field(default_factory=dict)  # weakly identifiable parameters: their prior sigma (internal)
     refused: list = field(default_factory=list)  # rows refused before the solve (fgcal.estimation.admit)
     data_decided: dict = field(default_factory=dict)  # prior dropped at the solution: the data's sigma (internal)
+    start_raw: dict | None = None  # the raw errors at theta_start with the joints at their readings, when formed
 
 
 def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None):
@@ -286,6 +287,8 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
+    # its raw errors, from the solve's first linearisation where its state is at the readings (no ball variables)
+    start_raw = graph.linearise(state).raw if warm is None and not len(graph.ball_pose) else None
     damping = 1e-4 if start is None else WARM_DAMPING
     if warm is not None:
         state.theta = _warm_theta(graph.params, state.theta, warm)
@@ -313,7 +316,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
                                                                  outlier_mode)
         iterations, rounds = iterations + it2, rounds + rounds2
     return Solution(graph, state, pose_ids, tuple(levels), iterations, converged, rounds, declared, noise_mode,
-                    outlier_mode, held_info, theta_start, priors, refused, dropped)
+                    outlier_mode, held_info, theta_start, priors, refused, dropped, start_raw)
 
 
 def _warm_theta(params, theta, warm) -> np.ndarray:
@@ -492,7 +495,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
         fit_test={"statistic": float(ssq_declared), "redundancy": float(red_total),
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
         at_readings=at_readings(graph, state, read_raw),
-        pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw),
+        pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw, sol.start_raw),
         joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
         setup=_setup_info(graph, state, held_info, sol.refused), tooling=tooling_record(ds, levels))
 

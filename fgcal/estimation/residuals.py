@@ -88,19 +88,22 @@ def _per_pose(graph: Graph, raw: dict):
     return ssq, cnt, big, rssq, rcnt, excl
 
 
-def pose_residuals(graph: Graph, state: State, start_theta, pose_ids, raw=None, solution_raw=None) -> list[PoseResidual]:
+def pose_residuals(graph: Graph, state: State, start_theta, pose_ids, raw=None, solution_raw=None,
+                   start_raw=None) -> list[PoseResidual]:
     """One :class:`PoseResidual` per pose of ``graph`` (``pose_ids`` (N,) their ids).
 
     ``state`` is the solution, ``start_theta`` the nominal parameters the solve started from;
-    ``raw`` (:func:`raw_at_readings` at the solution) and ``solution_raw`` (the raw residuals of
-    the solution's linearisation) when the caller has them (each costs a linearisation).
+    ``raw`` (:func:`raw_at_readings` at the solution), ``solution_raw`` (the raw residuals of
+    the solution's linearisation) and ``start_raw`` (:func:`raw_at_readings` at ``start_theta``)
+    when the caller has them (each costs a linearisation).
     """
     raw = raw_at_readings(graph, state.theta) if raw is None else raw
     solution_raw = graph.linearise(state).raw if solution_raw is None else solution_raw
     with np.errstate(invalid="ignore", divide="ignore"):
         ssq, cnt, big, rssq, rcnt, excl = _per_pose(graph, raw)
         moved = np.sqrt(_per_pose(graph, solution_raw)[0] / cnt)
-        nominal = np.sqrt(_per_pose(graph, raw_at_readings(graph, start_theta))[0] / cnt)
+        nominal = np.sqrt(_per_pose(graph, raw_at_readings(graph, start_theta) if start_raw is None else start_raw)[0]
+                          / cnt)
         rms = np.sqrt(ssq / cnt)
         rot = np.sqrt(rssq / rcnt)
     return [PoseResidual(int(pose_ids[i]), int(cnt[i]), float(rms[i]), float(moved[i]), float(nominal[i]),
