@@ -190,16 +190,16 @@ class Graph(ArrowElimination, JointErrorColumns):
         """The whole set-up vector (fixed entries included) at ``theta``."""
         return self.setup.full(np.asarray(theta)[self.n_geo + self.K:])
 
-    def _with_setup(self, J_t, J_s, cols):
-        """Scatter a set-up Jacobian ``J_s`` (M, w, k) at set-up entries ``cols`` (M, k) into ``J_t``."""
+    def _setup_into(self, Jt, pose, rows_, J_s, cols, sw):
+        """Write a set-up Jacobian ``J_s`` (M, w, k) at set-up entries ``cols`` (M, k), whitened by
+        ``sw`` (M, w), into the rows ``rows_`` (M, w) of poses ``pose`` (M,) of ``Jt`` (N, m_theta, P):
+        no (M, w, P) array of the factors' mostly zero set-up columns."""
         where = self._setup_col[cols]  # (M, k) columns of theta; fixed entries map below n_geo + K
-        free = where >= self.n_geo + self.K
         m, w, k = J_s.shape
-        rows = np.broadcast_to(np.arange(m)[:, None, None], (m, w, k))
-        wr = np.broadcast_to(np.arange(w)[None, :, None], (m, w, k))
-        sel = np.broadcast_to(free[:, None, :], (m, w, k))
-        J_t[rows[sel], wr[sel], np.broadcast_to(where[:, None, :], (m, w, k))[sel]] += J_s[sel]
-        return J_t
+        sel = np.broadcast_to((where >= self.n_geo + self.K)[:, None, :], (m, w, k))
+        at = (np.broadcast_to(pose[:, None, None], (m, w, k))[sel], np.broadcast_to(rows_[:, :, None], (m, w, k))[sel],
+              np.broadcast_to(where[:, None, :], (m, w, k))[sel])
+        Jt[at] = (J_s * sw[:, :, None])[sel]
 
     def constraint_rows(self, theta):
         """Whitened rows of the known distances between fixture points: ``(r (k,), J (k, P), e (k,))``."""
@@ -264,10 +264,11 @@ class Graph(ArrowElimination, JointErrorColumns):
         raw = {}
         excluded_rows: list = []
 
-        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0, block=False):
+        def put(level, pose, start, e, J_t=None, J_q=None, J_c=None, c_col=None, sigma=1.0, block=False, setup=None):
             """Whitened rows of one level; ``block``: ``J_t`` holds the geometric columns only and
             the joint-error block's (``J_q G``) are formed here, a chunk of factors at a time
-            (no temporary of the whole level's P columns)."""
+            (no temporary of the whole level's P columns); ``setup``: ``(J_s, cols)`` of a level on
+            set-up blocks, written at their columns."""
             nonlocal cost
             width = e.shape[1]
             ew = e / sigma
@@ -300,6 +301,8 @@ class Graph(ArrowElimination, JointErrorColumns):
                     Jt[at + (slice(0, wide),)] = J_t[c] * s_
                     if with_block:
                         Jt[at + (slice(self.n_geo, self.n_geo + self.K),)] = self._block_columns(pose[c], J_q[c] * s_)
+                if setup is not None:
+                    self._setup_into(Jt, pose, rows_, *setup, sw)
             if J_q is not None and self.joint_vars:
                 Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
             if J_c is not None:
@@ -345,8 +348,8 @@ class Graph(ArrowElimination, JointErrorColumns):
                 e, J_t, J_q, J_s, cols = kind.setup_error(theta, q[terms.pose], terms.data,
                                                           self.setup_values(state.theta), self.index, self.held,
                                                           self.chain)
-                J_t = self._with_setup(self._with_block(terms.pose, J_t, J_q), J_s, cols)
-                put(level, terms.pose, self.row[level], e, J_t, J_q, sigma=kind.sigma(self.sigmas))
+                put(level, terms.pose, self.row[level], e, self._with_block(terms.pose, J_t, J_q), J_q,
+                    sigma=kind.sigma(self.sigmas), setup=(J_s, cols))
             else:
                 # In chunks of measurements: the kinematics' temporaries are many times the Jacobians'.
                 chunks = [terms.take(slice(lo, lo + POSE_CHUNK)) for lo in range(0, len(terms), POSE_CHUNK)] \

@@ -75,13 +75,9 @@ class JointErrorColumns:
         return out
 
     def _with_block(self, pose, J_t, J_q):
-        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0) and
-        zeros for the set-up columns."""
-        if not self.K and not self.S:
+        """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0); the
+        set-up columns are the graph's to write (``Graph._setup_into``)."""
+        if not self.K:
             return J_t
-        parts = [J_t]
-        if self.K:
-            parts.append(np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else self._block_columns(pose, J_q))
-        if self.S:
-            parts.append(np.zeros(J_t.shape[:2] + (self.S,)))
-        return np.concatenate(parts, axis=2)
+        block = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else self._block_columns(pose, J_q)
+        return np.concatenate([J_t, block], axis=2)
