@@ -73,6 +73,22 @@ class PoseColumns:
         padded[:self.P, :self.P] = M
         return padded[self.cols[:, :, None], self.cols[:, None, :]]
 
+    def hat(self, J: np.ndarray, M: np.ndarray) -> np.ndarray:
+        """The diagonal (N, m) of ``J_n M J_n^T`` for ``J`` (N, m, c) on each pose's columns and the
+        (P, P) ``M``: the common block as one dense product, the poses' own blocks gathered (N k s
+        and N s s entries, not the N c c of :meth:`gather_matrix`)."""
+        k = self.k
+        common, own = self.cols[0, :k] if len(self.cols) else np.zeros(0, dtype=int), self.cols[:, k:]
+        padded = np.zeros((self.P + 1, self.P + 1))  # the padding column: zero
+        padded[:self.P, :self.P] = M
+        Jc, Jo = J[:, :, :k], J[:, :, k:]
+        n, m = J.shape[:2]
+        JM = (Jc.reshape(-1, k) @ M[np.ix_(common, common)]).reshape(n, m, k)
+        if own.shape[1]:  # [Jc Jo] [[Mcc Mco] [Moc Moo]] [Jc Jo]^T: the pose's own rows and columns of M
+            JM = np.concatenate([JM + np.matmul(Jo, padded[own[:, :, None], common[None, None, :]]),
+                                 np.matmul(J, padded[self.cols[:, :, None], own[:, None, :]])], axis=2)
+        return np.einsum("nmc,nmc->nm", JM, J)
+
     def scatter(self, X: np.ndarray) -> np.ndarray:
         """The (P, P) sum over poses of ``X`` (N, c, c) placed on each pose's columns."""
         n, k = self.P + 1, self.k

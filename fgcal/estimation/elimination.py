@@ -109,6 +109,8 @@ class ArrowElimination:
         S = A.copy()
         rhs = None if g_t is None else g_t.copy()
         Dinv = self._inverses(D, damping)
+        if not self.nz:  # no per-pose variables: nothing to eliminate
+            return S, rhs, Dinv
         blocks = self._blocks(lin) if lin is not None else \
             ((slice(lo, lo + POSE_CHUNK), None) for lo in range(0, len(D), POSE_CHUNK))
         for c, pc in blocks:
@@ -225,12 +227,12 @@ class ArrowElimination:
             # A pose's rows are zero off its columns: only that block of Sigma reaches them.
             Jz = Jz_all[c]
             Jt = Jt_all[c] if pc is None else pc.gather(Jt_all[c])
-            St = covariance if pc is None else pc.gather_matrix(covariance)  # (P, P) or (n, c, c)
             # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt
             # rows of a pose depend on theta.
             if not self.nz:
-                h[c, :mt] = np.einsum("nmp,nmp->nm", Jt @ St, Jt)
+                h[c, :mt] = np.einsum("nmp,nmp->nm", Jt @ covariance, Jt) if pc is None else pc.hat(Jt, covariance)
                 continue
+            St = covariance if pc is None else pc.gather_matrix(covariance)  # (P, P) or (n, c, c)
             Bc = B[c] if pc is None else lin.cache["B_own"][c]
             E = -np.matmul(Dinv[c], Bc.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
             Szt = E @ St  # (n, nz, P)
