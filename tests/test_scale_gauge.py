@@ -111,7 +111,7 @@ def test_planes_alone_hold_the_longest_link_and_recover_the_rest(caplog):
     assert held["j2.a"]["reason"] == SCALE_REASON and held["j2.a"]["value"] == pytest.approx(-612.0)
     assert "tool.pz" not in result.options.get("typical_deviation_priors", {})  # the scale is no longer its prior's
     truth = dict(zip(model.slot_names, model.slots_to_file_units(x)))
-    for n_, (normal, d) in planes.items():
+    for n_, (_normal, d) in planes.items():
         truth[f"plane.{n_}.d"] = d
     z = {p.name: (p.estimate - truth[p.name]) / p.sigma for p in result.parameters if p.name in truth}
     assert len(z) >= 20

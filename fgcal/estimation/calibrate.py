@@ -154,8 +154,8 @@ def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptio
     Every level the dataset has counts (probe points, centres, poses, with the joint readings'
     noise), linearised at the nominal model with the base fitted to the data.
     """
-    names = model.parameters(extra=options.extra, exclude=options.exclude).names
-    names = gauge_holds(ds, model, names, _levels(ds, options), tool=False)[0]  # the world frame's and scale's
+    every = model.parameters(extra=options.extra, exclude=options.exclude).names
+    names = gauge_holds(ds, model, every, _levels(ds, options), tool=False)[0]  # the world frame's and scale's
     graph, state, _ = build_graph(ds, model, names, options)
     return _identifiability(graph, state)
 

@@ -115,8 +115,8 @@ def to_gtsam(ds: Dataset, model: RobotModel, options: CalibrationOptions = Calib
     pose_ids : ndarray of int
         The dataset pose id of each joint key index.
     """
-    names = model.parameters(extra=options.extra, exclude=options.exclude).names
-    names = gauge_holds(ds, model, names, _levels(ds, options), tool=False)[0]  # the gauges, as calibrate holds them
+    every = model.parameters(extra=options.extra, exclude=options.exclude).names
+    names = gauge_holds(ds, model, every, _levels(ds, options), tool=False)[0]  # the gauges, as calibrate holds them
     graph, state, pose_ids = build_graph(ds, model, names, options)
     redundant = _unidentifiable(graph, state)
     if redundant:
