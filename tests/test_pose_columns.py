@@ -109,3 +109,24 @@ def test_dense_products_when_the_pose_columns_save_little():
     assert pose_columns(active) is None
     active[:, 2:16] = False  # 2 common + 2 own of 20: worth it
     assert pose_columns(active) is not None
+
+
+def test_without_joint_variables_the_step_and_leverage_match_a_dense_least_squares():
+    """Exact readings (no per-pose variables, as the contacts bench): the step is the least squares
+    solution of the damped system and the leverage (PoseColumns.hat) is the hat matrix's diagonal."""
+    rng = np.random.default_rng(5)
+    full = _contact_linearisation(rng)
+    lin = Linearisation(r=full.r[:, :MT].copy(), J_theta=full.J_theta, J_local=np.zeros((N, MT, 0)),
+                        prior_r=full.prior_r, prior_J=full.prior_J, cost=0.0)
+    graph = _Arrow(lin)
+    graph.m, graph.nz, graph.joint_vars = MT, 0, False
+    graph.local_used = np.zeros((N, 0), dtype=bool)
+    state = State(theta=np.zeros(P), q=np.zeros((N, NZ)), c=np.zeros((0, 3)))
+    J = np.vstack([lin.J_theta.reshape(-1, P), lin.prior_J])
+    r = np.concatenate([lin.r.reshape(-1), lin.prior_r])
+    _, d_theta, _ = graph.step(state, lin, 0.0)
+    assert lin.cache["columns"] is not None  # the pose-column path ran
+    assert _rel(d_theta, -np.linalg.lstsq(J, r, rcond=None)[0]) < 1e-9
+    cov = graph.covariance(state, lin)
+    hat = np.sum((J @ np.linalg.inv(J.T @ J)) * J, axis=1)[:-3].reshape(N, MT)
+    assert _rel(graph.row_leverage(state, cov, lin), hat) < 1e-9
