@@ -155,9 +155,11 @@ def pose_columns(active: np.ndarray) -> PoseColumns | None:
     width = int(common.sum()) + int(own.sum(axis=1).max())
     if width**2 > MIN_SAVING * P**2:
         return None
-    # Each pose's own columns (ascending), then the padding: a stable sort of "not own".
+    # Each pose's own columns (ascending: nonzero's row-major order), then the padding P.
     n_own = width - int(common.sum())
-    order = np.argsort(~own, axis=1, kind="stable")[:, :n_own]
-    cols = np.concatenate([np.broadcast_to(np.flatnonzero(common), (n, int(common.sum()))),
-                           np.where(np.take_along_axis(own, order, axis=1), order, P)], axis=1)
+    counts = own.sum(axis=1)
+    r, c = np.nonzero(own)
+    own_cols = np.full((n, n_own), P)
+    own_cols[r, np.arange(len(r)) - np.repeat(np.cumsum(counts) - counts, counts)] = c
+    cols = np.concatenate([np.broadcast_to(np.flatnonzero(common), (n, int(common.sum()))), own_cols], axis=1)
     return PoseColumns(cols=cols, P=P, k=int(common.sum()))

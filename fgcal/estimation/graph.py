@@ -190,17 +190,6 @@ class Graph(ArrowElimination, JointErrorColumns):
         """The whole set-up vector (fixed entries included) at ``theta``."""
         return self.setup.full(np.asarray(theta)[self.n_geo + self.K:])
 
-    def _setup_into(self, Jt, pose, rows_, J_s, cols, sw):
-        """Write a set-up Jacobian ``J_s`` (M, w, k) at set-up entries ``cols`` (M, k), whitened by
-        ``sw`` (M, w), into the rows ``rows_`` (M, w) of poses ``pose`` (M,) of ``Jt`` (N, m_theta, P):
-        no (M, w, P) array of the factors' mostly zero set-up columns."""
-        where = self._setup_col[cols]  # (M, k) columns of theta; fixed entries map below n_geo + K
-        m, w, k = J_s.shape
-        sel = np.broadcast_to((where >= self.n_geo + self.K)[:, None, :], (m, w, k))
-        at = (np.broadcast_to(pose[:, None, None], (m, w, k))[sel], np.broadcast_to(rows_[:, :, None], (m, w, k))[sel],
-              np.broadcast_to(where[:, None, :], (m, w, k))[sel])
-        Jt[at] = (J_s * sw[:, :, None])[sel]
-
     def constraint_rows(self, theta):
         """Whitened rows of the known distances between fixture points: ``(r (k,), J (k, P), e (k,))``."""
         P = len(theta)

@@ -1,11 +1,12 @@
-"""The joint-error block's columns of the factor graph (:mod:`fgcal.estimation.joint_errors`).
+"""The joint-error block's columns of the factor graph (:mod:`fgcal.estimation.joint_errors`), and the
+set-up blocks' (written at their own columns, :meth:`JointErrorColumns._setup_into`).
 
 Each block parameter corrects one joint, so its design ``G`` (N, n, K) has one nonzero row per
 column: the graph keeps the compact form ``g`` (N, K) and the joint of each column (on 8,000
 poses with a 30-harmonic map of six joints: 24 MB against 146 MB), and writes the block's
 Jacobian columns ``J_q G`` one joint at a time into the rows it fills. A mixin of
 :class:`fgcal.estimation.graph.Graph`, which supplies ``readings``, ``n_geo``, ``K``, ``S``,
-``joint_vars``, ``g`` and ``g_joint``. No I/O here.
+``joint_vars``, ``g``, ``g_joint`` and ``_setup_col``. No I/O here.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ def compact_design(joint_errors, n: int, n_joints: int) -> tuple[np.ndarray, np.
 
 
 class JointErrorColumns:
-    """The block's correction of the joints and its Jacobian columns."""
+    """The block's correction of the joints and its Jacobian columns; the set-up blocks' columns."""
 
     # The layout, supplied by Graph (declared here for the type checker).
     readings: np.ndarray
@@ -42,6 +43,7 @@ class JointErrorColumns:
     joint_vars: bool
     g: np.ndarray
     g_joint: np.ndarray
+    _setup_col: np.ndarray | None
 
     def block_correction(self, theta) -> np.ndarray:
         """(N, n) the joint-error block's correction of the readings at ``theta``."""
@@ -76,8 +78,24 @@ class JointErrorColumns:
 
     def _with_block(self, pose, J_t, J_q):
         """Geometric Jacobian columns extended by the block's (exact readings: J_q G; else 0); the
-        set-up columns are the graph's to write (``Graph._setup_into``)."""
+        set-up columns are written at their own columns by :meth:`_setup_into`."""
         if not self.K:
             return J_t
         block = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else self._block_columns(pose, J_q)
         return np.concatenate([J_t, block], axis=2)
+
+    def _setup_into(self, Jt, pose, rows_, J_s, cols, sw):
+        """Write a set-up Jacobian ``J_s`` (M, w, k) at set-up entries ``cols`` (M, k), whitened by
+        ``sw`` (M, w), into the rows ``rows_`` (M, w) of poses ``pose`` (M,) of ``Jt`` (N, m_theta, P):
+        no (M, w, P) array of the factors' mostly zero set-up columns."""
+        assert self._setup_col is not None  # a graph with set-up blocks
+        where = self._setup_col[cols]  # (M, k) columns of theta; fixed entries map below n_geo + K
+        free = where >= self.n_geo + self.K
+        if free.all():  # unknown blocks: every entry has its column
+            Jt[pose[:, None, None], rows_[:, :, None], where[:, None, :]] = J_s * sw[:, :, None]
+            return
+        m, w, k = J_s.shape
+        sel = np.broadcast_to(free[:, None, :], (m, w, k))
+        at = (np.broadcast_to(pose[:, None, None], (m, w, k))[sel], np.broadcast_to(rows_[:, :, None], (m, w, k))[sel],
+              np.broadcast_to(where[:, None, :], (m, w, k))[sel])
+        Jt[at] = (J_s * sw[:, :, None])[sel]
