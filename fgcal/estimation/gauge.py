@@ -89,13 +89,15 @@ def scale_is_fixed(ds: Dataset, levels) -> bool:
 
 def scale_length(model, names) -> str | None:
     """The length among ``names`` that fixes the scale: the robot's longest link length (the one whose
-    typical deviation is the smallest share of it); a base or tool length only when there is no link's."""
+    typical deviation is the smallest share of it); a base or tool length only when there is no link's;
+    None when every length is zero at nominal (holding a zero length fixes no scale)."""
     slots = set(model.slot_names)
     lengths = [n for n in names if n in slots and not model.slot_is_angle[model.slot(n)]]
     links = [n for n in lengths if not n.startswith(("base.", "tool."))] or lengths
     if not links:
         return None
-    return max(links, key=lambda n: abs(float(model.nominal[model.slot(n)])))
+    best = max(links, key=lambda n: abs(float(model.nominal[model.slot(n)])))
+    return best if abs(float(model.nominal[model.slot(best)])) > 1e-9 else None
 
 
 def gauge_holds(ds: Dataset, model, names, levels, scale: bool = True, tool: bool = True) -> tuple[list, list]:
