@@ -22,25 +22,22 @@ from fgcal.estimation.admit import admit_rows
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, gauge_holds, setup_size
 from fgcal.estimation.graph import Graph, Sigmas, State
-from fgcal.estimation.group_noise import group_noise, update_groups
+from fgcal.estimation.group_noise import group_noise
 from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
 from fgcal.estimation.noise import (
     NoiseMode,
     OutlierMode,
     components,
-    find_outliers,
     fit_test,
     included_leverage,
     level_noise,
     name_outliers,
-    readmissible,
-    scaled_inverse,
-    update_sigmas,
 )
 from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
-from fgcal.estimation.solve import _solve, levenberg_marquardt
+from fgcal.estimation.rounds import WARM_DAMPING, _solve_rounds
+from fgcal.estimation.solve import levenberg_marquardt
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.robots.identifiability import analyse_information
@@ -72,9 +69,6 @@ def __getattr__(name):
 
 log = logging.getLogger(__name__)
 
-MAX_NOISE_ROUNDS = 40
-MAX_READMISSIONS = 3  # passes re-admitting exclusions that pass at the final noise (a fixed point, bounded)
-WARM_DAMPING = 1e-9  # Levenberg-Marquardt's first damping from a start near the optimum (see levenberg_marquardt)
 
 
 def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
@@ -327,48 +321,6 @@ def _warm_theta(params, theta, warm) -> np.ndarray:
         if name in est:
             values[i] = est[name]
     return params.from_file_units(values)
-
-
-def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, damping: float, noise_mode: NoiseMode,
-                  outlier_mode: OutlierMode):
-    """The solve, then noise estimation and outlier exclusion alternated with re-solves until neither
-    changes, then the exclusions retested at the final noise (:func:`~fgcal.estimation.noise.readmissible`;
-    at most :data:`MAX_READMISSIONS` times): ``(state, iterations, converged, rounds, declared sigmas)``."""
-    state, iterations, converged = _solve(graph, state, options, damping=damping)
-    declared = graph.sigmas
-    rounds = readmitted = 0
-    for rounds in range(1, MAX_NOISE_ROUNDS + 1):  # noqa: B007 (the count is returned)
-        lin = graph.linearise(state)
-        h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
-        changed = False
-        if outlier_mode is OutlierMode.EXCLUDE:
-            for level, ks in find_outliers(graph, lin, h).items():
-                mask = graph.excluded.setdefault(level, np.zeros(len(graph.row[level]), dtype=bool))
-                mask[ks] = True
-                changed = True
-        if noise_mode is NoiseMode.ESTIMATED:
-            graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared)
-            changed |= moved
-            changed |= update_groups(graph, lin, h)  # each camera's share of the pixels' noise
-        if not changed and outlier_mode is OutlierMode.EXCLUDE and readmitted < MAX_READMISSIONS:
-            # Settled: every exclusion is tested again at this (final) noise and solution; those
-            # within the limit come back, and the rounds go on to a fixed point.
-            h_in = included_leverage(graph, state) if graph.excluded else None
-            for level, ks in readmissible(graph, lin, h, h_in).items():
-                graph.excluded[level][ks] = False
-                log.info("%s: %d measurement(s) excluded at an earlier round's noise pass the test at the "
-                         "final noise: re-admitted", level, len(ks))
-                changed = True
-            readmitted += changed
-        if not changed:
-            break
-        # From the last optimum: lightly damped (a full damping here took 6 steps for what 2-3 do)
-        del lin  # the solve may release its Jacobian while it linearises the next state
-        state, it2, converged = _solve(graph, state, options, damping=min(damping, WARM_DAMPING))
-        iterations += it2
-    else:
-        log.warning("noise estimation did not settle in %d rounds", MAX_NOISE_ROUNDS)
-    return state, iterations, converged, rounds, declared
 
 
 def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
