@@ -277,15 +277,18 @@ class Pixels(SetupMeasurement):
         if (~off).any():
             starts, _ = self.start_poses(obs.subset(~off), T[~off])
             rows = np.nonzero(~off)[0]
-            Tc = np.array([pose_matrix(starts[c][:6]) for c in obs.camera[rows].tolist()])
-            Tt = np.array([pose_matrix(starts[t]) for t in obs.target[rows].tolist()])
-            on_tool = np.array([specs[t].mount == "tool" for t in obs.target[rows].tolist()])
+            cams, cam_of = np.unique(obs.camera[rows], return_inverse=True)
+            tgts, tgt_of = np.unique(obs.target[rows], return_inverse=True)
+            cam_of, tgt_of = cam_of.reshape(-1), tgt_of.reshape(-1)
+            Tc_inv = np.linalg.inv(np.array([pose_matrix(starts[c][:6]) for c in cams.tolist()]))[cam_of]  # per row
+            Tt = np.array([pose_matrix(starts[t]) for t in tgts.tolist()])[tgt_of]
+            on_tool = np.array([specs[t].mount == "tool" for t in tgts.tolist()])[tgt_of]
             F = T[rows]
             F_inv = np.linalg.inv(F)
             Tm = np.where(on_tool[:, None, None], F, F_inv) @ Tt  # the target in the camera's mount frame
-            Tct = np.linalg.inv(Tc) @ Tm
+            Tct = Tc_inv @ Tm
             pc = np.einsum("mij,mj->mi", Tct[:, :3, :3], obs.xyz[rows]) + Tct[:, :3, 3]
-            planar = np.array([specs[t].planar for t in obs.target[rows].tolist()])
+            planar = np.array([specs[t].planar for t in tgts.tolist()])[tgt_of]
             cos = np.abs(np.einsum("mi,mi->m", pc, Tct[:, :3, 2])) / np.linalg.norm(pc, axis=1)
             behind = pc[:, 2] < MIN_DEPTH_MM
             grazing = ~behind & planar & (cos < np.cos(np.radians(GRAZING_DEG)))
