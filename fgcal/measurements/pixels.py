@@ -39,7 +39,9 @@ class PixelObservations(ObservationRows):
     """Corners, one row each: pose ids (M,), camera and target names (M,), point names (M,), pixels
     ``uv`` (M, 2), the point in its target's frame ``xyz`` (M, 3) mm, file lines (M,).
 
-    ``specs`` (not a row field): the cameras' and targets' specs by name (kept by :meth:`subset`)."""
+    ``specs`` (not a row field): the cameras' and targets' specs by name (kept by :meth:`subset`).
+    ``pnp_memo`` (not a row field, shared with every subset): each image's PnP by its corners and
+    intrinsics (:meth:`Pixels.start_poses`: the refusal test and the blocks' start solve the same images)."""
 
     pose: np.ndarray
     camera: np.ndarray
@@ -56,6 +58,7 @@ class PixelObservations(ObservationRows):
             setattr(self, name, np.asarray(getattr(self, name), dtype=str).reshape(-1))
         super().__post_init__()
         self.specs: dict = {}
+        self.pnp_memo: dict = {}
 
     @classmethod
     def build(cls, pose, camera, point, uv, specs: dict, line=None) -> PixelObservations:
@@ -77,7 +80,7 @@ class PixelObservations(ObservationRows):
 
     def subset(self, mask):
         out = super().subset(mask)
-        out.specs = self.specs
+        out.specs, out.pnp_memo = self.specs, self.pnp_memo
         return out
 
 
@@ -89,6 +92,20 @@ def _mode(cam, tgt) -> int:
         return 1
     raise FgcalError(f"camera {cam.name} (mount {cam.mount}) and target {tgt.name} (mount {tgt.mount}): one must "
                      "be on the tool and the other on the world")
+
+
+def _pnp_once(obs: PixelObservations, rows, k) -> tuple[np.ndarray, float] | None:
+    """:func:`~fgcal.measurements.camera_start.pnp` of the corners ``rows`` (one image) with the
+    intrinsics ``k`` (9,), or None where it fails; each image solved once (``obs.pnp_memo``, keyed
+    by the corners' values, so a subset with other corners solves again)."""
+    xyz, uv, k = obs.xyz[rows], obs.uv[rows], np.asarray(k, dtype=float)
+    key = (xyz.tobytes(), uv.tobytes(), k.tobytes())
+    if key not in obs.pnp_memo:
+        try:
+            obs.pnp_memo[key] = pnp(xyz, uv, k)
+        except (ValueError, np.linalg.LinAlgError):
+            obs.pnp_memo[key] = None
+    return obs.pnp_memo[key]
 
 
 def _skew(v) -> np.ndarray:
@@ -234,10 +251,10 @@ class Pixels(SetupMeasurement):
             sel = (obs.camera == cam) & (obs.target == tgt)
             for pid in dict.fromkeys(obs.pose[sel].tolist()):
                 rows = np.nonzero(sel & (obs.pose == pid))[0]
-                try:
-                    T_ct, err = pnp(obs.xyz[rows], obs.uv[rows], cs.intrinsics)
-                except (ValueError, np.linalg.LinAlgError):
+                seen = _pnp_once(obs, rows, cs.intrinsics)
+                if seen is None:
                     continue
+                T_ct, err = seen
                 F = T[rows[0]]
                 A.append(F if mode == 0 else np.linalg.inv(F))
                 B.append(T_ct)
