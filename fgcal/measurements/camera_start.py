@@ -42,12 +42,19 @@ def _nearest_rotation(M) -> np.ndarray:
     return R
 
 
+def _dlt_rows(P, n) -> np.ndarray:
+    """The DLT's two rows a point (2m, 2k + k): ``[P, 0, -u P]`` and ``[0, P, -v P]`` for
+    homogeneous points ``P`` (m, k) and normalised image points ``n`` (m, 2)."""
+    m, k = P.shape
+    A = np.zeros((m, 2, 3 * k))
+    A[:, 0, :k], A[:, 1, k:2 * k] = P, P
+    A[:, 0, 2 * k:], A[:, 1, 2 * k:] = -n[:, :1] * P, -n[:, 1:] * P
+    return A.reshape(2 * m, 3 * k)
+
+
 def _pnp_planar(X, n) -> np.ndarray:
-    A = []
-    for (x, y, _), (u, v) in zip(X, n, strict=False):
-        A.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
-        A.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
-    H = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 3)
+    A = _dlt_rows(np.column_stack([X[:, :2], np.ones(len(X))]), n)
+    H = np.linalg.svd(A, full_matrices=False)[2][-1].reshape(3, 3)
     scale = 2.0 / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
     H = H * scale
     if H[2, 2] < 0:  # the target in front of the camera (its origin at positive depth)
@@ -59,11 +66,8 @@ def _pnp_planar(X, n) -> np.ndarray:
 
 
 def _pnp_dlt(X, n) -> np.ndarray:
-    A = []
-    for (x, y, z), (u, v) in zip(X, n, strict=False):
-        A.append([x, y, z, 1, 0, 0, 0, 0, -u * x, -u * y, -u * z, -u])
-        A.append([0, 0, 0, 0, x, y, z, 1, -v * x, -v * y, -v * z, -v])
-    P = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 4)
+    A = _dlt_rows(np.column_stack([X, np.ones(len(X))]), n)
+    P = np.linalg.svd(A, full_matrices=False)[2][-1].reshape(3, 4)
     scale = 1.0 / np.cbrt(np.linalg.det(P[:, :3]))
     P = P * scale
     T = np.eye(4)
