@@ -20,7 +20,7 @@ import numpy as np
 from fgcal.errors import FgcalError
 from fgcal.measurements.base import NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.camera import CAMERA_SIZE, mount_transform, pose_entries, pose_matrix, project
-from fgcal.measurements.camera_start import hand_eye, pnp
+from fgcal.measurements.camera_start import hand_eye, pnp_each
 from fgcal.measurements.contact import SetupMeasurement
 from fgcal.robots.kinematics import jacobians
 
@@ -41,7 +41,8 @@ class PixelObservations(ObservationRows):
 
     ``specs`` (not a row field): the cameras' and targets' specs by name (kept by :meth:`subset`).
     ``pnp_memo`` (not a row field, shared with every subset): each image's PnP by its corners and
-    intrinsics (:meth:`Pixels.start_poses`: the refusal test and the blocks' start solve the same images)."""
+    intrinsics (:func:`~fgcal.measurements.camera_start.pnp_each`: the refusal test and the blocks'
+    start solve the same images)."""
 
     pose: np.ndarray
     camera: np.ndarray
@@ -92,20 +93,6 @@ def _mode(cam, tgt) -> int:
         return 1
     raise FgcalError(f"camera {cam.name} (mount {cam.mount}) and target {tgt.name} (mount {tgt.mount}): one must "
                      "be on the tool and the other on the world")
-
-
-def _pnp_once(obs: PixelObservations, rows, k) -> tuple[np.ndarray, float] | None:
-    """:func:`~fgcal.measurements.camera_start.pnp` of the corners ``rows`` (one image) with the
-    intrinsics ``k`` (9,), or None where it fails; each image solved once (``obs.pnp_memo``, keyed
-    by the corners' values, so a subset with other corners solves again)."""
-    xyz, uv, k = obs.xyz[rows], obs.uv[rows], np.asarray(k, dtype=float)
-    key = (xyz.tobytes(), uv.tobytes(), k.tobytes())
-    if key not in obs.pnp_memo:
-        try:
-            obs.pnp_memo[key] = pnp(xyz, uv, k)
-        except (ValueError, np.linalg.LinAlgError):
-            obs.pnp_memo[key] = None
-    return obs.pnp_memo[key]
 
 
 def _skew(v) -> np.ndarray:
@@ -249,12 +236,12 @@ class Pixels(SetupMeasurement):
             mode = _mode(cs, ts)
             A, B, rms = [], [], []
             sel = (obs.camera == cam) & (obs.target == tgt)
-            for pid in dict.fromkeys(obs.pose[sel].tolist()):
-                rows = np.nonzero(sel & (obs.pose == pid))[0]
-                seen = _pnp_once(obs, rows, cs.intrinsics)
-                if seen is None:
+            images = [np.nonzero(sel & (obs.pose == pid))[0] for pid in dict.fromkeys(obs.pose[sel].tolist())]
+            seen = pnp_each([(obs.xyz[rows], obs.uv[rows]) for rows in images], cs.intrinsics, obs.pnp_memo)
+            for rows, got in zip(images, seen, strict=True):
+                if got is None:
                     continue
-                T_ct, err = seen
+                T_ct, err = got
                 F = T[rows[0]]
                 A.append(F if mode == 0 else np.linalg.inv(F))
                 B.append(T_ct)
