@@ -102,6 +102,15 @@ def _skew(v) -> np.ndarray:
     return S
 
 
+def _where(eye, a, b) -> np.ndarray:
+    """``np.where(eye, a(), b())`` row by row (``eye`` (M,), ``a()``, ``b()`` (M, ...)), computing only
+    the side used when every row is on one side."""
+    if eye.all() or not eye.any():
+        return a() if eye.all() else b()
+    x, y = a(), b()
+    return np.where(eye.reshape((-1,) + (1,) * (x.ndim - 1)), x, y)
+
+
 def pixel_model(theta, q, data, s, index, held, chain, need_jac: bool = True):
     """Predicted pixels and the camera-frame points of the payload ``data`` (see :meth:`Pixels.terms`).
 
@@ -128,8 +137,8 @@ def pixel_model(theta, q, data, s, index, held, chain, need_jac: bool = True):
         K[rows] = s[k + 6:k + CAMERA_SIZE]
     X_o = np.einsum("mij,mj->mi", R_t, xyz) + t_t  # the point in the target's mount frame
     eye = mode == 0
-    v = np.where(eye[:, None], np.einsum("mij,mj->mi", R, X_o), X_o - p)  # p_w - p
-    p_m = np.where(eye[:, None], v + p, np.einsum("mji,mj->mi", R, v))  # the point in the camera's mount frame
+    v = _where(eye, lambda: np.einsum("mij,mj->mi", R, X_o), lambda: X_o - p)  # p_w - p
+    p_m = _where(eye, lambda: v + p, lambda: np.einsum("mji,mj->mi", R, v))  # the point in the camera's mount frame
     p_c = np.einsum("mji,mj->mi", R_c, p_m - t_c)
     uv, J_X, J_k = project(p_c, K)
     if not need_jac:
@@ -139,13 +148,13 @@ def pixel_model(theta, q, data, s, index, held, chain, need_jac: bool = True):
     # d p_m / d (dp, omega) of the tool pose: eye-to-hand dp - [v]x omega; eye-in-hand R^T ([v]x omega - dp)
     S = _skew(v)
     Rt = np.swapaxes(R, 1, 2)
-    D = np.where(eye[:, None, None], np.concatenate([np.broadcast_to(np.eye(3), (m, 3, 3)), -S], axis=2),
-                 np.concatenate([-Rt, Rt @ S], axis=2))  # (M, 3, 6)
-    Jp_t = jac.pose_slots[inv][:, :, index]
+    D = _where(eye, lambda: np.concatenate([np.broadcast_to(np.eye(3), (m, 3, 3)), -S], axis=2),
+               lambda: np.concatenate([-Rt, Rt @ S], axis=2))  # (M, 3, 6)
+    Jp_t = jac.pose_slots[:, :, index][inv]
     Jp_q = jac.pose_joints[inv]
     J_t = A @ (D @ Jp_t)
     J_q = A @ (D @ Jp_q)
-    dpm_dXo = np.where(eye[:, None, None], R, Rt)
+    dpm_dXo = _where(eye, lambda: R, lambda: Rt)
     J_s = np.empty((m, 2, CAMERA_SIZE + 6))
     J_s[:, :, 0:3] = -A
     J_s[:, :, 3:6] = np.einsum("mrj,maij,mi->mra", J_X, dR_c, p_m - t_c)  # dR_c^T (p_m - t_c)
