@@ -134,9 +134,14 @@ class Outlier:
 
 
 def scaled_inverse(S) -> np.ndarray:
-    """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first."""
+    """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first; the
+    pseudo-inverse where it is singular to the last bit (parameters left free that the data cannot
+    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions)."""
     d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
+    try:
+        return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(S / np.outer(d, d), hermitian=True) / np.outer(d, d)
 
 
 def components(graph, lin, h) -> dict[str, tuple[float, float]]:
