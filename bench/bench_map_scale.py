@@ -10,7 +10,7 @@ process, imports, reading and writing included, and its peak RSS), single-thread
 of a size interleaved ``--repeat`` times and the least CPU of each kept (the machine is shared):
 ``fgcal calibrate DIR --out R.json`` (the reference: the geometric solve, fgcal's defaults) and
 ``fgcal calibrate DIR --model compliance+map --out R.json``. The cross-validation alone
-(:func:`fgcal.estimation.model_select.cv_problem` and :func:`~fgcal.estimation.model_select.cross_validate`,
+(:func:`fgcal.estimation.cross_validation.cv_problem` and :func:`~fgcal.estimation.cross_validation.cross_validate`,
 its CPU and its ``tracemalloc`` peak) is timed in a child process per size: its cost per pose
 should not grow with the poses.
 
