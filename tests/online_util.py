@@ -1,6 +1,7 @@
-"""Helpers of the online engines' tests on the set-up unknowns (tests/test_online_stations.py,
-test_online_contacts.py, test_online_pixels.py): a whole online run, an engine's running estimate
-against the batch's prediction, an interrupted and resumed run, a ``--stdin`` session in a child."""
+"""Helpers of the online engines' tests (tests/test_online.py, test_online_stations.py,
+test_online_contacts.py, test_online_pixels.py, test_measurement_protocol.py): a whole online run,
+an engine's running estimate against the batch's prediction, an interrupted and resumed run, a
+``--stdin`` session in a child."""
 import json
 import subprocess
 import sys
@@ -58,10 +59,10 @@ def running_estimate_ratio(ds, model, batch, engine, ball):
 
 
 def interrupted_and_resumed(ds, model, engine, tmp_path, n_first, require_accepted=False):
-    """``(expected, first, second)``: an uninterrupted run (each pose accepted, with
-    ``require_accepted``), one closed after ``n_first`` poses and its resumption run to the end;
-    the two ends are asserted the same (result, covariance, set-up)."""
-    expected = run_online(ds, model, engine, tmp_path / "a.ck", require_accepted=require_accepted)
+    """``(whole, first, second)``: an uninterrupted run (each pose accepted, with
+    ``require_accepted``), one closed after ``n_first`` poses (a crash: the journal has no
+    end-of-run mark) and its resumption from the checkpoint, run to the end."""
+    whole = run_online(ds, model, engine, tmp_path / "a.ck", require_accepted=require_accepted)
     first = OnlineRun(ds, model, engine, tmp_path / "b.ck")
     for rec in first.pending()[:n_first]:
         first.feed(rec)
@@ -70,12 +71,17 @@ def interrupted_and_resumed(ds, model, engine, tmp_path, n_first, require_accept
     assert second.resume() == n_first
     for rec in second.pending():
         second.feed(rec)
-    got, want = second.result(), expected.result()
+    return whole, first, second
+
+
+def assert_resumed_as_whole(second, whole):
+    """The resumed run ends as the uninterrupted one: names, poses, estimate (to 1e-9 of the
+    largest), covariance and set-up section."""
+    got, want = second.result(), whole.result()
     assert got.names == want.names and got.pose_ids == want.pose_ids
     np.testing.assert_allclose(got.estimate, want.estimate, rtol=0, atol=1e-9 * np.abs(want.estimate).max())
     np.testing.assert_allclose(got.covariance, want.covariance, rtol=1e-7, atol=1e-12)
     assert got.setup == want.setup
-    return expected, first, second
 
 
 def stdin_session(ds, engine, tmp_path, lines):

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from contact_sim import plane_dataset, two_socket_dataset
 from online_util import (
+    assert_resumed_as_whole,
     assert_streamed_as_files,
     interrupted_and_resumed,
     running_estimate_ratio,
@@ -115,7 +116,8 @@ def test_resume_of_contacts_is_identical(datasets, engine, tmp_path, monkeypatch
     as an uninterrupted run; the filters from a snapshot (every 15 poses here) holding the blocks."""
     monkeypatch.setattr("fgcal.online.run.SNAPSHOT_EVERY", 15)
     ds, model, _ = _batch(datasets["both"])
-    _, first, second = interrupted_and_resumed(ds, model, engine, tmp_path, 40)
+    whole, first, second = interrupted_and_resumed(ds, model, engine, tmp_path, 40)
+    assert_resumed_as_whole(second, whole)
     # the running estimate at the interruption is the same too (the blocks restored, not re-started)
     np.testing.assert_allclose(second.history[39]["estimate"], first.history[39]["estimate"], rtol=0, atol=1e-9)
 

@@ -14,8 +14,8 @@ import pytest
 
 pytest.importorskip("cv2")
 
+from online_util import assert_resumed_as_whole, interrupted_and_resumed, run_online
 from online_util import deviation as _deviation
-from online_util import interrupted_and_resumed, run_online
 from pixel_sim import camera_dataset
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
@@ -113,6 +113,7 @@ def test_resume_of_pixels_is_identical(eye_to_hand, engine, tmp_path, monkeypatc
     monkeypatch.setattr("fgcal.online.run.SNAPSHOT_EVERY", 4)
     ds, model, _, _ = eye_to_hand
     expected, _, second = interrupted_and_resumed(ds, model, engine, tmp_path, 8, require_accepted=True)
+    assert_resumed_as_whole(second, expected)
     np.testing.assert_allclose(second.history[-1]["estimate"], expected.history[-1]["estimate"], rtol=0, atol=1e-9)
 
 

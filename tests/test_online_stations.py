@@ -8,6 +8,7 @@ batch's, a resumed run ends as an uninterrupted one and a ``--stdin`` stream as 
 import numpy as np
 import pytest
 from online_util import (
+    assert_resumed_as_whole,
     assert_streamed_as_files,
     interrupted_and_resumed,
     running_estimate_ratio,
@@ -83,6 +84,7 @@ def test_resume_of_stations_is_identical(case, engine, tmp_path, monkeypatch):
     monkeypatch.setattr("fgcal.online.run.SNAPSHOT_EVERY", 8)
     ds, model, _ = case
     expected, _, second = interrupted_and_resumed(ds, model, engine, tmp_path, 20)
+    assert_resumed_as_whole(second, expected)
     np.testing.assert_allclose(second.history[-1]["estimate"], expected.history[-1]["estimate"], rtol=0, atol=1e-9)
 
 
