@@ -7,10 +7,10 @@ import subprocess
 import sys
 
 import numpy as np
+from predict_util import predicted_points
 
 from fgcal.online.engines import make_engine, pose_records
 from fgcal.online.run import OnlineRun
-from fgcal.robots.kinematics import jacobians
 
 
 def run_online(ds, model, engine, checkpoint=None, records=None, require_accepted=False):
@@ -33,11 +33,6 @@ def deviation(names, a, b, sigma):
     return np.abs(d) / sigma
 
 
-def _tool_points(slots, model, q, ball):
-    jac = jacobians(slots, q, offsets=np.broadcast_to(ball, (len(q), 1, 3)), chain=model.chain)
-    return jac.points[:, 0], jac.point_slots[:, 0]
-
-
 def running_estimate_ratio(ds, model, batch, engine, ball):
     """How far, in the batch's prediction sigmas there (the root of the trace of each point's
     covariance), the engine's running estimate after every pose (before the final smoothing) puts
@@ -48,13 +43,9 @@ def running_estimate_ratio(ds, model, batch, engine, ball):
     rng = np.random.default_rng(5)
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
     q = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi), size=(30, model.n_joints))
-    online, _ = _tool_points(e.params.full(theta, e.held), model, q, ball)
-    ref, J = _tool_points(batch.slot_vector(model), model, q, ball)
-    names = [n for n in batch.names if n in set(model.slot_names)]
-    idx, cols = [model.slot(n) for n in names], [batch.names.index(n) for n in names]
-    scale = np.where(model.slot_is_angle[idx], np.radians(1.0), 1.0)
-    cov = batch.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)
-    sigma = np.sqrt(np.einsum("nip,pq,niq->n", J[:, :, idx], cov, J[:, :, idx]))
+    online, _, _ = predicted_points(e.params.full(theta, e.held), batch, model, q, ball)
+    ref, J, cov = predicted_points(batch.slot_vector(model), batch, model, q, ball)
+    sigma = np.sqrt(np.einsum("nip,pq,niq->n", J, cov, J))
     return np.linalg.norm(online - ref, axis=1) / sigma
 
 
