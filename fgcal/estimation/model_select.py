@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
+from fgcal.errors import FgcalError, ModelError
 from fgcal.estimation.calibrate import calibrate
 from fgcal.estimation.cross_validation import (
     HARMONICS_GRID,
@@ -168,8 +169,6 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     at_edge: list = []
     rng = np.random.default_rng(0) if rng is None else rng
     if folds < 2 or folds > ds.n_poses:
-        from fgcal.errors import FgcalError
-
         raise FgcalError(f"{ds.path or 'dataset'}: {folds} cross-validation folds for {ds.n_poses} poses "
                          "(need 2 <= folds <= poses)")
     base = replace(options, joint_errors=None)
@@ -181,16 +180,12 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     if up_to.order >= ModelKind.COMPLIANCE.order:
         inertials = model_inertials(model)
         if inertials is None:
-            from fgcal.errors import ModelError
-
             raise ModelError(f"robot model {model.name}: the compliance models need its links' masses and centres "
                              "of mass (an 'inertials:' block in the model file)")
         torques = gravity_torques(geo.slot_vector(model), q, inertials, payload, model.chain)
         revolute = np.asarray(model.joint_is_angle, dtype=bool)
         joints = tuple(j for j in compliance_joints(torques) if revolute[j - 1])  # prismatic: no torsion
         if not joints:  # the compliance models would be the geometric one under another name
-            from fgcal.errors import ModelError
-
             spread = float(np.ptp(torques, axis=0).max(initial=0.0)) if torques.size else 0.0
             raise ModelError(f"robot model {model.name}: no revolute joint's gravity torque varies by "
                              f"{COMPLIANCE_MIN_NM:g} N m over these poses (largest spread {spread:.3g} N m; are the "
