@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from fgcal.errors import FgcalError
 from fgcal.io.dataset_io import load_dataset, save_dataset
 from fgcal.online import run as run_module
 from fgcal.online.checkpoint import read_checkpoint
@@ -51,3 +52,18 @@ def test_journal_is_written_per_pose_and_flushed_by_the_interval(puma, dataset, 
     n = len(records)
     assert sum(c == fd for c in calls) == (n + 1 if interval == 0.0 else n if streamed else 1)
     run.close()
+
+
+@pytest.mark.parametrize("value", ["1e400", str(10**400), "-" + str(10**400), "NaN"])
+def test_a_journal_number_beyond_a_float_is_refused_by_its_entry(tmp_path, value):
+    """JSON integers are unbounded: a journal's ``"f": 10**400`` is named as the entry's problem (it
+    was an OverflowError from math.isfinite), as an infinite float is."""
+    path = tmp_path / "c.checkpoint"
+    header = '{"format": "fgcal-online-checkpoint/1"}'
+    path.write_text(header + "\n" + '{"pose": 1, "accepted": false, "f": ' + value + "}\n"
+                    + '{"pose": 2, "accepted": false}\n')
+    with pytest.raises(FgcalError, match=r"c\.checkpoint: entry 2 of the checkpoint: pose 1: f is not a finite "
+                                         r"number; use --restart"):
+        read_checkpoint(path)
+    path.write_text(header + "\n" + '{"pose": 1, "accepted": false, "f": ' + str(10**300) + "}\n")
+    assert read_checkpoint(path)["entries"][0]["f"] == 10**300
