@@ -248,6 +248,7 @@ def test_a_warm_start_ends_at_the_cold_optimum_in_fewer_steps(puma, levels):
     SimulationSettings(n_poses=4, levels=("poses",)),
     SimulationSettings(n_poses=20, levels=("distances",), n_balls=1),
     SimulationSettings(n_poses=6, levels=("centres", "distances"), n_balls=2),
+    SimulationSettings(n_poses=5, levels=("probes", "centres"), n_balls=2),  # a ball at two levels counts once
 ])
 def test_the_equation_count_is_the_poses_degrees_of_freedom(puma, settings):
     """The count calibrate refuses on equals a plain per-pose count written here: a full pose or
