@@ -356,3 +356,36 @@ def test_noise_factor_is_the_weighted_median_of_the_estimates():
             assert tracker.factor() == reference(pairs)
     assert NoiseTracker().factor() == 1.0
     assert NoiseTracker(pairs).factor() == reference(pairs)
+
+
+def lockstep_with_unshared_gate(ds, model, monkeypatch, n=None):
+    """Feed ``ds`` to two EKFs, one whose update takes the gate's products at the first iteration
+    (the default) and one that forms them again (``share_gate = False``), and compare their states
+    after every pose; returns how many evaluations of each pose's measurement the shared one made."""
+    from fgcal.online.measurement import PoseMeasurement
+
+    evaluations = []
+    evaluate = PoseMeasurement._evaluate
+    monkeypatch.setattr(PoseMeasurement, "_evaluate", lambda m, x: (evaluations.append(m), evaluate(m, x))[1])
+    shared, unshared = make_engine("ekf", ds, model), make_engine("ekf", ds, model)
+    unshared.share_gate = False
+    counts = []
+    for rec in pose_records(ds)[:n]:
+        evaluations.clear()
+        a = shared.update(rec)
+        counts.append(len(evaluations))
+        b = unshared.update(rec)
+        assert (a.accepted, a.reason, a.journal) == (b.accepted, b.reason, b.journal)
+        for u, v in zip(shared.estimate_all()[:2], unshared.estimate_all()[:2]):
+            np.testing.assert_allclose(u, v, rtol=1e-12, atol=1e-12 * np.abs(v).max())
+    return counts
+
+
+def test_the_update_sharing_the_gates_products_equals_one_forming_them(puma, monkeypatch):
+    """The EKF's first iteration takes the innovation gate's ``P H'`` and ``H P H'`` (the same point)
+    and skips judging again the innovation the gate judged: its state after each of 150 poses is
+    the one of an update that forms them again (to 1e-12), with one linearisation (the gate's) and
+    with two (a relinearised update)."""
+    ds, _ = simulate(puma, np.random.default_rng(7), SimulationSettings(n_poses=150))
+    counts = lockstep_with_unshared_gate(ds, puma, monkeypatch)
+    assert 1 in counts and 2 in counts

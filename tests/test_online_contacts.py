@@ -182,3 +182,12 @@ def test_stdin_contacts_as_the_files(datasets, engine, tmp_path):
     np.testing.assert_allclose(got, expected.estimate, rtol=0, atol=1e-6 * np.abs(expected.estimate).max())
     assert {h["name"] for h in streamed["held"]} == {h["name"] for h in expected.held}
     assert streamed["setup"]["estimated"].keys() == expected.setup["estimated"].keys()
+
+
+def test_the_shared_gate_update_with_set_up_blocks(datasets, monkeypatch):
+    """With set-up blocks started by the poses (fixture points, a plane, contacts kept pending),
+    the update that takes the gate's products is the one that forms them again (to 1e-12)."""
+    from test_online import lockstep_with_unshared_gate
+
+    ds = load_dataset(datasets["both"])
+    assert lockstep_with_unshared_gate(ds, dataset_model(ds), monkeypatch)

@@ -174,7 +174,9 @@ class _Engine:
                 return None, why, None
             x, C = m.augment(theta, cov)  # with the set-up blocks the pose starts
             e, H, R = m(x)
-            return m, None, (-e, H @ C @ H.T, R)
+            PHt = C @ H.T
+            m.gate = (x, C, PHt, H @ PHt)  # the filter's first iteration is at the same point (kalman)
+            return m, None, (-e, m.gate[3], R)
 
         m, reason, vAR = statistic(rec)
         if m is not None and not m.n_rows:  # only contacts to a plane not started yet: kept pending

@@ -148,6 +148,9 @@ class PoseMeasurement:
             k += len(block)
         self.rj = np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)).copy()  # (n,) rad^2
         self._last = None  # (theta's bytes, value) of the last call
+        # The gate's linearisation (:meth:`fgcal.online.base._Engine._screen`): the state ``x`` and
+        # covariance ``C`` with the set-up blocks the pose starts, ``C H'`` and ``H C H'``.
+        self.gate: tuple | None = None
 
     def __call__(self, theta):
         key = np.asarray(theta, dtype=float).tobytes()
