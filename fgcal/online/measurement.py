@@ -148,6 +148,8 @@ class PoseMeasurement:
             k += len(block)
         self.rj = np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)).copy()  # (n,) rad^2
         self._last = None  # (theta's bytes, value) of the last call
+        self._centres_only = bool(len(self.offsets)) and rec.T is None and not len(self.d_lengths) \
+            and not self.generic and setup is None
         # The gate's linearisation (:meth:`fgcal.online.base._Engine._screen`): the state ``x`` and
         # covariance ``C`` with the set-up blocks the pose starts, ``C H'`` and ``H C H'``.
         self.gate: tuple | None = None
@@ -169,6 +171,9 @@ class PoseMeasurement:
         x = np.asarray(x, dtype=float)
         n_p = len(self.engine.params)
         theta = x[:n_p]
+        if self._centres_only and len(x) == n_p:  # ball centres alone (the common pose): the same values, directly
+            e, Jt, Jq = _centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs)
+            return e, Jt, self.R0 + (Jq * self.rj) @ Jq.T
         rows = []
         if len(self.offsets):
             rows.append(_centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs))
