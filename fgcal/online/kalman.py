@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -12,6 +13,14 @@ from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData
 
 __all__ = ["FilterState", "KalmanEngine"]
+
+
+@lru_cache(maxsize=8)
+def _identity(n: int) -> np.ndarray:
+    """The identity (n, n), formed once per size (read-only)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
 
 
 @dataclass
@@ -112,7 +121,7 @@ class KalmanEngine(_Engine):
         if reason:
             return reason
         # Joseph form, linearised at the iterated point: symmetric and positive whatever the rounding
-        I_KH = np.eye(len(x0)) - K @ H
+        I_KH = _identity(len(x0)) - K @ H
         self.kf.x = x0 + K @ innovation
         self.kf.P = I_KH @ P0 @ I_KH.T + K @ (f * R) @ K.T
         return None

@@ -14,6 +14,9 @@ import numpy as np
 
 __all__ = ["OperationTables", "jacobians_one"]
 
+_EYE4 = np.eye(4)
+_NEXT = (np.array([1, 2, 0]), np.array([2, 0, 1]))  # the cross product's cyclic index orders
+
 
 class OperationTables:
     """Where each operation's values go in the (K, 16) flat operation matrices, built once per
@@ -68,7 +71,7 @@ def _frames(chain, x, v):
         F[shift:] = np.matmul(F[:-shift], F[shift:])
         shift *= 2
     B = np.empty_like(F)
-    B[0] = np.eye(4)
+    B[0] = _EYE4
     B[1:] = F[:-1]
     T = F[-1] if chain.tool_offset is None else F[-1] @ chain.tool_offset
     return B, T
@@ -99,9 +102,8 @@ def jacobians_one(chain, x, readings, offsets=None):
     cross_p[1, :, 0], cross_p[1, :, 2] = points[:, 2], -points[:, 0]
     cross_p[2, :, 0], cross_p[2, :, 1] = -points[:, 1], points[:, 0]
     cross_p = cross_p.reshape(3, -1)
-    a0, a1, a2 = axes.T
-    o0, o1, o2 = origins.T
-    moment = np.stack([a1 * o2 - a2 * o1, a2 * o0 - a0 * o2, a0 * o1 - a1 * o0], axis=1)  # axes x origins
+    next1, next2 = _NEXT
+    moment = axes[:, next1] * origins[:, next2] - axes[:, next2] * origins[:, next1]  # axes x origins
     d = (axes @ cross_p).reshape(K, n_pts + 1, 3) - moment[:, None, :]
     rot = chain.kind_rot
     d = np.where(rot[:, None, None], d, axes[:, None, :])
