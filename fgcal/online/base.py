@@ -20,6 +20,7 @@ from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData, _variant, records_dataset
 from fgcal.online.setup_blocks import OnlineSetup
+from fgcal.robots.kinematics import chain_for, jacobians_one
 from fgcal.robots.model import ParameterSet, RobotModel
 
 __all__ = ["weak_prior"]
@@ -119,8 +120,7 @@ class _Engine:
         if hit is None:
             if len(self._kinematics) >= 8:
                 self._kinematics.clear()
-            hit = self._kinematics[key] = fx.pose_ball_centres_error(
-                theta, q, offsets, np.zeros_like(offsets), self.index, self.held, self.model.chain)
+            hit = self._kinematics[key] = _ball_rows(theta, q, offsets, self.index, self.held, self.model.chain)
         return hit
 
     def _covariance(self) -> np.ndarray:
@@ -373,6 +373,15 @@ class _Engine:
         if self._final is not None and getattr(self, "_final_refused", None):  # named, as the batch names them
             out["refused"] = list(self._final_refused)
         return out
+
+
+def _ball_rows(theta, q, offsets, index, held, chain):
+    """:func:`factors.pose_ball_centres_error` at zero centres, ``(FK(theta, q) offsets (B, 3),
+    J_theta (B, 3, P), J_q (B, 3, n))``, from the single-pose kinematics directly: the same values,
+    without the checks of a general call (read-only arrays)."""
+    x = fx.slots_of(theta, index, held)
+    jac = jacobians_one(chain_for(x, chain), x, q, offsets)
+    return jac.points[0], jac.point_slots[0][:, :, index], jac.point_joints[0]
 
 
 def _gauge_names(ds: Dataset, names) -> list[str]:
