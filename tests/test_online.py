@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from online_util import interrupted_and_resumed, lockstep_with_unshared_gate
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
@@ -75,19 +76,8 @@ def test_a_bad_pose_is_rejected_and_leaves_the_state(puma, dataset):
 
 @pytest.mark.parametrize("engine", ["ekf", "isam2"])
 def test_resume_gives_the_same_result(puma, dataset, engine, tmp_path):
-    whole = OnlineRun(dataset, puma, engine, tmp_path / "a.json")
-    for rec in whole.pending():
-        whole.feed(rec)
-    expected = whole.result()
-    first = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
-    for rec in first.pending()[:17]:
-        first.feed(rec)
-    first.close()  # "crash": the journal has no end-of-run mark, closing is the same as dying
-    second = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
-    assert second.resume() == 17
-    for rec in second.pending():
-        second.feed(rec)
-    got = second.result()
+    whole, _, second = interrupted_and_resumed(dataset, puma, engine, tmp_path, 17)  # closing the first: a crash
+    expected, got = whole.result(), second.result()
     np.testing.assert_allclose(got.estimate, expected.estimate, rtol=0, atol=1e-9 * np.abs(expected.estimate).max())
     np.testing.assert_allclose(got.covariance, expected.covariance, rtol=1e-7, atol=1e-12)
     assert got.pose_ids == expected.pose_ids
@@ -356,29 +346,6 @@ def test_noise_factor_is_the_weighted_median_of_the_estimates():
             assert tracker.factor() == reference(pairs)
     assert NoiseTracker().factor() == 1.0
     assert NoiseTracker(pairs).factor() == reference(pairs)
-
-
-def lockstep_with_unshared_gate(ds, model, monkeypatch, n=None):
-    """Feed ``ds`` to two EKFs, one whose update takes the gate's products at the first iteration
-    (the default) and one that forms them again (``share_gate = False``), and compare their states
-    after every pose; returns how many evaluations of each pose's measurement the shared one made."""
-    from fgcal.online.measurement import PoseMeasurement
-
-    evaluations = []
-    evaluate = PoseMeasurement._evaluate
-    monkeypatch.setattr(PoseMeasurement, "_evaluate", lambda m, x: (evaluations.append(m), evaluate(m, x))[1])
-    shared, unshared = make_engine("ekf", ds, model), make_engine("ekf", ds, model)
-    unshared.share_gate = False
-    counts = []
-    for rec in pose_records(ds)[:n]:
-        evaluations.clear()
-        a = shared.update(rec)
-        counts.append(len(evaluations))
-        b = unshared.update(rec)
-        assert (a.accepted, a.reason, a.journal) == (b.accepted, b.reason, b.journal)
-        for u, v in zip(shared.estimate_all()[:2], unshared.estimate_all()[:2]):
-            np.testing.assert_allclose(u, v, rtol=1e-12, atol=1e-12 * np.abs(v).max())
-    return counts
 
 
 def test_the_update_sharing_the_gates_products_equals_one_forming_them(puma, monkeypatch):

@@ -54,12 +54,14 @@ def pose_matrix(entries) -> np.ndarray:
 
 
 def pose_entries(T) -> np.ndarray:
-    """``[px, py, pz, phi, theta, psi]`` (mm, rad) of a 4x4 transform (ZYX angles; theta in [-90, 90] deg)."""
-    R = np.asarray(T, dtype=float)[:3, :3]
-    theta = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
-    phi = np.arctan2(R[1, 0], R[0, 0])
-    psi = np.arctan2(R[2, 1], R[2, 2])
-    return np.concatenate([np.asarray(T, dtype=float)[:3, 3], [phi, theta, psi]])
+    """``[px, py, pz, phi, theta, psi]`` (..., 6) (mm, rad) of 4x4 transforms (..., 4, 4) (ZYX angles;
+    theta in [-90, 90] deg)."""
+    T = np.asarray(T, dtype=float)
+    R = T[..., :3, :3]
+    theta = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
+    phi = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    psi = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    return np.concatenate([T[..., :3, 3], np.stack([phi, theta, psi], axis=-1)], axis=-1)
 
 
 def project(Xc, k) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -161,14 +163,19 @@ class CameraSpec(FixtureSpec):
         out: dict = {"type": "camera", "mount": self.mount, "width": int(self.width), "height": int(self.height),
                      "intrinsics": {c: float(v) for c, v in zip(INTRINSICS, self.intrinsics, strict=False)},
                      "estimate": list(self.estimate), "pixel_sigma": float(self.pixel_sigma)}
-        pose = self.value[:6] if self.value is not None else self.start_pose
-        if pose is not None:
-            out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
-        if self.sigma is not None:
-            out["sigma"] = float(self.sigma)
-        if self.fixed:
-            out["fixed"] = True
-        return out
+        return _with_mount(out, self.value[:6] if self.value is not None else self.start_pose, self)
+
+
+def _with_mount(out: dict, pose, spec) -> dict:
+    """``out`` (a camera's or target's ``dataset.yaml`` entry) with its ``mount_pose`` (``pose``
+    (6,) mm, rad, written mm, deg) and ``spec``'s ``sigma`` and ``fixed``, where they are given."""
+    if pose is not None:
+        out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
+    if spec.sigma is not None:
+        out["sigma"] = float(spec.sigma)
+    if spec.fixed:
+        out["fixed"] = True
+    return out
 
 
 @dataclass(frozen=True)
@@ -197,11 +204,4 @@ class TargetSpec(FixtureSpec):
     def to_dict(self) -> dict:
         out: dict = {"type": "target", "mount": self.mount,
                      "points": {n: [float(v) for v in p] for n, p in self.points.items()}}
-        pose = self.value if self.value is not None else self.start_pose
-        if pose is not None:
-            out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
-        if self.sigma is not None:
-            out["sigma"] = float(self.sigma)
-        if self.fixed:
-            out["fixed"] = True
-        return out
+        return _with_mount(out, self.value if self.value is not None else self.start_pose, self)
