@@ -1,7 +1,7 @@
 """Helpers of the online engines' tests (tests/test_online.py, test_online_stations.py,
 test_online_contacts.py, test_online_pixels.py, test_measurement_protocol.py): a whole online run,
 an engine's running estimate against the batch's prediction, an interrupted and resumed run, a
-``--stdin`` session in a child."""
+``--stdin`` session in a child, two EKFs in lockstep (the gate's products shared or formed again)."""
 import json
 import subprocess
 import sys
@@ -93,3 +93,26 @@ def assert_streamed_as_files(streamed, expected, n_poses):
     got = np.array([p["estimate"] for p in streamed["parameters"]])
     np.testing.assert_allclose(got, expected.estimate, rtol=0, atol=1e-6 * np.abs(expected.estimate).max())
     assert streamed["setup"]["estimated"].keys() == expected.setup["estimated"].keys()
+
+
+def lockstep_with_unshared_gate(ds, model, monkeypatch, n=None):
+    """Feed ``ds`` to two EKFs, one whose update takes the gate's products at the first iteration
+    (the default) and one that forms them again (``share_gate = False``), and compare their states
+    after every pose; returns how many evaluations of each pose's measurement the shared one made."""
+    from fgcal.online.measurement import PoseMeasurement
+
+    evaluations = []
+    evaluate = PoseMeasurement._evaluate
+    monkeypatch.setattr(PoseMeasurement, "_evaluate", lambda m, x: (evaluations.append(m), evaluate(m, x))[1])
+    shared, unshared = make_engine("ekf", ds, model), make_engine("ekf", ds, model)
+    unshared.share_gate = False
+    counts = []
+    for rec in pose_records(ds)[:n]:
+        evaluations.clear()
+        a = shared.update(rec)
+        counts.append(len(evaluations))
+        b = unshared.update(rec)
+        assert (a.accepted, a.reason, a.journal) == (b.accepted, b.reason, b.journal)
+        for u, v in zip(shared.estimate_all()[:2], unshared.estimate_all()[:2]):
+            np.testing.assert_allclose(u, v, rtol=1e-12, atol=1e-12 * np.abs(v).max())
+    return counts

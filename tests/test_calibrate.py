@@ -248,6 +248,7 @@ def test_a_warm_start_ends_at_the_cold_optimum_in_fewer_steps(puma, levels):
     SimulationSettings(n_poses=4, levels=("poses",)),
     SimulationSettings(n_poses=20, levels=("distances",), n_balls=1),
     SimulationSettings(n_poses=6, levels=("centres", "distances"), n_balls=2),
+    SimulationSettings(n_poses=5, levels=("probes", "centres"), n_balls=2),  # a ball at two levels counts once
 ])
 def test_the_equation_count_is_the_poses_degrees_of_freedom(puma, settings):
     """The count calibrate refuses on equals a plain per-pose count written here: a full pose or
@@ -272,3 +273,25 @@ def test_the_equation_count_is_the_poses_degrees_of_freedom(puma, settings):
         _check_equations(ds, settings.levels, 10**6)
     assert int(re.search(r"give (\d+) equations", str(err.value)).group(1)) == expected
     _check_equations(ds, settings.levels, expected)  # exactly enough: no error
+
+
+def test_sphere_fits_kept_between_builds_give_fresh_builds(puma):
+    """``build_graph(fits=...)`` (the online final smoothing builds the smoothed poses twice: the
+    held decision's graph at the batch's start, then the solve's at the engine's estimate) gives
+    the states of builds without it, bit for bit, and the second build adds nothing to ``fits``:
+    only the fit started at its own prediction is computed again."""
+    from fgcal.estimation.build import build_graph
+
+    ds, _ = simulate(puma, np.random.default_rng(31), SimulationSettings(n_poses=30))
+    names = puma.parameters().names
+    start = puma.nominal + np.random.default_rng(2).normal(0.0, 1e-3, puma.nominal.shape)
+    builds = [(CalibrationOptions(prior="none"), None), (CalibrationOptions(prior="weak"), start)]
+    fits: dict = {}
+    kept = []
+    for options, at in builds:
+        _, shared, _ = build_graph(ds, puma, names, options, start=at, fits=fits)
+        kept.append(len(fits))
+        _, fresh, _ = build_graph(ds, puma, names, options, start=at)
+        for u, v in ((shared.theta, fresh.theta), (shared.c, fresh.c), (shared.q, fresh.q)):
+            assert u.tobytes() == v.tobytes()
+    assert kept[0] > 0 and kept[1] == kept[0]

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 import pytest
-from online_util import interrupted_and_resumed
+from online_util import interrupted_and_resumed, lockstep_with_unshared_gate
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
@@ -346,3 +346,13 @@ def test_noise_factor_is_the_weighted_median_of_the_estimates():
             assert tracker.factor() == reference(pairs)
     assert NoiseTracker().factor() == 1.0
     assert NoiseTracker(pairs).factor() == reference(pairs)
+
+
+def test_the_update_sharing_the_gates_products_equals_one_forming_them(puma, monkeypatch):
+    """The EKF's first iteration takes the innovation gate's ``P H'`` and ``H P H'`` (the same point)
+    and skips judging again the innovation the gate judged: its state after each of 150 poses is
+    the one of an update that forms them again (to 1e-12), with one linearisation (the gate's) and
+    with two (a relinearised update)."""
+    ds, _ = simulate(puma, np.random.default_rng(7), SimulationSettings(n_poses=150))
+    counts = lockstep_with_unshared_gate(ds, puma, monkeypatch)
+    assert 1 in counts and 2 in counts

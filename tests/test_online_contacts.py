@@ -14,6 +14,7 @@ from online_util import (
     assert_resumed_as_whole,
     assert_streamed_as_files,
     interrupted_and_resumed,
+    lockstep_with_unshared_gate,
     running_estimate_ratio,
     stdin_session,
 )
@@ -137,3 +138,10 @@ def test_stdin_contacts_as_the_files(datasets, engine, tmp_path):
     expected = _online(ds, model, engine).result()
     assert_streamed_as_files(streamed, expected, ds.n_poses)
     assert {h["name"] for h in streamed["held"]} == {h["name"] for h in expected.held}
+
+
+def test_the_shared_gate_update_with_set_up_blocks(datasets, monkeypatch):
+    """With set-up blocks started by the poses (fixture points, a plane, contacts kept pending),
+    the update that takes the gate's products is the one that forms them again (to 1e-12)."""
+    ds = load_dataset(datasets["both"])
+    assert lockstep_with_unshared_gate(ds, dataset_model(ds), monkeypatch)

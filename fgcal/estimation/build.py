@@ -143,14 +143,35 @@ def _setup_layout(ds: Dataset, model: RobotModel, kinds, start, q, row) -> Setup
     return SetupLayout.build(ds.setup.subset(used), starts)
 
 
+def _kept(fits: dict | None, fn, *args, **kw):
+    """``fn(*args, **kw)`` (arrays and numbers), kept in ``fits`` under the bytes, shapes and values
+    of its arguments: a second build of the same dataset asks the same fit again and gets the
+    same array (not to be changed by the caller); without ``fits``, computed."""
+    if fits is None:
+        return fn(*args, **kw)
+    key = (fn.__name__, *(_key(a) for a in args), *((k, _key(v)) for k, v in sorted(kw.items())))
+    hit = fits.get(key)
+    if hit is None:
+        hit = fits[key] = fn(*args, **kw)
+    return hit
+
+
+def _key(value):
+    if isinstance(value, np.ndarray):
+        return value.shape, value.dtype.str, value.tobytes()
+    return value
+
+
 def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptions, held=None, scale=None,
-                start=None, priors=None):
+                start=None, priors=None, fits: dict | None = None):
     """The factor graph of ``ds`` over the parameters ``names``; returns ``(graph, state, pose_ids)``.
 
     Only poses with at least one measurement at the chosen levels take part. The state starts at
     ``start`` (all slots (S,), internal units) when given, else at ``held`` (default the nominal
     chain) with the base fitted to the measurements. ``priors`` ({name: sigma}, internal units):
     priors about the nominal on those parameters (the tighter one where ``options.prior`` has one).
+    ``fits``: a dict the caller keeps between builds of the same dataset (:func:`_kept`): the
+    sphere fits that do not depend on the start are computed once (the same values).
     """
     levels = _levels(ds, options)
     block_names = [n for n in names if is_block_name(n)]  # joint-error block (fgcal.estimation.joint_errors)
@@ -187,7 +208,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         # Start each centre from a sphere fit of its points (batched over balls with equal counts).
         init_c = np.full((len(key), 3), np.nan)
         for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=4):
-            init_c[vs] = fit_spheres_batch(pts, ds.tooling.radius)
+            init_c[vs] = _kept(fits, fit_spheres_batch, pts, ds.tooling.radius)
         world_points = _points_by_pose(ball_pose, ball_offset, init_c)
         kw.update(probes=(probe_row, var_of_probe, pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset,
                   radius=ds.tooling.radius)
@@ -256,8 +277,12 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
             first = init_c[vs]
             ok = np.all(np.isfinite(first), axis=1)
             first_ok = np.where(ok[:, None], first, predicted[vs])
-            candidates = [fit_spheres_batch(pts, ds.tooling.radius, guess=g)
-                          for g in (first_ok, mirror_through_points(pts, first_ok), predicted[vs])]
+            # from the plain fits and their mirror images (the same at any start where every plain fit
+            # succeeded: kept in ``fits``), and from the prediction
+            candidates = [_kept(fits, fit_spheres_batch, pts, ds.tooling.radius, guess=first_ok),
+                          _kept(fits, fit_spheres_batch, pts, ds.tooling.radius,
+                                guess=_kept(fits, mirror_through_points, pts, first_ok)),
+                          fit_spheres_batch(pts, ds.tooling.radius, guess=predicted[vs])]
             init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates,
                                             np.inf if warm else ds.noise.cmm_sigma, predicted[vs])
         bad = ~np.all(np.isfinite(init_c), axis=1) | (np.linalg.norm(init_c - predicted, axis=1) > 50.0)

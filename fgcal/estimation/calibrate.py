@@ -204,19 +204,21 @@ class Solution:
     start_raw: dict | None = None  # the raw errors at theta_start with the joints at their readings, when formed
 
 
-def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None):
+def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: CalibrationOptions, priors=None,
+               fits=None):
     """``(held, priors)``: of the ``redundant`` parameters (at the nominal geometry) those the same
     poses cannot separate at a geometry deviating from the nominal by typical amounts either
     (:func:`~fgcal.estimation.holding.typical_geometry`) stay held: they are redundant wherever the
     robot is (a tool angle for a single tool point, a ballbar's rotation about its pivot). The
     others get a prior of their typical deviation (:data:`~fgcal.estimation.options.TYPICAL_DEVIATIONS`,
-    internal units) in ``priors`` (a copy of the given one)."""
+    internal units) in ``priors`` (a copy of the given one). ``fits``: as for :func:`build_graph`."""
     priors = dict(priors or {})
     candidates = [n for n in redundant if n in set(model.slot_names)]
     if not candidates:
         return redundant, priors
     every = list(names) + [n for n in candidates if n not in names]
-    graph, state, _ = build_graph(ds, model, every, replace(options, prior="none"), start=typical_geometry(model))
+    graph, state, _ = build_graph(ds, model, every, replace(options, prior="none"), start=typical_geometry(model),
+                                  fits=fits)
     still = held_parameters(graph, state, lambda g, st: _identifiability(g, st, rtol=STRUCTURAL_RTOL).redundant)
     for n in candidates:
         if n not in still:
@@ -227,7 +229,7 @@ def split_held(model: RobotModel, names, redundant: dict, ds: Dataset, options: 
 
 
 def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions(),
-                      start=None, decide_held: bool = True, priors=None, warm=None) -> Solution:
+                      start=None, decide_held: bool = True, priors=None, warm=None, fits=None) -> Solution:
     """The solve of :func:`calibrate` without the result's summaries.
 
     Parameters
@@ -247,7 +249,11 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
         noise): the parameters it has start the solve at its estimates, the others at the usual
         start (a joint-error block at zero). Only the way to the optimum changes: the decisions
         (held parameters) and the per-pose nominal residuals are those of the usual start.
+    fits : dict, optional
+        Sphere fits kept between builds of the same dataset (see :func:`build_graph`): the caller's
+        when it built the graph of ``ds`` before (an online engine's final smoothing), else a new one.
     """
+    fits = {} if fits is None else fits
     noise_mode = NoiseMode(options.noise)
     outlier_mode = OutlierMode(options.outliers)
     params = model.parameters(extra=options.extra, exclude=options.exclude)
@@ -263,14 +269,14 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
 
     priors = dict(priors or {})
     new_priors: set = set()
-    graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
+    graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors, fits=fits)
     redundant = held_parameters(graph, state, _unidentifiable) if decide_held else {}
     if redundant:
         # What these poses cannot separate at the nominal geometry: held where it is redundant at any
         # geometry, else estimated with a prior of its typical deviation (the data decide where
         # they can; holding it at a guess would leave its deviation in every prediction).
         given = set(priors)
-        redundant, priors = split_held(model, names, redundant, ds, options, priors)
+        redundant, priors = split_held(model, names, redundant, ds, options, priors, fits)
         new_priors = set(priors) - given  # typical-deviation priors (not the caller's)
         for n, partners in redundant.items():
             reason = ("cannot be separated from " + ", ".join(partners)) if partners else "no data constrains it"
@@ -278,7 +284,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
                               "reason": reason})
             log.warning("%s is not identifiable from these data (%s): held at %g", n, reason, held_info[-1]["value"])
         names = [n for n in names if n not in redundant]
-        graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors)
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=start, priors=priors, fits=fits)
 
     theta_start = state.theta.copy()  # the nominal chain with the base fitted: the per-pose "nominal" error
     # its raw errors, from the solve's first linearisation where its state is at the readings (no ball variables)
@@ -305,7 +311,7 @@ def solve_calibration(ds: Dataset, model: RobotModel, options: CalibrationOption
                      "prior (%.3g): estimated without the prior", n, s, priors[n])
         priors = {n: s for n, s in priors.items() if n not in dropped}
         warm_slots = graph.params.full(state.theta, graph.held)
-        graph, state, pose_ids = build_graph(ds, model, names, options, start=warm_slots, priors=priors)
+        graph, state, pose_ids = build_graph(ds, model, names, options, start=warm_slots, priors=priors, fits=fits)
         state, it2, converged, rounds2, declared = _solve_rounds(graph, state, options, WARM_DAMPING, noise_mode,
                                                                  outlier_mode)
         iterations, rounds = iterations + it2, rounds + rounds2
@@ -334,7 +340,7 @@ def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
 
     full = np.zeros(len(pose_ids), dtype=bool)
     dof = 0
-    ball_pairs = []
+    ball_rows, ball_names = [], []  # (pose row, ball) of each ball-placing observation
     for lv in levels:
         obs = getattr(ds, lv)
         r = rows(np.asarray(obs.pose))
@@ -342,10 +348,16 @@ def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
         if width >= 6:
             full[r[r >= 0]] = True
         elif width == 3:
-            ball_pairs += [(int(i), str(b)) for i, b in zip(r.tolist(), obs.ball.tolist()) if i >= 0]
+            ball_rows.append(r[r >= 0])
+            ball_names.append(np.asarray(obs.ball).astype(str)[r >= 0])
         else:
             dof += width * int(np.sum(r >= 0))
-    balls = np.bincount(np.array([i for i, _ in set(ball_pairs)], dtype=int), minlength=len(pose_ids))
+    balls = np.zeros(len(pose_ids), dtype=int)  # distinct balls per pose
+    if ball_rows:
+        names, ball = np.unique(np.concatenate(ball_names), return_inverse=True)
+        k = max(len(names), 1)
+        pairs = np.unique(np.concatenate(ball_rows) * k + ball.ravel())
+        balls = np.bincount(pairs // k, minlength=len(pose_ids))
     # Degrees of freedom per pose: full pose 6, three balls or more 6, two balls 5, one ball 3.
     dof += int(np.sum(np.where(full, 6, np.array([0, 3, 5, 6])[np.minimum(balls, 3)])))
     if dof < n_parameters:

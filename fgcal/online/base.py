@@ -20,6 +20,7 @@ from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData, _variant, records_dataset
 from fgcal.online.setup_blocks import OnlineSetup
+from fgcal.robots.kinematics import chain_for, jacobians_one
 from fgcal.robots.model import ParameterSet, RobotModel
 
 __all__ = ["weak_prior"]
@@ -119,8 +120,7 @@ class _Engine:
         if hit is None:
             if len(self._kinematics) >= 8:
                 self._kinematics.clear()
-            hit = self._kinematics[key] = fx.pose_ball_centres_error(
-                theta, q, offsets, np.zeros_like(offsets), self.index, self.held, self.model.chain)
+            hit = self._kinematics[key] = _ball_rows(theta, q, offsets, self.index, self.held, self.model.chain)
         return hit
 
     def _covariance(self) -> np.ndarray:
@@ -174,7 +174,9 @@ class _Engine:
                 return None, why, None
             x, C = m.augment(theta, cov)  # with the set-up blocks the pose starts
             e, H, R = m(x)
-            return m, None, (-e, H @ C @ H.T, R)
+            PHt = C @ H.T
+            m.gate = (x, C, PHt, H @ PHt)  # the filter's first iteration is at the same point (kalman)
+            return m, None, (-e, m.gate[3], R)
 
         m, reason, vAR = statistic(rec)
         if m is not None and not m.n_rows:  # only contacts to a plane not started yet: kept pending
@@ -278,8 +280,9 @@ class _Engine:
         n_p = len(self.params)
         start = self.params.full(self._current()[:n_p], self.held) if trusted else None
         gauge = _gauge_names(seen, names)  # a stream learns only now what fixes the world frame
+        fits: dict = {}  # the sphere fits both builds of ``seen`` share (fgcal.estimation.build.build_graph)
         try:
-            held, priors = self._batch_held(seen, [n for n in names if n not in gauge])
+            held, priors = self._batch_held(seen, [n for n in names if n not in gauge], fits)
             held = {**{n: [] for n in gauge}, **held}
             free = [n for n in names if n not in held]
             if start is not None and held:  # held where the batch holds them: at their start values
@@ -288,7 +291,7 @@ class _Engine:
             options = replace(self.options, prior="weak", extra=tuple(n for n in free if n not in ident),
                               exclude=tuple(n for n in ident if n not in free))
             sol = solve_calibration(seen, self.model, options, start=start, decide_held=False,
-                                    priors={**self.typical_prior, **priors})
+                                    priors={**self.typical_prior, **priors}, fits=fits)
             cov = solution_covariance(sol)
         except FgcalError as exc:  # too few poses for the batch solve yet: the running estimate stands
             log.info("final smoothing skipped: %s", exc)
@@ -317,12 +320,13 @@ class _Engine:
             self._final_setup = (x, cov_all, layout)
         return theta, full_cov
 
-    def _batch_held(self, seen: Dataset, names) -> tuple[dict, dict]:
+    def _batch_held(self, seen: Dataset, names, fits: dict | None = None) -> tuple[dict, dict]:
         """What the batch would hold among ``names`` on the poses ``seen``: the rule of
         :func:`fgcal.estimation.calibrate.solve_calibration` (the graph at the declared noise, no
         prior, linearised at the start) and the priors it gives the weakly identifiable ones
         (:func:`fgcal.estimation.calibrate.split_held`): ``(held, priors)``; raises
-        :class:`FgcalError` when the poses are too few."""
+        :class:`FgcalError` when the poses are too few. ``fits``: the sphere fits kept for the
+        solve's build of ``seen`` (:func:`fgcal.estimation.build.build_graph`)."""
         from dataclasses import replace
 
         from fgcal.estimation.build import _levels, build_graph
@@ -332,9 +336,9 @@ class _Engine:
         options = replace(self.options, prior="none", noise_scale=None)
         levels = _levels(seen, options)
         _check_equations(seen, levels, len(names) + setup_size(seen, levels))
-        graph, state, _ = build_graph(seen, self.model, names, options, priors=self.typical_prior)
+        graph, state, _ = build_graph(seen, self.model, names, options, priors=self.typical_prior, fits=fits)
         held = held_parameters(graph, state, _unidentifiable)
-        held, priors = split_held(self.model, [n for n in names if n not in held], held, seen, options)
+        held, priors = split_held(self.model, [n for n in names if n not in held], held, seen, options, fits=fits)
         for n, partners in held.items():
             log.info("final smoothing: %s held (cannot be separated from %s)", n, ", ".join(partners) or "nothing")
         return held, priors
@@ -369,6 +373,15 @@ class _Engine:
         if self._final is not None and getattr(self, "_final_refused", None):  # named, as the batch names them
             out["refused"] = list(self._final_refused)
         return out
+
+
+def _ball_rows(theta, q, offsets, index, held, chain):
+    """:func:`factors.pose_ball_centres_error` at zero centres, ``(FK(theta, q) offsets (B, 3),
+    J_theta (B, 3, P), J_q (B, 3, n))``, from the single-pose kinematics directly: the same values,
+    without the checks of a general call (read-only arrays)."""
+    x = fx.slots_of(theta, index, held)
+    jac = jacobians_one(chain_for(x, chain), x, q, offsets)
+    return jac.points[0], jac.point_slots[0][:, :, index], jac.point_joints[0]
 
 
 def _gauge_names(ds: Dataset, names) -> list[str]:

@@ -128,9 +128,13 @@ def _plain_fit_will_do(kept, prediction, radius) -> np.ndarray:
     ok = np.array([fit.ok for _, _, fit, _ in kept])
     centre = np.array([fit.centre for _, _, fit, _ in kept])
     pred = np.array([prediction[b] for b, _, _, _ in kept])
-    d_pred = np.linalg.norm(centre - pred, axis=1)
-    d_mirror = np.linalg.norm(centre - np.array([m for _, _, _, m in kept]), axis=1)
+    d_pred, d_mirror = _lengths(centre - pred), _lengths(centre - np.array([m for _, _, _, m in kept]))
     return ok & (d_pred < 0.25 * radius) & (d_pred < 0.25 * d_mirror)
+
+
+def _lengths(d) -> np.ndarray:
+    """The rows' Euclidean lengths (K,) of ``d`` (K, 3): ``np.linalg.norm(d, axis=1)``'s sum, without its dispatch."""
+    return np.sqrt(np.add.reduce(d * d, axis=1))
 
 
 def prefit(records, tooling, sigma_cmm: float) -> None:

@@ -32,7 +32,6 @@ class Display:
         params = run.engine.params
         est, sig = run.estimate_file_units()
         rel = sig / self._prior  # 1: the data have said nothing yet; small: well determined
-        order = np.argsort(-rel)[: self.rows]
         n = run.engine.n_accepted
         where = f"{len(run.processed)}/{total}" if total else str(len(run.processed))
         status = "accepted" if entry["accepted"] else f"REJECTED: {entry['reason']}"
@@ -42,6 +41,7 @@ class Display:
         if not self.tty:
             print(head, file=self.stream, flush=True)
             return
+        order = np.argsort(-rel)[: self.rows]
         lines = [head, f"  {'most uncertain':14s} {'estimate':>14s} {'sigma':>10s}  of prior"]
         lines += [f"  {params.names[i]:14s} {est[i]:14.6f} {sig[i]:10.3g}  {rel[i]:7.2%} {self._units[i]}"
                   for i in order]

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -12,6 +13,14 @@ from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData
 
 __all__ = ["FilterState", "KalmanEngine"]
+
+
+@lru_cache(maxsize=8)
+def _identity(n: int) -> np.ndarray:
+    """The identity (n, n), formed once per size (read-only)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
 
 
 @dataclass
@@ -30,6 +39,7 @@ class KalmanEngine(_Engine):
     filterpy's unscented filter (``ukf``)."""
 
     snapshots = True  # the state is small: a resume restores the last snapshot and replays after it
+    share_gate = True  # the update's first iteration takes the gate's products (False: formed again)
 
     def __init__(self, ds, model, options=CalibrationOptions(), names=None, kind="ekf", drift=None,
                  max_iterations=20):
@@ -59,11 +69,12 @@ class KalmanEngine(_Engine):
         m, used, f, reason = self._screen(rec, x0, P0)  # f: the measurement noise estimated so far
         if m is None:
             return self._report(rec, reason)
-        x0, P0 = m.augment(x0, P0)  # the set-up blocks the pose starts, at their starts and priors
+        # the set-up blocks the pose starts, at their starts and priors (as the gate had them)
+        x0, P0 = m.gate[:2] if m.gate is not None else m.augment(x0, P0)
         if not m.n_rows:
             pass  # contacts kept pending (a plane not started yet): nothing to update
         elif self.kind == "ekf":
-            reason = self._iterated_update(m, x0, P0, f)
+            reason = self._iterated_update(m, x0, P0, f, m.gate[2:] if self.share_gate and m.gate else None)
             if reason:
                 return self._report(rec, reason)
         else:
@@ -80,16 +91,24 @@ class KalmanEngine(_Engine):
             Q[:n, :n] = self.kf.Q
             self.kf.Q = Q
 
-    def _iterated_update(self, m: PoseMeasurement, x0, P0, f: float) -> str | None:
+    def _iterated_update(self, m: PoseMeasurement, x0, P0, f: float, gate=None) -> str | None:
         """The iterated EKF's update of ``(x0, P0)`` by ``m`` at noise factor ``f``; a reason when
-        the innovation at the iterated point is implausible (the state is then untouched)."""
+        the innovation at the iterated point is implausible (the state is then untouched).
+
+        ``gate``: ``(P0 H', H P0 H')`` at ``x0`` as the innovation gate formed them (the first
+        iteration is at ``x0``: the same products), or None to form them here."""
         x = x0.copy()
         sigma0 = np.sqrt(np.diag(P0))
-        for _ in range(self.max_iterations):
+        for it in range(self.max_iterations):
             e, H, R = m(x)
-            innovation = -e - H @ (x0 - x)
-            PHt = P0 @ H.T
-            S = H @ PHt + f * R
+            if it == 0 and gate is not None:  # at x0: what the gate formed, and the innovation it judged
+                innovation = -e
+                PHt, HPHt = gate
+                S = HPHt + f * R
+            else:
+                innovation = -e - H @ (x0 - x)
+                PHt = P0 @ H.T
+                S = H @ PHt + f * R
             K = np.linalg.solve(S, PHt.T).T
             x_new = x0 + K @ innovation
             # Relinearise while the step is a noticeable fraction of the prior's spread: the
@@ -97,11 +116,12 @@ class KalmanEngine(_Engine):
             if np.max(np.abs(x_new - x) / sigma0) < 0.1:
                 break
             x = x_new
-        reason = NoiseTracker.implausible(innovation, S)
+        # At x0 the gate has judged this innovation with this S (the same f); else judged here.
+        reason = None if it == 0 and gate is not None else NoiseTracker.implausible(innovation, S)
         if reason:
             return reason
         # Joseph form, linearised at the iterated point: symmetric and positive whatever the rounding
-        I_KH = np.eye(len(x0)) - K @ H
+        I_KH = _identity(len(x0)) - K @ H
         self.kf.x = x0 + K @ innovation
         self.kf.P = I_KH @ P0 @ I_KH.T + K @ (f * R) @ K.T
         return None

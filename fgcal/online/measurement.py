@@ -146,8 +146,13 @@ class PoseMeasurement:
         for block in blocks:
             self.R0[k:k + len(block), k:k + len(block)] = block
             k += len(block)
-        self.rj = np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (len(rec.q),)).copy()  # (n,) rad^2
+        self.rj = _joint_variances(engine, len(rec.q))  # (n,) rad^2
         self._last = None  # (theta's bytes, value) of the last call
+        self._centres_only = bool(len(self.offsets)) and rec.T is None and not len(self.d_lengths) \
+            and not self.generic and setup is None
+        # The gate's linearisation (:meth:`fgcal.online.base._Engine._screen`): the state ``x`` and
+        # covariance ``C`` with the set-up blocks the pose starts, ``C H'`` and ``H C H'``.
+        self.gate: tuple | None = None
 
     def __call__(self, theta):
         key = np.asarray(theta, dtype=float).tobytes()
@@ -166,6 +171,9 @@ class PoseMeasurement:
         x = np.asarray(x, dtype=float)
         n_p = len(self.engine.params)
         theta = x[:n_p]
+        if self._centres_only and len(x) == n_p:  # ball centres alone (the common pose): the same values, directly
+            e, Jt, Jq = _centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs)
+            return e, Jt, self.R0 + (Jq * self.rj) @ Jq.T
         rows = []
         if len(self.offsets):
             rows.append(_centre_rows(self.engine, theta, self.rec.q, self.offsets, self.zs))
@@ -203,6 +211,16 @@ class PoseMeasurement:
             Jt = np.vstack([Jt] + [o[1] for o in others])
         rj = np.tile(self.rj, 1 + len(others))  # the joints' variances, each pose's joints apart
         return e, Jt, self.R0 + (Jq_all * rj) @ Jq_all.T  # joint noise folded in (diagonal: no product with it)
+
+
+def _joint_variances(engine, n: int) -> np.ndarray:
+    """The joint readings' variances (n,) at the engine's declared noise, formed once per noise
+    (its :class:`~fgcal.estimation.graph.Sigmas` are replaced, never changed); not to be written to."""
+    sig = engine.sigmas
+    kept = getattr(engine, "_joint_variances", None)
+    if kept is None or kept[0] is not sig or len(kept[1]) != n:
+        kept = engine._joint_variances = (sig, np.broadcast_to(np.asarray(sig.joint, dtype=float) ** 2, (n,)).copy())
+    return kept[1]
 
 
 def _generic_terms(engine, rec: PoseData) -> list:

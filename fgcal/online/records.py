@@ -179,7 +179,7 @@ def pose_records(ds: Dataset, levels=None, poses=None, model=None) -> list[PoseD
 
 def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Dataset:
     """A dataset (robot, tool and noise of ``meta``) holding the poses ``records``."""
-    probes = [(r.pose, b, x) for r in records for b, pts in r.probes for x in pts]
+    probed = [(r.pose, b, pts) for r in records for b, pts in r.probes if len(pts)]  # (pose, ball, points (k, 3))
     centres = [(r.pose, b, c) for r in records for b, c in r.centres]
     poses = [(r.pose, r.T) for r in records if r.T is not None]
     distances = [(r.pose, b, v) for r in records for b, v in r.distances]
@@ -215,7 +215,7 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
     out = Dataset(robot=meta.robot, tooling=meta.tooling, noise=meta.noise, provenance=dict(meta.provenance),
                   pose_ids=np.array([r.pose for r in records], dtype=int),
                   joints_deg=model.joints_to_file_units(q) if model is not None else np.degrees(q),
-                  probes=points(probes), centres=points(centres),
+                  probes=_probe_points(probed), centres=points(centres),
                   poses=PoseObservations(np.array([p for p, _ in poses], dtype=int), np.array([T[:3, 3] for _, T in poses]),
                                          matrix_to_quaternion(np.array([T[:3, :3] for _, T in poses])))
                   if poses else None,
@@ -228,6 +228,17 @@ def records_dataset(meta: Dataset, records: list[PoseData], model=None) -> Datas
     for level, obs in setup_levels.items():
         setattr(out, level, obs)
     return out
+
+
+def _probe_points(probed) -> PointObservations | None:
+    """The probe points of ``probed`` ((pose, ball, points (k, 3)) per probed ball, k > 0) as one
+    table, a row per point in that order; None without any."""
+    if not probed:
+        return None
+    counts = [len(pts) for _, _, pts in probed]
+    return PointObservations(np.repeat(np.array([p for p, _, _ in probed], dtype=int), counts),
+                             np.repeat(np.array([b for _, b, _ in probed], dtype=str), counts),
+                             np.concatenate([np.asarray(pts, dtype=float).reshape(-1, 3) for _, _, pts in probed]))
 
 
 def _stations(meta: Dataset, records: list[PoseData]):

@@ -14,6 +14,9 @@ import numpy as np
 
 __all__ = ["OperationTables", "jacobians_one"]
 
+_EYE4 = np.eye(4)
+_NEXT = (np.array([1, 2, 0]), np.array([2, 0, 1]))  # the cross product's cyclic index orders
+
 
 class OperationTables:
     """Where each operation's values go in the (K, 16) flat operation matrices, built once per
@@ -39,6 +42,12 @@ class OperationTables:
         self.cos_a, self.cos_b = r * 16 + i * 5, r * 16 + j * 5
         self.minus_sin, self.plus_sin = r * 16 + i * 4 + j, r * 16 + j * 4 + i
         self.shift = t * 16 + axis[t] * 4 + 3
+        # built once, not per call: the ops that take a slot and a joint, the identity rows, the
+        # axis column of each op's frame
+        self.has_slot, self.has_joint = chain.slot_of_op >= 0, chain.joint_of_op >= 0
+        self.identity = np.zeros((len(chain.ops), 16))
+        self.identity[:, [0, 5, 10, 15]] = 1.0
+        self.ops = np.arange(len(chain.ops))
 
 
 def _frames(chain, x, v):
@@ -46,9 +55,8 @@ def _frames(chain, x, v):
     tb = chain.single_pose
     K = len(chain.ops)
     slot, joint = chain.slot_of_op, chain.joint_of_op
-    value = np.where(slot >= 0, x[slot], 0.0) + np.where(joint >= 0, v[joint], 0.0)
-    M = np.zeros((K, 16))
-    M[:, [0, 5, 10, 15]] = 1.0
+    value = np.where(tb.has_slot, x[slot], 0.0) + np.where(tb.has_joint, v[joint], 0.0)
+    M = tb.identity.copy()
     angle = value[tb.rot_ops]
     c, s = np.cos(angle), np.sin(angle)
     flat = M.reshape(-1)
@@ -63,7 +71,7 @@ def _frames(chain, x, v):
         F[shift:] = np.matmul(F[:-shift], F[shift:])
         shift *= 2
     B = np.empty_like(F)
-    B[0] = np.eye(4)
+    B[0] = _EYE4
     B[1:] = F[:-1]
     T = F[-1] if chain.tool_offset is None else F[-1] @ chain.tool_offset
     return B, T
@@ -80,7 +88,7 @@ def jacobians_one(chain, x, readings, offsets=None):
     v = chain.joint_values(np.asarray(readings, dtype=float).reshape(1, -1))[0]
     B, T = _frames(chain, x, v)
     K = len(chain.ops)
-    axes = B[np.arange(K), :3, chain.axis]  # (K, 3) world axis of each operation
+    axes = B[chain.single_pose.ops, :3, chain.axis]  # (K, 3) world axis of each operation
     origins = B[:, :3, 3]
     offsets = np.zeros((0, 3)) if offsets is None else np.asarray(offsets, dtype=float).reshape(-1, 3)
     n_pts = len(offsets)
@@ -94,7 +102,8 @@ def jacobians_one(chain, x, readings, offsets=None):
     cross_p[1, :, 0], cross_p[1, :, 2] = points[:, 2], -points[:, 0]
     cross_p[2, :, 0], cross_p[2, :, 1] = -points[:, 1], points[:, 0]
     cross_p = cross_p.reshape(3, -1)
-    moment = axes[:, [1, 2, 0]] * origins[:, [2, 0, 1]] - axes[:, [2, 0, 1]] * origins[:, [1, 2, 0]]
+    next1, next2 = _NEXT
+    moment = axes[:, next1] * origins[:, next2] - axes[:, next2] * origins[:, next1]  # axes x origins
     d = (axes @ cross_p).reshape(K, n_pts + 1, 3) - moment[:, None, :]
     rot = chain.kind_rot
     d = np.where(rot[:, None, None], d, axes[:, None, :])
