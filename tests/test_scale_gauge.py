@@ -129,3 +129,28 @@ def test_a_length_in_the_data_fixes_the_scale():
     assert not scale_is_fixed(ds, ["plane_contacts"])
     ds.centres = PointObservations(ds.pose_ids[:3], np.full(3, "B"), _centres(model, model.nominal, q[:3]))
     assert scale_is_fixed(ds, ["plane_contacts", "centres"])
+
+
+@pytest.mark.parametrize("engine", ["ekf", "isam2"])
+def test_online_engines_hold_the_scale_as_the_batch(engine):
+    """The online engines' final smoothing holds the longest link where nothing fixes a length, as
+    the batch does (it shrank the robot before: the same free scale), and ends at the batch's result."""
+    from online_util import run_online
+
+    model, ds, _, _, _ = _tables(per_plane=40)
+    batch = calibrate(ds, model, CalibrationOptions())
+    result = run_online(ds, model, engine).result()
+    held = {h["name"]: h for h in result.held}
+    assert held["j2.a"]["reason"] == SCALE_REASON and held["j2.a"]["value"] == pytest.approx(-612.0)
+    assert sorted(result.names) == sorted(batch.names)
+    ours = {p.name: p.estimate for p in result.parameters}
+    assert max(abs(ours[p.name] - p.estimate) / p.sigma for p in batch.parameters) < 0.05
+
+
+def test_a_resumed_online_run_holds_the_scale_as_an_uninterrupted_one(tmp_path):
+    from online_util import assert_resumed_as_whole, interrupted_and_resumed
+
+    model, ds, _, _, _ = _tables(per_plane=30)
+    whole, _, second = interrupted_and_resumed(ds, model, "ekf", tmp_path, 50)
+    assert_resumed_as_whole(second, whole)
+    assert second.result().held == whole.result().held

@@ -12,7 +12,7 @@ import factors as fx
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _sigmas
 from fgcal.estimation.graph import Sigmas
-from fgcal.estimation.holding import held_parameters, unseen_parameters
+from fgcal.estimation.holding import unseen_parameters
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.setup_params import is_setup_name
 from fgcal.measurements.dataset import Dataset
@@ -20,6 +20,7 @@ from fgcal.online.centres import _good_centres
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData, _variant, records_dataset
 from fgcal.online.setup_blocks import OnlineSetup
+from fgcal.online.smoothing import batch_held, gauge_names, measured
 from fgcal.robots.kinematics import chain_for, jacobians_one
 from fgcal.robots.model import ParameterSet, RobotModel
 
@@ -52,11 +53,13 @@ class _Engine:
         # base is held at nominal, as the batch holds it (a stream, whose measurements are not
         # known yet, leaves it to the final smoothing).
         self.gauge: list[str] = []
+        self._gauge_reasons: dict[str, str] = {}
         if names is None:
             names = model.parameters().names
-            self.gauge = _gauge_names(ds, names)
+            self._gauge_reasons = gauge_names(ds, model, names)
+            self.gauge = list(self._gauge_reasons)
             names = [n for n in names if n not in self.gauge]
-            self.unseen = unseen_parameters(model, names, _measured(ds))
+            self.unseen = unseen_parameters(model, names, measured(ds))
             if self.unseen and ds.n_poses and ds.levels():
                 from fgcal.estimation.calibrate import split_held
 
@@ -260,7 +263,7 @@ class _Engine:
         against an early, poor estimate is judged again, as the batch judges it). The solve starts
         from the running estimate when the engine took at least :data:`WARM_START_SHARE` of the
         poses (the same optimum as from the nominal start, in fewer steps). Of the engine's
-        parameters it holds what the batch would hold on these poses (:meth:`_batch_held`, kept
+        parameters it holds what the batch would hold on these poses (:func:`~fgcal.online.smoothing.batch_held`, kept
         in :attr:`final_held`) and estimates the rest. Returns ``(theta, covariance)`` in
         internal units over the engine's parameters (a held one at its value, with zero
         variance), or None while the poses cannot determine the parameters (the running estimate
@@ -279,10 +282,14 @@ class _Engine:
         trusted = self.n_accepted >= WARM_START_SHARE * len(self.seen) and not self.setup.has_references
         n_p = len(self.params)
         start = self.params.full(self._current()[:n_p], self.held) if trusted else None
-        gauge = _gauge_names(seen, names)  # a stream learns only now what fixes the world frame
+        # a stream learns only now what fixes the frames and the scale (chosen among every parameter:
+        # one held from the start is the scale's length still)
+        reasons = gauge_names(seen, self.model, [*self.gauge, *names])
+        self._gauge_reasons = {**reasons, **self._gauge_reasons}
+        gauge = [n for n in reasons if n in names]
         fits: dict = {}  # the sphere fits both builds of ``seen`` share (fgcal.estimation.build.build_graph)
         try:
-            held, priors = self._batch_held(seen, [n for n in names if n not in gauge], fits)
+            held, priors = batch_held(self, seen, [n for n in names if n not in gauge], fits)
             held = {**{n: [] for n in gauge}, **held}
             free = [n for n in names if n not in held]
             if start is not None and held:  # held where the batch holds them: at their start values
@@ -320,39 +327,19 @@ class _Engine:
             self._final_setup = (x, cov_all, layout)
         return theta, full_cov
 
-    def _batch_held(self, seen: Dataset, names, fits: dict | None = None) -> tuple[dict, dict]:
-        """What the batch would hold among ``names`` on the poses ``seen``: the rule of
-        :func:`fgcal.estimation.calibrate.solve_calibration` (the graph at the declared noise, no
-        prior, linearised at the start) and the priors it gives the weakly identifiable ones
-        (:func:`fgcal.estimation.calibrate.split_held`): ``(held, priors)``; raises
-        :class:`FgcalError` when the poses are too few. ``fits``: the sphere fits kept for the
-        solve's build of ``seen`` (:func:`fgcal.estimation.build.build_graph`)."""
-        from dataclasses import replace
-
-        from fgcal.estimation.build import _levels, build_graph
-        from fgcal.estimation.calibrate import _check_equations, _unidentifiable, split_held
-        from fgcal.estimation.gauge import setup_size
-
-        options = replace(self.options, prior="none", noise_scale=None)
-        levels = _levels(seen, options)
-        _check_equations(seen, levels, len(names) + setup_size(seen, levels))
-        graph, state, _ = build_graph(seen, self.model, names, options, priors=self.typical_prior, fits=fits)
-        held = held_parameters(graph, state, _unidentifiable)
-        held, priors = split_held(self.model, [n for n in names if n not in held], held, seen, options, fits=fits)
-        for n, partners in held.items():
-            log.info("final smoothing: %s held (cannot be separated from %s)", n, ", ".join(partners) or "nothing")
-        return held, priors
-
     def held_info(self) -> list[dict]:
         """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,
         those never seen by the measurements first, then those the final smoothing held."""
         slots = self.held if getattr(self, "_final_slots", None) is None else self._final_slots
-        from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON
+        from fgcal.estimation.gauge import GAUGE_REASON, SCALE_REASON, TOOL_GAUGE_REASON
 
         values = self.model.slots_to_file_units(slots)
-        gauge = [*self.gauge, *getattr(self, "_final_gauge", [])]
+        gauge = list(dict.fromkeys([*self.gauge, *getattr(self, "_final_gauge", [])]))
+        reasons = getattr(self, "_gauge_reasons", {})
+        # (a checkpoint from before the reasons were kept: the base's and the tool's by their names)
+        fallback = {"tool.": TOOL_GAUGE_REASON, "base.": GAUGE_REASON}
         out = [{"name": n, "value": float(values[self.model.slot(n)]),
-                "reason": TOOL_GAUGE_REASON if n.startswith("tool.") else GAUGE_REASON} for n in gauge]
+                "reason": reasons.get(n) or fallback.get(n.split(".")[0] + ".", SCALE_REASON)} for n in gauge]
         for n, partners in (*self.unseen.items(), *self.final_held.items()):
             if n in gauge:
                 continue
@@ -382,33 +369,3 @@ def _ball_rows(theta, q, offsets, index, held, chain):
     x = fx.slots_of(theta, index, held)
     jac = jacobians_one(chain_for(x, chain), x, q, offsets)
     return jac.points[0], jac.point_slots[0][:, :, index], jac.point_joints[0]
-
-
-def _gauge_names(ds: Dataset, names) -> list[str]:
-    """The base's parameters among ``names`` when nothing in ``ds`` fixes the world frame (contacts
-    with unknown fixtures only: :func:`fgcal.estimation.calibrate.world_is_fixed`), and the tool's
-    when a camera's blocks on the tool are of unknown pose (:func:`~fgcal.estimation.gauge.tool_is_free`);
-    none for a dataset with no measurements yet."""
-    from fgcal.estimation.gauge import tool_is_free, world_is_fixed
-
-    levels = ds.levels()
-    if not levels:
-        return []
-    out = [] if world_is_fixed(ds, levels) else [n for n in names if n.startswith("base.")]
-    # a camera's blocks of unknown pose on the tool: the tool's frame is theirs, as the batch holds it
-    return out + ([n for n in names if n.startswith("tool.")] if tool_is_free(ds, levels) else [])
-
-
-def _measured(ds: Dataset):
-    """What ``ds`` measures, as :func:`~fgcal.estimation.holding.unseen_parameters` takes it: a
-    pose (a measured pose, a camera's pixels), or the tool points of its balls; a full pose while
-    nothing is known (a stream)."""
-    from fgcal.measurements.types import BY_LEVEL
-
-    levels = ds.levels()
-    # a camera sees the tool's whole pose (a target on it, or the world's target from it)
-    if not levels or "poses" in levels or any(hasattr(BY_LEVEL.get(lv), "tool_blocks") for lv in levels):
-        return "pose"
-    from fgcal.estimation.calibrate import _measured_points
-
-    return _measured_points(ds, levels)
