@@ -113,8 +113,7 @@ class DatasetDesign:
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
-        q25, q50, q75 = (float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
-        return q25, q50, q75
+        return _quantiles(self.random_pred, [25, 50, 75])
 
     def summary(self) -> list[str]:
         lo, med, hi = self.random_quartiles()
@@ -127,11 +126,12 @@ class DatasetDesign:
                  f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
         if self.floor_mm > 0:
             mine, theirs = self.predicted_with_floor()
-            gain = f", a gain of {100 * (1 - mine / theirs):.0f}%" if theirs > 0 else ""
-            alone = f" (of {100 * (1 - self.values['pred'] / med):.0f}% on the estimation error alone)" if med > 0 else ""
+            # a gain over random sets most of which cannot predict (inf) is not stated
+            gain = (f", a gain of {100 * (1 - mine / theirs):.0f}% (of {100 * (1 - self.values['pred'] / med):.0f}% on "
+                    "the estimation error alone)") if np.isfinite(med) else ""
             lines.append(f"  with the error no geometric calibration removes ({self.floor_mm:.4g} mm RMS at the dataset's "
                          f"poses after calibrating all of them): {mine:.4g} mm at new poses against {theirs:.4g} mm for "
-                         f"the median random set{gain}{alone}")
+                         f"the median random set{gain}")
         if self.noise:
             lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
                 f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
@@ -141,6 +141,17 @@ class DatasetDesign:
             names, counts = np.unique(self.stations, return_counts=True)
             lines.append("  poses from each station: " + ", ".join(f"{n} {c}" for n, c in zip(names, counts, strict=True)))
         return lines
+
+
+def _quantiles(values, percents) -> tuple[float, ...]:
+    """Percentiles of ``values`` in which +inf (a plan that cannot predict) may be: one beyond the
+    largest finite value is inf (the interpolation between two infinities is not NaN)."""
+    values = np.asarray(values, dtype=float)
+    big = np.finfo(float).max
+    finite = values[np.isfinite(values)]
+    top = finite.max() if len(finite) else -np.inf
+    out = np.percentile(np.minimum(values, big), percents)
+    return tuple(float(v) if v <= top else float("inf") for v in out)
 
 
 @dataclass
