@@ -104,6 +104,12 @@ def test_random_contact_plans_predict_a_value_or_inf(contacts):
         small, smaller = (_ridge_limit(M, W, scale, f * top) for f in (1e-7, 1e-8))
         # estimated with the set-up blocks as parameters the verification does not see: the same
         whole = np.sqrt(predicted_mse(total[None], prep.W, prep.scale)[0])
+        # the first length in metres (its information and weight 1e6 times larger, its scale 1e3 smaller)
+        t = np.ones(P)
+        t[0] = 1e-3
+        T = np.outer(1 / t, 1 / t)
+        metres = np.sqrt(predicted_mse((M * T)[None], W * T, scale * t)[0])
+        assert metres == pred or metres == pytest.approx(pred, rel=1e-9)
         if np.isfinite(pred):
             finite += 1
             assert pred >= everything * (1 - 1e-9)  # fewer poses never predict better than all of them

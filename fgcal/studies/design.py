@@ -12,7 +12,8 @@ Indices on the information scaled by the expected parameter errors:
   candidates, ``sqrt(trace(W Sigma))``: the accuracy the calibration is for (I-optimality).
   ``Sigma`` is the inverse information, or, when the data's error is not what the estimator
   weighs it by (:func:`fgcal.studies.design_info.information_and_middle`), the sandwich
-  ``M^-1 B M^-1``.
+  ``M^-1 B M^-1``; +inf where the plan does not determine what ``W`` sees, decided in units of
+  the expected parameter errors (:mod:`fgcal.studies.design_predict`).
 
 Plans are chosen from a candidate pool by a greedy start and the DETMAX exchange (Mitchell
 1974: add the best candidate, remove the worst design point, until nothing improves). No I/O.

@@ -36,6 +36,7 @@ from fgcal.robots.model import RobotModel
 from fgcal.studies.design import Candidates, design_plan, random_design_values
 from fgcal.studies.design_floor import floor_of, pose_misfit, weigh_by_misfit, with_floor
 from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
+from fgcal.studies.design_predict import quantiles
 
 __all__ = [
     "DATASET_INDEX",
@@ -113,7 +114,8 @@ class DatasetDesign:
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
-        return _quantiles(self.random_pred, [25, 50, 75])
+        q25, q50, q75 = quantiles(self.random_pred, [25, 50, 75])
+        return q25, q50, q75
 
     def summary(self) -> list[str]:
         lo, med, hi = self.random_quartiles()
@@ -141,17 +143,6 @@ class DatasetDesign:
             names, counts = np.unique(self.stations, return_counts=True)
             lines.append("  poses from each station: " + ", ".join(f"{n} {c}" for n, c in zip(names, counts, strict=True)))
         return lines
-
-
-def _quantiles(values, percents) -> tuple[float, ...]:
-    """Percentiles of ``values`` in which +inf (a plan that cannot predict) may be: one beyond the
-    largest finite value is inf (the interpolation between two infinities is not NaN)."""
-    values = np.asarray(values, dtype=float)
-    big = np.finfo(float).max
-    finite = values[np.isfinite(values)]
-    top = finite.max() if len(finite) else -np.inf
-    out = np.percentile(np.minimum(values, big), percents)
-    return tuple(float(v) if v <= top else float("inf") for v in out)
 
 
 @dataclass

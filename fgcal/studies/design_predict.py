@@ -10,9 +10,9 @@ question with garbage (``1e5`` mm, or ``0`` from a negative trace), so it is ask
   ``D = diag(scale)``): ``trace(W Sigma) = trace(Ws Ms^-1 (D B D) Ms^-1)``, a scaling that any
   change of a parameter's unit (mm to m, rad to deg, with its ``scale``) leaves as it is;
 * the eigen-decomposition of ``Ms``: a direction with an eigenvalue at most ``RANK_RTOL`` times
-  the largest is not determined (the normal matrices' rounding is ``1e-16`` of the largest; an
-  undetermined direction of a Schur complement comes out near ``1e-15``; the smallest determined
-  ones of the plans in the tests are ``2e-6`` of it);
+  the largest is not determined (the normal matrices' rounding is ``1e-16`` of the largest; the
+  undetermined directions of the Schur complements of 12-pose contact plans come out at ``1e-14``
+  or below, the determined ones of the plans in the tests at ``1e-6`` or above);
 * the plan predicts if ``W``'s share on the undetermined directions, ``trace(V_0^T Ws V_0) /
   trace(Ws)``, is at most ``SEEN_RTOL`` (a share of rounding size: ``W`` does not see them, like an
   unvisited station's frame); the prediction is then the pseudo-inverse's over the determined
@@ -20,18 +20,20 @@ question with garbage (``1e5`` mm, or ``0`` from a negative trace), so it is ask
 
 Set-up blocks (fixtures, stations) are marginalised first (:func:`marginal`, the Schur complement
 with a pseudo-inverse over the blocks: a block no pose of the plan touches drops out), with the
-sandwich's middle carried the same way (:func:`marginal_middle`), so the decision is the same
-whether a block is estimated or absent. For the search (``strict=False``) the undetermined
-directions count at the cut instead (a ridge at the numerical resolution, the same for all the
-plans compared at once): finite, and the more of ``W`` a plan determines the better, so a greedy
-start from nothing can rank its first poses. No I/O.
+sandwich's middle carried the same way (:func:`marginal_middle`): decision and value are those
+of the whole information, the blocks' entries taken for parameters that ``W`` does not see. The search (``strict=False``, the scores of
+:func:`fgcal.studies.design.design_plan`) needs a finite, graded score for the rank-deficient
+plans of its greedy start: there the information carries the designer's vanishing ridge, and an
+eigenvalue below ``ROUNDING_RTOL`` of the largest (rounding, where an inverse gave a negative
+trace, clipped to a perfect 0) counts at that level, the same for all the plans compared at once.
+No I/O.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["RANK_RTOL", "SEEN_RTOL", "low_rank", "marginal", "marginal_middle", "pred_update", "predicted_mse",
-           "predicted_rms"]
+__all__ = ["RANK_RTOL", "ROUNDING_RTOL", "SEEN_RTOL", "low_rank", "marginal", "marginal_middle", "pred_update", "predicted_mse",
+           "predicted_rms", "quantiles"]
 
 RANK_RTOL = 1e-10  # eigenvalue of the scaled information, over its largest, below which a direction is undetermined
 SEEN_RTOL = 1e-8  # share of trace(Ws) on the undetermined directions below which W does not see them
@@ -79,28 +81,50 @@ def predicted_mse(info, W, scale=None, middle=None, strict: bool = True) -> np.n
     outer = d[:, :, None] * d[:, None, :]
     finite = np.all(np.isfinite(info), axis=(1, 2))
     Ms = np.where(finite[:, None, None], info * outer, 0.0)
-    lam, V = np.linalg.eigh(Ms)
-    top = lam[:, -1:]
-    cut = RANK_RTOL * top
-    kept = lam > cut
     Ws = np.asarray(W, dtype=float)[None] * outer
+    Bs = None if middle is None else np.asarray(middle, dtype=float) * outer
+    lam = np.linalg.eigvalsh(Ms)  # the eigenvectors only where a direction is cut: they cost 50x more
+    top = lam[:, -1]
+    if strict:
+        floor = RANK_RTOL * top
+    else:  # one floor for the whole batch: a candidate is not favoured for raising it
+        floor = np.full(K, max(ROUNDING_RTOL * float(np.max(top, initial=0.0)), 1e-300))
+    out = np.zeros(K)
+    clean = (lam[:, 0] > floor) & (top > 0)
+    if clean.any():  # every direction determined: the inverse
+        cov = np.linalg.inv(Ms[clean])
+        if Bs is not None:
+            cov = cov @ Bs[clean] @ cov
+        out[clean] = np.einsum("kpq,kqp->k", Ws[clean], cov)
+    rest = ~clean
+    if rest.any():
+        out[rest] = _cut(Ms[rest], Ws[rest], None if Bs is None else Bs[rest], floor[rest], strict)
+    out = np.maximum(out, 0.0)
+    return np.where(finite & np.isfinite(out), out, np.inf)
+
+
+def _cut(Ms, Ws, Bs, floor, strict: bool) -> np.ndarray:
+    """:func:`predicted_mse` (K,) of scaled information ``Ms`` (K, P, P) with directions at or below
+    ``floor`` (K,): left out (the pseudo-inverse) where ``W`` does not see them, else +inf
+    (``strict``); or counted at the floor."""
+    lam, V = np.linalg.eigh(Ms)
+    kept = lam > floor[:, None]
     Wt = np.swapaxes(V, 1, 2) @ Ws @ V  # W in the eigenbasis: its diagonal is W's share on each direction
     seen = np.einsum("kii->ki", Wt)
-    whole = np.maximum(np.einsum("kii->k", Ws), 0.0)
     if strict:
         inv = np.where(kept, 1.0 / np.where(kept, lam, 1.0), 0.0)
-    else:  # one floor for the whole batch: a candidate is not favoured for raising it
-        inv = 1.0 / np.maximum(lam, max(ROUNDING_RTOL * float(np.max(top, initial=0.0)), 1e-300))
-    if middle is None:
+    else:
+        inv = 1.0 / np.maximum(lam, floor[:, None])
+    if Bs is None:
         out = np.einsum("ki,ki->k", seen, inv)
     else:
-        Bt = np.swapaxes(V, 1, 2) @ (np.asarray(middle, dtype=float) * outer) @ V
+        Bt = np.swapaxes(V, 1, 2) @ Bs @ V
         out = np.einsum("kij,kj,kji,ki->k", Wt, inv, Bt, inv)
-    out = np.maximum(out, 0.0)
-    if strict:
-        blind = np.sum(np.where(kept, 0.0, np.abs(seen)), axis=1) <= SEEN_RTOL * whole
-        out = np.where(blind & (top[:, 0] > 0), out, np.where(whole > 0, np.inf, 0.0))
-    return np.where(finite & np.isfinite(out), out, np.inf)
+    if not strict:
+        return out
+    whole = np.maximum(np.einsum("kii->k", Ws), 0.0)
+    blind = (np.sum(np.where(kept, 0.0, np.abs(seen)), axis=1) <= SEEN_RTOL * whole) & (lam[:, -1] > 0)
+    return np.where(blind, out, np.where(whole > 0, np.inf, 0.0))
 
 
 def predicted_rms(info, W, middle=None, scale=None) -> float:
@@ -129,9 +153,14 @@ def pred_update(total, L, W, sign: float, scale=None) -> np.ndarray:
     undetermined directions counted at the cut); r-by-r solves instead of P-by-P inverses."""
     P = total.shape[-1]
     d = np.ones(P) if scale is None else np.asarray(scale, dtype=float)
-    lam, V = np.linalg.eigh(total * np.outer(d, d))
-    lam = np.maximum(lam, max(ROUNDING_RTOL * lam[-1], 1e-300))
-    C = ((V / lam) @ V.T) * np.outer(d, d)
+    Ts = total * np.outer(d, d)
+    lam = np.linalg.eigvalsh(Ts)
+    floor = max(ROUNDING_RTOL * lam[-1], 1e-300)
+    if lam[0] > floor:
+        C = np.linalg.inv(total)
+    else:
+        lam, V = np.linalg.eigh(Ts)
+        C = ((V / np.maximum(lam, floor)) @ V.T) * np.outer(d, d)
     CL = C @ L
     G = np.swapaxes(L, 1, 2) @ CL
     H = np.swapaxes(CL, 1, 2) @ W @ CL
@@ -143,3 +172,14 @@ def pred_update(total, L, W, sign: float, scale=None) -> np.ndarray:
         return -np.sqrt(predicted_mse(mats, W, scale, strict=False))
     out = -np.sqrt(np.clip(np.trace(W @ C) - sign * change, 0.0, None))
     return np.where(np.isfinite(out), out, -np.inf)
+
+
+def quantiles(values, percents) -> tuple[float, ...]:
+    """Percentiles of ``values`` in which +inf (a plan that cannot predict) may be: one beyond the
+    largest finite value is inf (the interpolation between two infinities is not NaN)."""
+    values = np.asarray(values, dtype=float)
+    big = np.finfo(float).max
+    finite = values[np.isfinite(values)]
+    top = finite.max() if len(finite) else -np.inf
+    out = np.percentile(np.minimum(values, big), percents)
+    return tuple(float(v) if v <= top else float("inf") for v in out)
