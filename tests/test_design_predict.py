@@ -129,6 +129,7 @@ def test_summary_with_random_plans_that_cannot_predict():
     assert d.random_quartiles() == (0.275, np.inf, np.inf)
     text = "\n".join(d.summary())
     assert "median inf" in text and not re.search(r"\bnan\b", text) and "gain of" not in text
+    assert "2 of them inf" in text
     d.random_pred = np.array([0.3, 0.2, 0.4, np.inf])
     assert d.random_quartiles()[1] == pytest.approx(0.35)
     assert "a gain of" in "\n".join(d.summary())

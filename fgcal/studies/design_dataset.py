@@ -119,13 +119,15 @@ class DatasetDesign:
 
     def summary(self) -> list[str]:
         lo, med, hi = self.random_quartiles()
+        n_inf = int(np.sum(~np.isfinite(self.random_pred)))
+        blind = f"; {n_inf} of them inf: their poses leave undetermined what new poses see" if n_inf else ""
         lines = [f"designed {len(self.pose_ids)} poses from {self.n_usable} usable of {self.n_candidates} candidates "
                  f"({', '.join(self.levels)}) by {self.index} ({self.iterations} DETMAX steps)",
                  "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")
                                   if k in self.values),
                  f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
                  f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
-                 f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
+                 f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets{blind})"]
         if self.floor_mm > 0:
             mine, theirs = self.predicted_with_floor()
             # a gain over random sets most of which cannot predict (inf) is not stated
