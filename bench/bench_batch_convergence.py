@@ -9,7 +9,12 @@ with ``kinematic_sigma`` (1e-4 mm). Here, on one simulated dataset:
 * fgcal at ``kinematic_sigma`` 1e-4 and 1e-5 mm: the estimates' difference says how far the
   default is from the limit (the reference's problem);
 * the reference's cost (its own objective, 0.5 |r|^2) at its default tolerance (1e-8) and at
-  ``--tol 1e-12``;
+  ``--tol 1e-12`` (where it stops at its 200-evaluation cap);
+* the reference polished: the reference's own code, run in this process, whose ``least_squares``
+  result is carried on by Gauss-Newton steps on the reference's own residuals and analytic
+  Jacobian (sparse normal equations) until its cost stops falling; its covariance and output are
+  then the reference's own. This is the reference problem's optimum, which scipy's trust region
+  (``x_scale='jac'``) approaches only slowly;
 * the reference's objective at fgcal's solution at 1e-5 mm: fgcal's parameters and joints, the
   centres put on the kinematics (so the probe rows are the reference's), evaluated by fgcal's
   graph (its kinematic rows are then zero);
@@ -46,6 +51,50 @@ def _max_z(a: dict, b: dict) -> float:
     return max(abs(a[n][0] - b[n][0]) / b[n][1] for n in b)
 
 
+def _polishing(least_squares):
+    """``least_squares`` followed by Gauss-Newton steps on the same ``fun`` and sparse ``jac``: each step
+    solves ``(J^T J) dz = -J^T r`` and is taken while it lowers the cost (halved up to 10 times)."""
+    import scipy.sparse.linalg as spla
+    from scipy.optimize import OptimizeResult
+
+    def solve(fun, z0, jac, **kw):
+        sol = least_squares(fun, z0, jac=jac, **kw)
+        z, r = sol.x.copy(), fun(sol.x)
+        cost, steps = 0.5 * float(r @ r), 0
+        for _ in range(30):
+            J = jac(z)
+            dz = spla.spsolve((J.T @ J).tocsc(), -(J.T @ r))
+            for _halving in range(10):
+                r_new = fun(z + dz)
+                new = 0.5 * float(r_new @ r_new)
+                if new < cost:
+                    break
+                dz = dz / 2
+            else:
+                break
+            z, r, steps = z + dz, r_new, steps + 1
+            if cost - new <= 1e-13 * cost:
+                cost = new
+                break
+            cost = new
+        return OptimizeResult(x=z, cost=cost, nfev=sol.nfev + steps, njev=sol.njev, status=sol.status,
+                              message=f"{sol.message} Then {steps} Gauss-Newton steps.")
+    return solve
+
+
+def polished_reference(reference: Path, ds_path: Path, out: Path) -> dict:
+    """The reference's output with its solve carried to the optimum of its own objective."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("sparse_joint_solve", reference)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.least_squares = _polishing(mod.least_squares)
+    mod.main([str(ds_path), str(out), "--quiet"])
+    return json.loads(out.read_text())
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--poses", type=int, default=10000)
@@ -70,6 +119,7 @@ def main() -> int:
             subprocess.run([sys.executable, str(args.reference), str(ds_path), str(out), "--quiet", "--tol", tol],
                            check=True, capture_output=True)
             ref[tol] = json.loads(out.read_text())
+        ref["polished"] = polished_reference(args.reference, ds_path, Path(tmp) / "ref_polished.json")
         ds = load_dataset(ds_path)
         model = dataset_model(ds)
         ours = {}
@@ -86,21 +136,23 @@ def main() -> int:
         snapped.c = tool_points(T, g.ball_offset[:, None, :])[:, 0]
         cost_ours = g._linearise(snapped).cost
     est = {f"fgcal ks={k:g}": _estimates(v) for k, v in ours.items()}
-    est |= {f"ref tol={t}": _estimates(v) for t, v in ref.items()}
+    est |= {(f"ref tol={t}" if t != "polished" else "ref polished"): _estimates(v) for t, v in ref.items()}
     print(f"{args.poses} poses, declared noise, nothing excluded")
     print("the reference's objective (0.5 |r|^2):")
     for t, v in ref.items():
         s = v["solver"]
-        print(f"  reference --tol {t:5s}: {s['cost']:.6f}  ({s['nfev']} evaluations: {s['message']})")
+        label = f"reference --tol {t:5s}" if t != "polished" else "reference polished   "
+        print(f"  {label}: {s['cost']:.6f}  ({s['nfev']} evaluations: {s['message']})")
     print(f"  fgcal (ks 1e-5 mm, centres on the kinematics): {cost_ours:.6f}")
     names = list(est)
     print("max |d| / sigma (sigma of the column's estimate):")
     print(" " * 16 + "".join(f"{n:>16s}" for n in names))
     for a in names:
         print(f"{a:>16s}" + "".join(f"{_max_z(est[a], est[b]) if a != b else 0.0:16.4f}" for b in names))
-    lowest = min([("fgcal", cost_ours)] + [(f"reference --tol {t}", v["solver"]["cost"]) for t, v in ref.items()],
-                 key=lambda kv: kv[1])
-    print(f"lowest cost of the reference's objective: {lowest[0]}")
+    costs = [("fgcal", cost_ours)] + [(f"reference {t}", v["solver"]["cost"]) for t, v in ref.items()]
+    low = min(c for _, c in costs)
+    print("lowest cost of the reference's objective (to 1e-10 relative): "
+          + ", ".join(n for n, c in costs if c - low <= 1e-10 * abs(low)))
     return 0 if np.isfinite(cost_ours) else 1
 
 
