@@ -281,7 +281,7 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
 
     def criterion(mats, mids=None):
         """Search scores of information matrices (K, P + S, P + S), of their marginal: the indices
-        O1-O5, or ``pred`` with the undetermined directions counted at the cut (finite)."""
+        O1-O5, or ``pred`` with the directions at the rounding level counted there (finite)."""
         if S:
             mats, mids, sub = marginal(mats, S), marginal_middle(mats, mids, S), slice(0, P)
             return _scores(mats, scale[sub], index, W[sub, sub], mids, strict=False)

@@ -23,9 +23,10 @@ with a pseudo-inverse over the blocks: a block no pose of the plan touches drops
 sandwich's middle carried the same way (:func:`marginal_middle`): decision and value are those
 of the whole information, the blocks' entries taken for parameters that ``W`` does not see. The search (``strict=False``, the scores of
 :func:`fgcal.studies.design.design_plan`) needs a finite, graded score for the rank-deficient
-plans of its greedy start: there the information carries the designer's vanishing ridge, and an
-eigenvalue below ``ROUNDING_RTOL`` of the largest (rounding, where an inverse gave a negative
-trace, clipped to a perfect 0) counts at that level, the same for all the plans compared at once.
+plans of its greedy start: there the information carries the designer's vanishing ridge, and a
+ridge at ``ROUNDING_RTOL`` of the largest scaled information (the rounding level, below which an
+inverse gave a negative trace, clipped to a perfect 0) is added, the same for all the plans
+compared at once.
 No I/O.
 """
 from __future__ import annotations
@@ -69,7 +70,9 @@ def predicted_mse(info, W, scale=None, middle=None, strict: bool = True) -> np.n
     units of ``scale`` (P,) (default: each parameter's own information, ``1 / sqrt(M_ii)``).
 
     ``strict``: +inf where the plan does not determine what ``W`` sees (see the module's text);
-    otherwise (the search's score) those directions count at the cut. Never NaN, never negative.
+    otherwise (the search's score) with a ridge at the rounding level (``ROUNDING_RTOL`` times the
+    batch's largest scaled diagonal entry), no eigen-decomposition.
+    Never NaN, never negative.
     """
     info = np.asarray(info, dtype=float)
     K, P = info.shape[0], info.shape[-1]
@@ -78,50 +81,54 @@ def predicted_mse(info, W, scale=None, middle=None, strict: bool = True) -> np.n
         d = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), 1.0)
     else:
         d = np.broadcast_to(np.asarray(scale, dtype=float), (K, P))
+    finite = np.isfinite(info.sum(axis=(1, 2)))
+    if not finite.all():
+        info = np.where(finite[:, None, None], info, 0.0)
+    W = np.asarray(W, dtype=float)
+    if not strict:  # the search: a ridge at the rounding level of the batch's largest scaled information
+        ridge = max(ROUNDING_RTOL * float(np.max(np.diagonal(info, axis1=1, axis2=2) * d**2, initial=0.0)), 1e-300)
+        ridged = info.copy()
+        ridged[:, np.arange(P), np.arange(P)] += ridge / d**2
+        out = _trace(ridged, W, middle)
+        return np.where(finite & np.isfinite(out), np.maximum(out, 0.0), np.inf)
     outer = d[:, :, None] * d[:, None, :]
-    finite = np.all(np.isfinite(info), axis=(1, 2))
-    Ms = np.where(finite[:, None, None], info * outer, 0.0)
-    Ws = np.asarray(W, dtype=float)[None] * outer
+    Ms, Ws = info * outer, W[None] * outer
     Bs = None if middle is None else np.asarray(middle, dtype=float) * outer
     lam = np.linalg.eigvalsh(Ms)  # the eigenvectors only where a direction is cut: they cost 50x more
     top = lam[:, -1]
-    if strict:
-        floor = RANK_RTOL * top
-    else:  # one floor for the whole batch: a candidate is not favoured for raising it
-        floor = np.full(K, max(ROUNDING_RTOL * float(np.max(top, initial=0.0)), 1e-300))
+    floor = RANK_RTOL * top
     out = np.zeros(K)
     clean = (lam[:, 0] > floor) & (top > 0)
     if clean.any():  # every direction determined: the inverse
-        cov = np.linalg.inv(Ms[clean])
-        if Bs is not None:
-            cov = cov @ Bs[clean] @ cov
-        out[clean] = np.einsum("kpq,kqp->k", Ws[clean], cov)
-    rest = ~clean
-    if rest.any():
-        out[rest] = _cut(Ms[rest], Ws[rest], None if Bs is None else Bs[rest], floor[rest], strict)
-    out = np.maximum(out, 0.0)
-    return np.where(finite & np.isfinite(out), out, np.inf)
+        out[clean] = _trace(Ms[clean], Ws[clean], None if Bs is None else Bs[clean])
+    if not clean.all():
+        rest = ~clean
+        out[rest] = _cut(Ms[rest], Ws[rest], None if Bs is None else Bs[rest], floor[rest])
+    return np.where(finite & np.isfinite(out), np.maximum(out, 0.0), np.inf)
 
 
-def _cut(Ms, Ws, Bs, floor, strict: bool) -> np.ndarray:
+def _trace(M, W, B) -> np.ndarray:
+    """``trace(W M^-1)`` or ``trace(W M^-1 B M^-1)`` (K,) of invertible ``M`` (K, P, P); ``W`` (P, P)
+    or (K, P, P)."""
+    cov = np.linalg.inv(M)
+    if B is not None:
+        cov = cov @ B @ cov
+    return np.einsum("kpq,kqp->k", np.broadcast_to(W, cov.shape), cov)
+
+
+def _cut(Ms, Ws, Bs, floor) -> np.ndarray:
     """:func:`predicted_mse` (K,) of scaled information ``Ms`` (K, P, P) with directions at or below
-    ``floor`` (K,): left out (the pseudo-inverse) where ``W`` does not see them, else +inf
-    (``strict``); or counted at the floor."""
+    ``floor`` (K,): left out (the pseudo-inverse) where ``W`` does not see them, else +inf."""
     lam, V = np.linalg.eigh(Ms)
     kept = lam > floor[:, None]
     Wt = np.swapaxes(V, 1, 2) @ Ws @ V  # W in the eigenbasis: its diagonal is W's share on each direction
     seen = np.einsum("kii->ki", Wt)
-    if strict:
-        inv = np.where(kept, 1.0 / np.where(kept, lam, 1.0), 0.0)
-    else:
-        inv = 1.0 / np.maximum(lam, floor[:, None])
+    inv = np.where(kept, 1.0 / np.where(kept, lam, 1.0), 0.0)
     if Bs is None:
         out = np.einsum("ki,ki->k", seen, inv)
     else:
         Bt = np.swapaxes(V, 1, 2) @ Bs @ V
         out = np.einsum("kij,kj,kji,ki->k", Wt, inv, Bt, inv)
-    if not strict:
-        return out
     whole = np.maximum(np.einsum("kii->k", Ws), 0.0)
     blind = (np.sum(np.where(kept, 0.0, np.abs(seen)), axis=1) <= SEEN_RTOL * whole) & (lam[:, -1] > 0)
     return np.where(blind, out, np.where(whole > 0, np.inf, 0.0))
@@ -149,18 +156,12 @@ def low_rank(info, rtol: float = 1e-12):
 def pred_update(total, L, W, sign: float, scale=None) -> np.ndarray:
     """Search score (minus the predicted RMS, :func:`predicted_mse` with ``strict=False``) of
     ``total + sign L_k L_k^T`` for every k, by the Woodbury identity: ``tr(W (T + s L L^T)^-1) =
-    tr(W C) - s tr((I + s L^T C L)^-1 L^T C W C L)`` with ``C`` the inverse of ``total`` (its
-    undetermined directions counted at the cut); r-by-r solves instead of P-by-P inverses."""
+    tr(W C) - s tr((I + s L^T C L)^-1 L^T C W C L)`` with ``C`` the inverse of ``total`` (with the
+    ridge at the rounding level); r-by-r solves instead of P-by-P inverses."""
     P = total.shape[-1]
     d = np.ones(P) if scale is None else np.asarray(scale, dtype=float)
-    Ts = total * np.outer(d, d)
-    lam = np.linalg.eigvalsh(Ts)
-    floor = max(ROUNDING_RTOL * lam[-1], 1e-300)
-    if lam[0] > floor:
-        C = np.linalg.inv(total)
-    else:
-        lam, V = np.linalg.eigh(Ts)
-        C = ((V / np.maximum(lam, floor)) @ V.T) * np.outer(d, d)
+    ridge = max(ROUNDING_RTOL * float(np.max(np.diag(total) * d**2, initial=0.0)), 1e-300)
+    C = np.linalg.inv(total + np.diag(ridge / d**2))
     CL = C @ L
     G = np.swapaxes(L, 1, 2) @ CL
     H = np.swapaxes(CL, 1, 2) @ W @ CL
