@@ -54,12 +54,14 @@ def pose_matrix(entries) -> np.ndarray:
 
 
 def pose_entries(T) -> np.ndarray:
-    """``[px, py, pz, phi, theta, psi]`` (mm, rad) of a 4x4 transform (ZYX angles; theta in [-90, 90] deg)."""
-    R = np.asarray(T, dtype=float)[:3, :3]
-    theta = -np.arcsin(np.clip(R[2, 0], -1.0, 1.0))
-    phi = np.arctan2(R[1, 0], R[0, 0])
-    psi = np.arctan2(R[2, 1], R[2, 2])
-    return np.concatenate([np.asarray(T, dtype=float)[:3, 3], [phi, theta, psi]])
+    """``[px, py, pz, phi, theta, psi]`` (..., 6) (mm, rad) of 4x4 transforms (..., 4, 4) (ZYX angles;
+    theta in [-90, 90] deg)."""
+    T = np.asarray(T, dtype=float)
+    R = T[..., :3, :3]
+    theta = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
+    phi = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    psi = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    return np.concatenate([T[..., :3, 3], np.stack([phi, theta, psi], axis=-1)], axis=-1)
 
 
 def project(Xc, k) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.measurements.camera import mount_transform, pose_entries, pose_matrix, project
+from fgcal.measurements.camera import pose_entries, project
+from fgcal.robots.transforms import rot
 
-__all__ = ["PNP_MIN_POINTS", "hand_eye", "pnp", "undistort"]
+__all__ = ["PNP_MIN_POINTS", "hand_eye", "pnp", "pnp_each", "pnp_images", "undistort"]
 
 PNP_MIN_POINTS = 4
 
@@ -35,40 +36,114 @@ def undistort(uv, k, iterations: int = 20) -> np.ndarray:
 
 
 def _nearest_rotation(M) -> np.ndarray:
+    """The rotation nearest ``M`` (3, 3) or each of a stack (N, 3, 3)."""
     U, _, Vt = np.linalg.svd(M)
     R = U @ Vt
-    if np.linalg.det(R) < 0:
-        R = U @ np.diag([1.0, 1.0, -1.0]) @ Vt
+    flip = np.linalg.det(R) < 0
+    if np.any(flip):
+        R = np.where(flip[..., None, None], (U * [1.0, 1.0, -1.0]) @ Vt, R)
     return R
 
 
+def _dlt_rows(P, n) -> np.ndarray:
+    """The DLT's two rows a point (N, 2m, 3k): ``[P, 0, -u P]`` and ``[0, P, -v P]`` for
+    homogeneous points ``P`` (N, m, k) and normalised image points ``n`` (N, m, 2)."""
+    N, m, k = P.shape
+    A = np.zeros((N, m, 2, 3 * k))
+    A[:, :, 0, :k], A[:, :, 1, k:2 * k] = P, P
+    A[:, :, 0, 2 * k:], A[:, :, 1, 2 * k:] = -n[..., :1] * P, -n[..., 1:] * P
+    return A.reshape(N, 2 * m, 3 * k)
+
+
+def _ones(X) -> np.ndarray:
+    return np.ones(X.shape[:-1] + (1,))
+
+
 def _pnp_planar(X, n) -> np.ndarray:
-    A = []
-    for (x, y, _), (u, v) in zip(X, n, strict=False):
-        A.append([x, y, 1, 0, 0, 0, -u * x, -u * y, -u])
-        A.append([0, 0, 0, x, y, 1, -v * x, -v * y, -v])
-    H = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 3)
-    scale = 2.0 / (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
-    H = H * scale
-    if H[2, 2] < 0:  # the target in front of the camera (its origin at positive depth)
-        H = -H
-    R = _nearest_rotation(np.column_stack([H[:, 0], H[:, 1], np.cross(H[:, 0], H[:, 1])]))
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, H[:, 2]
+    """Start poses (N, 4, 4) of planar targets ``X`` (N, m, 3) by homographies (DLT)."""
+    A = _dlt_rows(np.concatenate([X[..., :2], _ones(X)], axis=-1), n)
+    H = np.linalg.svd(A, full_matrices=False)[2][:, -1].reshape(-1, 3, 3)
+    H = H * (2.0 / (np.linalg.norm(H[:, :, 0], axis=1) + np.linalg.norm(H[:, :, 1], axis=1)))[:, None, None]
+    H = np.where(H[:, 2:3, 2:3] < 0, -H, H)  # the target in front of the camera (its origin at positive depth)
+    T = np.broadcast_to(np.eye(4), H.shape[:1] + (4, 4)).copy()
+    T[:, :3, :3] = _nearest_rotation(np.stack([H[:, :, 0], H[:, :, 1], np.cross(H[:, :, 0], H[:, :, 1])], axis=2))
+    T[:, :3, 3] = H[:, :, 2]
     return T
 
 
 def _pnp_dlt(X, n) -> np.ndarray:
-    A = []
-    for (x, y, z), (u, v) in zip(X, n, strict=False):
-        A.append([x, y, z, 1, 0, 0, 0, 0, -u * x, -u * y, -u * z, -u])
-        A.append([0, 0, 0, 0, x, y, z, 1, -v * x, -v * y, -v * z, -v])
-    P = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 4)
-    scale = 1.0 / np.cbrt(np.linalg.det(P[:, :3]))
-    P = P * scale
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = _nearest_rotation(P[:, :3]), P[:, 3]
+    """Start poses (N, 4, 4) of non-planar targets ``X`` (N, m, 3) by 3D DLTs."""
+    A = _dlt_rows(np.concatenate([X, _ones(X)], axis=-1), n)
+    P = np.linalg.svd(A, full_matrices=False)[2][:, -1].reshape(-1, 3, 4)
+    P = P / np.cbrt(np.linalg.det(P[:, :, :3]))[:, None, None]
+    T = np.broadcast_to(np.eye(4), P.shape[:1] + (4, 4)).copy()
+    T[:, :3, :3], T[:, :3, 3] = _nearest_rotation(P[:, :, :3]), P[:, :, 3]
     return T
+
+
+def _zyx(a) -> tuple[np.ndarray, np.ndarray]:
+    """``R = Rz(phi) Ry(theta) Rx(psi)`` (N, 3, 3) of angles ``a`` (N, 3) rad, and ``dR`` (N, 3, 3, 3)
+    by phi, theta, psi."""
+    R3 = [rot(axis, a[:, 2 - axis]) for axis in range(3)]  # Rx, Ry, Rz
+    D3 = []
+    for axis, Ra in enumerate(R3):  # d/da of a rotation about one axis: its plane's entries turned by 90 deg
+        i, j = [(1, 2), (2, 0), (0, 1)][axis]
+        D = np.zeros_like(Ra)
+        D[:, i, i], D[:, j, j], D[:, i, j], D[:, j, i] = -Ra[:, j, i], -Ra[:, j, i], -Ra[:, i, i], Ra[:, i, i]
+        D3.append(D)
+    Rx, Ry, Rz = R3
+    dR = np.stack([D3[2] @ Ry @ Rx, Rz @ D3[1] @ Rx, Rz @ Ry @ D3[0]], axis=1)
+    return Rz @ Ry @ Rx, dR
+
+
+def _steps(J, r) -> np.ndarray:
+    """Least-squares steps (N, 6) of the stacked systems ``J`` (N, R, 6), ``r`` (N, R) (QR; an image
+    whose system is singular by lstsq, the minimum-norm step)."""
+    try:
+        Q, U = np.linalg.qr(J)
+        return np.linalg.solve(U, np.einsum("nri,nr->ni", Q, r)[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        return np.array([np.linalg.lstsq(j, b, rcond=None)[0] for j, b in zip(J, r, strict=True)])
+
+
+def pnp_images(X, uv, k, iterations: int = 15) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pnp` of N images of m corners each at once: ``X`` (N, m, 3) mm, ``uv`` (N, m, 2) px,
+    intrinsics ``k`` (9,); returns ``T_ct`` (N, 4, 4) and the RMS reprojection errors (N,) px.
+
+    Raises
+    ------
+    ValueError
+        With fewer than four points (six for a non-planar target).
+    """
+    X = np.asarray(X, dtype=float)
+    uv = np.asarray(uv, dtype=float)
+    N, m = X.shape[:2]
+    planar = np.all(np.abs(X[..., 2]) < 1e-9, axis=1)
+    if m < (PNP_MIN_POINTS if planar.all() else 6):
+        raise ValueError(f"PnP needs at least {PNP_MIN_POINTS if planar.all() else 6} points, got {m}")
+    n = undistort(uv.reshape(-1, 2), k).reshape(N, m, 2)
+    T = np.empty((N, 4, 4))
+    for sel, start in ((planar, _pnp_planar), (~planar, _pnp_dlt)):
+        if sel.any():
+            T[sel] = start(X[sel], n[sel])
+    e = pose_entries(T)
+    active = np.ones(N, dtype=bool)
+    for _ in range(iterations):  # Gauss-Newton on the pixels, analytic Jacobian in the pose entries
+        i = np.flatnonzero(active)
+        if not len(i):
+            break
+        R, dR = _zyx(e[i, 3:])
+        uv_e, J_X, _ = project((X[i] @ np.swapaxes(R, 1, 2) + e[i, None, :3]).reshape(-1, 3), k)
+        D = np.concatenate([np.broadcast_to(np.eye(3), (len(i), m, 3, 3)),
+                            np.einsum("naij,nmj->nmia", dR, X[i])], axis=3)
+        J = (J_X.reshape(len(i), m, 2, 3) @ D).reshape(len(i), 2 * m, 6)
+        step = _steps(J, (uv[i] - uv_e.reshape(len(i), m, 2)).reshape(len(i), -1))
+        e[i] += step
+        active[i[np.max(np.abs(step), axis=1) < 1e-10]] = False
+    T = np.broadcast_to(np.eye(4), (N, 4, 4)).copy()
+    T[:, :3, :3], T[:, :3, 3] = _zyx(e[:, 3:])[0], e[:, :3]
+    uv_e = project((X @ np.swapaxes(T[:, :3, :3], 1, 2) + T[:, None, :3, 3]).reshape(-1, 3), k)[0]
+    return T, np.sqrt(np.mean(np.sum((uv_e.reshape(N, m, 2) - uv) ** 2, axis=2), axis=1))
 
 
 def pnp(X, uv, k, iterations: int = 15) -> tuple[np.ndarray, float]:
@@ -80,30 +155,32 @@ def pnp(X, uv, k, iterations: int = 15) -> tuple[np.ndarray, float]:
     ValueError
         With fewer than four points (six for a non-planar target) or a degenerate configuration.
     """
-    X = np.asarray(X, dtype=float)
-    uv = np.asarray(uv, dtype=float)
-    planar = bool(np.all(np.abs(X[:, 2]) < 1e-9))
-    if len(X) < (PNP_MIN_POINTS if planar else 6):
-        raise ValueError(f"PnP needs at least {PNP_MIN_POINTS if planar else 6} points, got {len(X)}")
-    n = undistort(uv, k)
-    T = _pnp_planar(X, n) if planar else _pnp_dlt(X, n)
-    e = pose_entries(T)
-    for _ in range(iterations):  # Gauss-Newton on the pixels, analytic Jacobian in the pose entries
-        R, t, dR = mount_transform(e)
-        uv_e, J_X, _ = project(X @ R.T + t, k)
-        D = np.concatenate([np.broadcast_to(np.eye(3), (len(X), 3, 3)), np.einsum("aij,mj->mia", dR, X)], axis=2)
-        J = (J_X @ D).reshape(-1, 6)
-        step = np.linalg.lstsq(J, -(uv_e - uv).ravel(), rcond=None)[0]
-        e = e + step
-        if np.max(np.abs(step)) < 1e-10:
-            break
-    rms = float(np.sqrt(np.mean(np.sum((_reproject(e, X, k) - uv) ** 2, axis=1))))
-    return pose_matrix(e), rms
+    T, rms = pnp_images(np.asarray(X, dtype=float)[None], np.asarray(uv, dtype=float)[None], k, iterations)
+    return T[0], float(rms[0])
 
 
-def _reproject(e, X, k) -> np.ndarray:
-    T = pose_matrix(e)
-    return project(X @ T[:3, :3].T + T[:3, 3], k)[0]
+def pnp_each(images: list, k, memo: dict) -> list:
+    """:func:`pnp` of each image ``(X (m, 3), uv (m, 2))`` with intrinsics ``k`` (9,): ``(T_ct, rms)``
+    or None where it fails. Images of equal corner counts are solved together
+    (:func:`pnp_images`); ``memo`` keeps each image's by its values (solved once however often asked)."""
+    k = np.asarray(k, dtype=float)
+    keys = [(np.asarray(X, dtype=float).tobytes(), np.asarray(uv, dtype=float).tobytes(), k.tobytes())
+            for X, uv in images]
+    todo: dict = {}
+    for key, (X, uv) in zip(keys, images, strict=True):
+        if key not in memo:
+            todo.setdefault(len(X), {})[key] = (X, uv)
+    for group in todo.values():
+        try:
+            T, rms = pnp_images(np.array([X for X, _ in group.values()]), np.array([u for _, u in group.values()]), k)
+            memo.update({key: (T[j], float(rms[j])) for j, key in enumerate(group)})
+        except (ValueError, np.linalg.LinAlgError):  # one at a time: only the images that fail fail
+            for key, (X, uv) in group.items():
+                try:
+                    memo[key] = pnp(X, uv, k)
+                except (ValueError, np.linalg.LinAlgError):
+                    memo[key] = None
+    return [memo[key] for key in keys]
 
 
 def hand_eye(A, B) -> tuple[np.ndarray, np.ndarray]:

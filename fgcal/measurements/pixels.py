@@ -20,7 +20,7 @@ import numpy as np
 from fgcal.errors import FgcalError
 from fgcal.measurements.base import NoiseComponent, ObservationRows, Terms
 from fgcal.measurements.camera import CAMERA_SIZE, mount_transform, pose_entries, pose_matrix, project
-from fgcal.measurements.camera_start import hand_eye, pnp
+from fgcal.measurements.camera_start import hand_eye, pnp_each
 from fgcal.measurements.contact import SetupMeasurement
 from fgcal.robots.kinematics import jacobians
 
@@ -39,7 +39,10 @@ class PixelObservations(ObservationRows):
     """Corners, one row each: pose ids (M,), camera and target names (M,), point names (M,), pixels
     ``uv`` (M, 2), the point in its target's frame ``xyz`` (M, 3) mm, file lines (M,).
 
-    ``specs`` (not a row field): the cameras' and targets' specs by name (kept by :meth:`subset`)."""
+    ``specs`` (not a row field): the cameras' and targets' specs by name (kept by :meth:`subset`).
+    ``pnp_memo`` (not a row field, shared with every subset): each image's PnP by its corners and
+    intrinsics (:func:`~fgcal.measurements.camera_start.pnp_each`: the refusal test and the blocks'
+    start solve the same images)."""
 
     pose: np.ndarray
     camera: np.ndarray
@@ -56,6 +59,7 @@ class PixelObservations(ObservationRows):
             setattr(self, name, np.asarray(getattr(self, name), dtype=str).reshape(-1))
         super().__post_init__()
         self.specs: dict = {}
+        self.pnp_memo: dict = {}
 
     @classmethod
     def build(cls, pose, camera, point, uv, specs: dict, line=None) -> PixelObservations:
@@ -77,7 +81,7 @@ class PixelObservations(ObservationRows):
 
     def subset(self, mask):
         out = super().subset(mask)
-        out.specs = self.specs
+        out.specs, out.pnp_memo = self.specs, self.pnp_memo
         return out
 
 
@@ -96,6 +100,15 @@ def _skew(v) -> np.ndarray:
     S[..., 0, 1], S[..., 0, 2], S[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
     S[..., 1, 0], S[..., 2, 0], S[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
     return S
+
+
+def _where(eye, a, b) -> np.ndarray:
+    """``np.where(eye, a(), b())`` row by row (``eye`` (M,), ``a()``, ``b()`` (M, ...)), computing only
+    the side used when every row is on one side."""
+    if eye.all() or not eye.any():
+        return a() if eye.all() else b()
+    x, y = a(), b()
+    return np.where(eye.reshape((-1,) + (1,) * (x.ndim - 1)), x, y)
 
 
 def pixel_model(theta, q, data, s, index, held, chain, need_jac: bool = True):
@@ -124,8 +137,8 @@ def pixel_model(theta, q, data, s, index, held, chain, need_jac: bool = True):
         K[rows] = s[k + 6:k + CAMERA_SIZE]
     X_o = np.einsum("mij,mj->mi", R_t, xyz) + t_t  # the point in the target's mount frame
     eye = mode == 0
-    v = np.where(eye[:, None], np.einsum("mij,mj->mi", R, X_o), X_o - p)  # p_w - p
-    p_m = np.where(eye[:, None], v + p, np.einsum("mji,mj->mi", R, v))  # the point in the camera's mount frame
+    v = _where(eye, lambda: np.einsum("mij,mj->mi", R, X_o), lambda: X_o - p)  # p_w - p
+    p_m = _where(eye, lambda: v + p, lambda: np.einsum("mji,mj->mi", R, v))  # the point in the camera's mount frame
     p_c = np.einsum("mji,mj->mi", R_c, p_m - t_c)
     uv, J_X, J_k = project(p_c, K)
     if not need_jac:
@@ -135,13 +148,13 @@ def pixel_model(theta, q, data, s, index, held, chain, need_jac: bool = True):
     # d p_m / d (dp, omega) of the tool pose: eye-to-hand dp - [v]x omega; eye-in-hand R^T ([v]x omega - dp)
     S = _skew(v)
     Rt = np.swapaxes(R, 1, 2)
-    D = np.where(eye[:, None, None], np.concatenate([np.broadcast_to(np.eye(3), (m, 3, 3)), -S], axis=2),
-                 np.concatenate([-Rt, Rt @ S], axis=2))  # (M, 3, 6)
-    Jp_t = jac.pose_slots[inv][:, :, index]
+    D = _where(eye, lambda: np.concatenate([np.broadcast_to(np.eye(3), (m, 3, 3)), -S], axis=2),
+               lambda: np.concatenate([-Rt, Rt @ S], axis=2))  # (M, 3, 6)
+    Jp_t = jac.pose_slots[:, :, index][inv]
     Jp_q = jac.pose_joints[inv]
     J_t = A @ (D @ Jp_t)
     J_q = A @ (D @ Jp_q)
-    dpm_dXo = np.where(eye[:, None, None], R, Rt)
+    dpm_dXo = _where(eye, lambda: R, lambda: Rt)
     J_s = np.empty((m, 2, CAMERA_SIZE + 6))
     J_s[:, :, 0:3] = -A
     J_s[:, :, 3:6] = np.einsum("mrj,maij,mi->mra", J_X, dR_c, p_m - t_c)  # dR_c^T (p_m - t_c)
@@ -232,12 +245,12 @@ class Pixels(SetupMeasurement):
             mode = _mode(cs, ts)
             A, B, rms = [], [], []
             sel = (obs.camera == cam) & (obs.target == tgt)
-            for pid in dict.fromkeys(obs.pose[sel].tolist()):
-                rows = np.nonzero(sel & (obs.pose == pid))[0]
-                try:
-                    T_ct, err = pnp(obs.xyz[rows], obs.uv[rows], cs.intrinsics)
-                except (ValueError, np.linalg.LinAlgError):
+            images = [np.nonzero(sel & (obs.pose == pid))[0] for pid in dict.fromkeys(obs.pose[sel].tolist())]
+            seen = pnp_each([(obs.xyz[rows], obs.uv[rows]) for rows in images], cs.intrinsics, obs.pnp_memo)
+            for rows, got in zip(images, seen, strict=True):
+                if got is None:
                     continue
+                T_ct, err = got
                 F = T[rows[0]]
                 A.append(F if mode == 0 else np.linalg.inv(F))
                 B.append(T_ct)
@@ -277,15 +290,18 @@ class Pixels(SetupMeasurement):
         if (~off).any():
             starts, _ = self.start_poses(obs.subset(~off), T[~off])
             rows = np.nonzero(~off)[0]
-            Tc = np.array([pose_matrix(starts[c][:6]) for c in obs.camera[rows].tolist()])
-            Tt = np.array([pose_matrix(starts[t]) for t in obs.target[rows].tolist()])
-            on_tool = np.array([specs[t].mount == "tool" for t in obs.target[rows].tolist()])
+            cams, cam_of = np.unique(obs.camera[rows], return_inverse=True)
+            tgts, tgt_of = np.unique(obs.target[rows], return_inverse=True)
+            cam_of, tgt_of = cam_of.reshape(-1), tgt_of.reshape(-1)
+            Tc_inv = np.linalg.inv(np.array([pose_matrix(starts[c][:6]) for c in cams.tolist()]))[cam_of]  # per row
+            Tt = np.array([pose_matrix(starts[t]) for t in tgts.tolist()])[tgt_of]
+            on_tool = np.array([specs[t].mount == "tool" for t in tgts.tolist()])[tgt_of]
             F = T[rows]
             F_inv = np.linalg.inv(F)
             Tm = np.where(on_tool[:, None, None], F, F_inv) @ Tt  # the target in the camera's mount frame
-            Tct = np.linalg.inv(Tc) @ Tm
+            Tct = Tc_inv @ Tm
             pc = np.einsum("mij,mj->mi", Tct[:, :3, :3], obs.xyz[rows]) + Tct[:, :3, 3]
-            planar = np.array([specs[t].planar for t in obs.target[rows].tolist()])
+            planar = np.array([specs[t].planar for t in tgts.tolist()])[tgt_of]
             cos = np.abs(np.einsum("mi,mi->m", pc, Tct[:, :3, 2])) / np.linalg.norm(pc, axis=1)
             behind = pc[:, 2] < MIN_DEPTH_MM
             grazing = ~behind & planar & (cos < np.cos(np.radians(GRAZING_DEG)))
