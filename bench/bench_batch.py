@@ -31,34 +31,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from _process import FGCAL, run
 from bench_batch_convergence import polished_reference
 
 HERE = Path(__file__).resolve().parent
 REFERENCE = HERE.parent.parent / "shared" / "bench" / "sparse_joint_solve.py"
-SINGLE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
-                                  "OPENBLAS_MAIN_FREE", "NUMEXPR_NUM_THREADS")}
-FGCAL = [sys.executable, "-m", "fgcal.cli"]
-
-
-def run(cmd: list[str]) -> dict:
-    """``cmd`` in a fresh process: its CPU seconds (user + sys, children included), peak RSS (MB), stdout."""
-    env = dict(os.environ, **SINGLE_THREAD)
-    env["PYTHONPATH"] = os.pathsep.join([str(HERE.parent)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
-        _, status, usage = os.wait4(proc.pid, 0)  # reaps it: its own and its children's CPU, its peak RSS
-        out.seek(0)
-        err.seek(0)
-        if os.waitstatus_to_exitcode(status):
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{err.read().decode()}")
-        stdout = out.read()
-    return {"cpu": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024, "stdout": stdout}
 
 
 def estimates(path: Path) -> dict[str, tuple[float, float]]:

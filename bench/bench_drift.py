@@ -21,25 +21,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense solves: threads only contend
 
 import numpy as np
-
-
-def default_series() -> Path | None:
-    for p in Path(__file__).resolve().parents:
-        f = p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
-        if f.exists():
-            return f
-    return None
-
-
-def time_split(series, calib, share=0.6):
-    """Training and later pose ids: the first ``share`` in time; a goal repeated across the cut stays in training."""
-    ids = np.sort(calib.pose_ids)
-    cut = ids[int(share * len(ids))]
-    groups = dict(zip(series.line, series.groups()))
-    train_groups = {groups[p] for p in ids if p < cut}
-    later = np.array([p for p in ids if p >= cut and groups[p] not in train_groups])
-    train = np.array([p for p in ids if p not in set(later.tolist())])
-    return train, later
+from _series import default_series, time_split
 
 
 def main():

@@ -34,6 +34,7 @@ import sys
 import time
 
 import numpy as np
+from _series import default_series
 
 
 def batch_table(model, rows, seeds):
@@ -77,16 +78,6 @@ def online_table(model, seeds):
                       f"{sum(r['rejected'] for r in rows):9d} {sum(r['mirrored'] for r in rows):9d} "
                       f"{time.perf_counter() - t:6.1f}s", flush=True)
     return failed
-
-
-def default_series():
-    from pathlib import Path
-
-    for p in Path(__file__).resolve().parents:
-        f = p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
-        if f.exists():
-            return f
-    return None
 
 
 def _block_mask(result):

@@ -10,7 +10,7 @@ process, imports, reading and writing included, and its peak RSS), single-thread
 of a size interleaved ``--repeat`` times and the least CPU of each kept (the machine is shared):
 ``fgcal calibrate DIR --out R.json`` (the reference: the geometric solve, fgcal's defaults) and
 ``fgcal calibrate DIR --model compliance+map --out R.json``. The cross-validation alone
-(:func:`fgcal.estimation.model_select.cv_problem` and :func:`~fgcal.estimation.model_select.cross_validate`,
+(:func:`fgcal.estimation.cross_validation.cv_problem` and :func:`~fgcal.estimation.cross_validation.cross_validate`,
 its CPU and its ``tracemalloc`` peak) is timed in a child process per size: its cost per pose
 should not grow with the poses.
 
@@ -28,45 +28,24 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _process import FGCAL
+from _process import run as run_process
+from _series import default_series, time_split
 
 HERE = Path(__file__).resolve().parent
-SINGLE_THREAD = {k: "1" for k in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS",
-                                  "OPENBLAS_MAIN_FREE", "NUMEXPR_NUM_THREADS")}
-FGCAL = [sys.executable, "-m", "fgcal.cli"]
 CPU_GOAL, PEAK_GOAL_MB, CV_GROWTH_GOAL = 10.0, 500.0, 1.25  # the last: per-pose CV cost, largest over smallest
 SRC: list[str] = []  # another fgcal checkout first on the children's path (--src)
 
 
-def default_series() -> Path | None:
-    for p in HERE.parents:
-        f = p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
-        if f.exists():
-            return f
-    return None
-
-
 def run(cmd: list[str]) -> dict:
-    """``cmd`` in a fresh process: its CPU seconds (user + sys, children included), peak RSS (MB), stdout."""
-    env = dict(os.environ, **SINGLE_THREAD)
-    env["PYTHONPATH"] = os.pathsep.join(SRC + [str(HERE.parent)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH")
-                                                                    else []))
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env)
-        _, status, usage = os.wait4(proc.pid, 0)  # reaps it: its own and its children's CPU, its peak RSS
-        out.seek(0)
-        err.seek(0)
-        if os.waitstatus_to_exitcode(status):
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{err.read().decode()}")
-        stdout = out.read()
-    return {"cpu": usage.ru_utime + usage.ru_stime, "peak_mb": usage.ru_maxrss / 1024, "stdout": stdout}
+    """``cmd`` in a fresh process, ``--src`` first on its path (:func:`_process.run`)."""
+    return run_process(cmd, SRC)
 
 
 def make_dataset(work: Path, n: int, seed: int) -> Path:
@@ -125,12 +104,7 @@ def accuracy_child(series_path: str) -> int:
     series = read_series(series_path)
     out = {}
     calib, _, model_dict, _ = series_to_datasets(series, series_path)
-    ids = np.sort(calib.pose_ids)  # pose id = line in the file: time order
-    cut = ids[int(0.6 * len(ids))]
-    groups = dict(zip(series.line, series.groups()))
-    train_groups = {groups[p] for p in ids if p < cut}
-    test = np.array([p for p in ids if p >= cut and groups[p] not in train_groups])
-    train = np.array([p for p in ids if p not in set(test.tolist())])
+    train, test = time_split(series, calib, 0.6)
     splits = {"time-ordered 60/40": (calib.select(train), calib.select(test), model_dict)}
     c2, h2, d2, _ = series_to_datasets(series, series_path, holdout=0.4, rng=np.random.default_rng(0))
     splits["random 40% of goals"] = (c2, h2, d2)

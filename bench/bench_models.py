@@ -33,14 +33,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # small dense solves: threads only contend
 
 import numpy as np
-
-
-def default_series() -> Path | None:
-    for p in Path(__file__).resolve().parents:
-        f = p / "shared" / "data" / "landgraf-ur10" / "Series_B" / "measurements_joint_configurations.csv"
-        if f.exists():
-            return f
-    return None
+from _series import default_series, time_split
 
 
 def run_split(calib, held, model_dict, label, fold_order="random"):
@@ -103,13 +96,7 @@ def main():
         run_split(calib, held, model_dict, f"random 30% of goals held out (seed {seed})")
     if not args.no_time_split:
         calib, _, model_dict, _ = series_to_datasets(series, str(args.series))
-        ids = np.sort(calib.pose_ids)  # pose id = line in the file: time order
-        cut = ids[int(args.train_fraction * len(ids))]
-        groups = dict(zip(series.line, series.groups()))
-        train_groups = {groups[p] for p in ids if p < cut}
-        # a goal repeated across the cut stays on the training side
-        test_ids = np.array([p for p in ids if p >= cut and groups[p] not in train_groups])
-        train_ids = np.array([p for p in ids if p not in set(test_ids.tolist())])
+        train_ids, test_ids = time_split(series, calib, args.train_fraction)
         for order in args.orders:
             run_split(calib.select(train_ids), calib.select(test_ids), model_dict,
                       f"time order: first {args.train_fraction:.0%} train, the rest held out", order)

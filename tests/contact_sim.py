@@ -384,6 +384,15 @@ def _reading_noise(chain, q, rng, joint_sigma_deg, prismatic_sigma_mm=0.0):
     return chain.to_readings(q) + rng.normal(0.0, 1.0, q.shape) * sig
 
 
+def _true_robot(urdf_path: Path, chain: dict, rng, true_urdf, perturb_mm, perturb_deg):
+    """``(URDF text, UrdfChain)`` of the true robot: ``true_urdf`` if given, else
+    :func:`perturbed_urdf` of ``urdf_path``'s chain."""
+    base, tip = chain.get("base"), chain.get("tip")
+    truth_text = true_urdf if true_urdf is not None else perturbed_urdf(urdf_path.read_text(), rng, base, tip,
+                                                                        perturb_mm, perturb_deg)
+    return truth_text, UrdfChain(truth_text, base, tip)
+
+
 def two_socket_dataset(out_dir, urdf_path, chain: dict, rng, n_placements: int = 3,
                        configs_per_socket: int = 15, ball_offset_mm=(0.0, 0.0, 30.0),
                        contact_sigma_mm: float = 0.02, joint_sigma_deg: float = 0.0,
@@ -405,11 +414,7 @@ def two_socket_dataset(out_dir, urdf_path, chain: dict, rng, n_placements: int =
     ``p{k}/hole_0``, ``p{k}/hole_1``; each plate's sockets get one distance constraint."""
     t0 = time.perf_counter()
     out_dir, urdf_path = Path(out_dir), Path(urdf_path)
-    text = urdf_path.read_text()
-    base, tip = chain.get("base"), chain.get("tip")
-    truth_text = true_urdf if true_urdf is not None else perturbed_urdf(text, rng, base, tip,
-                                                                        perturb_mm, perturb_deg)
-    true = UrdfChain(truth_text, base, tip)
+    truth_text, true = _true_robot(urdf_path, chain, rng, true_urdf, perturb_mm, perturb_deg)
     ball = np.asarray(ball_offset_mm, dtype=float)
     opts = dict(min_joint_sep_deg=min_joint_sep_deg, min_rotation_deg=min_rotation_deg,
                 max_tilt_deg=max_tilt_deg)
@@ -486,11 +491,7 @@ def plane_dataset(out_dir, urdf_path, chain: dict, rng, n_contacts: int = 40,
     Successive joint sets are more than ``min_joint_sep_deg`` apart."""
     t0 = time.perf_counter()
     out_dir, urdf_path = Path(out_dir), Path(urdf_path)
-    text = urdf_path.read_text()
-    base, tip = chain.get("base"), chain.get("tip")
-    truth_text = true_urdf if true_urdf is not None else perturbed_urdf(text, rng, base, tip,
-                                                                        perturb_mm, perturb_deg)
-    true = UrdfChain(truth_text, base, tip)
+    truth_text, true = _true_robot(urdf_path, chain, rng, true_urdf, perturb_mm, perturb_deg)
     ball = np.asarray(ball_offset_mm, dtype=float)
     r = float(ball_radius_mm)
     opts = dict(min_joint_sep_deg=min_joint_sep_deg, min_rotation_deg=min_rotation_deg)

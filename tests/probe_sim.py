@@ -106,6 +106,18 @@ def _cap(axis, rng, n_points=4):
     return np.array(dirs)
 
 
+def _write_dataset(out_dir, robot: dict, robot_file, cmm_sigma, joint_resolution, joints, level, rows) -> None:
+    """``dataset.yaml`` (the robot file, its tooling, the noise), ``joints.csv`` and ``LEVEL.csv``
+    (``rows``: the CSV lines, header first) in ``out_dir``."""
+    balls = "\n".join(f"    {b}: [{', '.join(repr(float(v)) for v in off)}]" for b, off in robot["balls"].items())
+    (out_dir / "dataset.yaml").write_text(
+        f"format: fgcal-dataset/1\nrobot: {robot_file}\ntool:\n  radius: {robot['radius']}\n  balls:\n{balls}\n"
+        f"noise: {{cmm_sigma: {cmm_sigma}, joint_resolution: {joint_resolution}, repeatability: 0.0}}\n"
+        "provenance: {generator: tests/probe_sim.py}\n")
+    (out_dir / "joints.csv").write_text("\n".join(joints) + "\n")
+    (out_dir / f"{level}.csv").write_text("\n".join(rows) + "\n")
+
+
 def probe_dataset(out_dir, robot: dict, robot_file, truth: dict, q_commanded_deg, rng: np.random.Generator,
                   cmm_sigma=0.01, joint_resolution=0.01, n_balls=3, probes_per_ball=4) -> int:
     """Probe the true robot at the commanded joints (N, 6) deg and write the dataset to ``out_dir``.
@@ -131,13 +143,7 @@ def probe_dataset(out_dir, robot: dict, robot_file, truth: dict, q_commanded_deg
             dirs = _cap(outward + np.array([0.0, 0.0, 1.0]), rng, probes_per_ball)
             pts = c + robot["radius"] * dirs + rng.normal(size=dirs.shape) * cmm_sigma
             probes += [f"{i},{name}," + ",".join(repr(float(v)) for v in p) for p in pts]
-    balls = "\n".join(f"    {b}: [{', '.join(repr(float(v)) for v in off)}]" for b, off in robot["balls"].items())
-    (out_dir / "dataset.yaml").write_text(
-        f"format: fgcal-dataset/1\nrobot: {robot_file}\ntool:\n  radius: {robot['radius']}\n  balls:\n{balls}\n"
-        f"noise: {{cmm_sigma: {cmm_sigma}, joint_resolution: {joint_resolution}, repeatability: 0.0}}\n"
-        "provenance: {generator: tests/probe_sim.py}\n")
-    (out_dir / "joints.csv").write_text("\n".join(joints) + "\n")
-    (out_dir / "probes.csv").write_text("\n".join(probes) + "\n")
+    _write_dataset(out_dir, robot, robot_file, cmm_sigma, joint_resolution, joints, "probes", probes)
     return n
 
 
@@ -181,11 +187,5 @@ def centre_dataset(out_dir, robot: dict, robot_file, truth: dict, q_commanded_de
         joints.append(f"{pid}," + ",".join(repr(float(v)) for v in reading))
         centres += [f"{pid},{b}," + ",".join(repr(float(v)) for v in c + rng.normal(size=3) * cmm_sigma)
                     for b, c in balls.items()]
-    balls = "\n".join(f"    {b}: [{', '.join(repr(float(v)) for v in off)}]" for b, off in robot["balls"].items())
-    (out_dir / "dataset.yaml").write_text(
-        f"format: fgcal-dataset/1\nrobot: {robot_file}\ntool:\n  radius: {robot['radius']}\n  balls:\n{balls}\n"
-        f"noise: {{cmm_sigma: {cmm_sigma}, joint_resolution: {joint_resolution}, repeatability: 0.0}}\n"
-        "provenance: {generator: tests/probe_sim.py}\n")
-    (out_dir / "joints.csv").write_text("\n".join(joints) + "\n")
-    (out_dir / "centres.csv").write_text("\n".join(centres) + "\n")
+    _write_dataset(out_dir, robot, robot_file, cmm_sigma, joint_resolution, joints, "centres", centres)
     return kept

@@ -17,23 +17,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hostile_util import call as run
 
 import fgcal
 from fgcal.api import calibration, compensation, planning, reporting, simulation, verification
-from fgcal.cli import build_parser, main
+from fgcal.cli import build_parser
 from fgcal.cli.commands.common import default
 
 REPO = Path(__file__).resolve().parent.parent
-
-
-def run(args, capsys):
-    """``fgcal ARGS`` in this process: ``(status, stdout, stderr)``."""
-    try:
-        code = main([str(a) for a in args])
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

@@ -17,19 +17,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hostile_util import call as run
 
 import fgcal
-from fgcal.cli import build_parser, main
+from fgcal.cli import build_parser
 from fgcal.util.numbers import clean_number, format_number
-
-
-def run(args, capsys):
-    try:
-        code = main([str(a) for a in args])
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def one_line(code, err, *words):

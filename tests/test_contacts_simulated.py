@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from contact_sim import aligned_rms, new_poses, plane_dataset, two_socket_dataset
+from predict_util import predicted_points, without_rigid_motion
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.measurements.dataset import Dataset
-from fgcal.robots.kinematics import jacobians
 
 DATA = Path(__file__).parent / "data" / "urdf"
 ROBOTS = {"panda": ("panda.urdf", {"base": "panda_link0", "tip": "panda_hand_tcp"}),
@@ -68,21 +68,10 @@ def simulated(request, tmp_path_factory):
 
 def _tool_point_error(result, model, check, ball):
     """Aligned RMS (mm) of the calibrated ball position at new poses, and the covariance's prediction."""
-    slots = result.slot_vector(model)
     q = model.joints_to_internal(check.readings)
-    jac = jacobians(slots, q, offsets=np.broadcast_to(ball, (len(q), 1, 3)), chain=model.chain)
-    pred = jac.points[:, 0]
-    names = [n for n in result.names if n in set(model.slot_names)]
-    idx = [model.slot(n) for n in names]
-    cols = [result.names.index(n) for n in names]
-    scale = np.where(model.slot_is_angle[idx], np.radians(1.0), 1.0)  # the covariance is in mm, deg
-    cov = result.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)
-    J = jac.point_slots[:, 0][:, :, idx].reshape(-1, len(idx))
+    pred, J, cov = predicted_points(result.slot_vector(model), result, model, q, ball)
     # The comparison aligns the free world frame: the prediction leaves out what a rigid motion absorbs.
-    rigid = np.concatenate([np.broadcast_to(np.eye(3), (len(pred), 3, 3)),
-                            -np.array([[[0, -z, y], [z, 0, -x], [-y, x, 0]] for x, y, z in pred - pred.mean(0)])],
-                           axis=2).reshape(-1, 6)
-    Jp = J - rigid @ np.linalg.lstsq(rigid, J, rcond=None)[0]
+    Jp = without_rigid_motion(pred, J.reshape(-1, J.shape[2]))
     predicted = float(np.sqrt(np.trace(Jp @ cov @ Jp.T) / len(pred)))
     return aligned_rms(pred, check.points), predicted
 

@@ -281,22 +281,13 @@ def _cov_internal(result, params):
 def test_an_online_run_with_it_resumes_to_the_same_result(puma, with_heights, engine, tmp_path):
     """A run interrupted after 17 poses and resumed from its checkpoint (a filter's snapshot and
     replay, iSAM2's replay of the journal with the heights' factors) ends as the uninterrupted one."""
+    from online_util import interrupted_and_resumed
+
     from fgcal.online.run import OnlineRun
 
     ds = _simulated(puma, 9, ("centres", "heights"), n_poses=25)
-    whole = OnlineRun(ds, puma, engine, tmp_path / "a.ck")
-    for rec in whole.pending():
-        whole.feed(rec)
-    expected = whole.result()
-    first = OnlineRun(ds, puma, engine, tmp_path / "b.ck")
-    for rec in first.pending()[:17]:
-        first.feed(rec)
-    first.close()
-    second = OnlineRun(ds, puma, engine, tmp_path / "b.ck")
-    assert second.resume() == 17
-    for rec in second.pending():
-        second.feed(rec)
-    got = second.result()
+    whole, _, second = interrupted_and_resumed(ds, puma, engine, tmp_path, 17)
+    expected, got = whole.result(), second.result()
     np.testing.assert_allclose(got.estimate, expected.estimate, rtol=0, atol=1e-9 * np.abs(expected.estimate).max())
     np.testing.assert_allclose(got.covariance, expected.covariance, rtol=1e-7, atol=1e-12)
     assert len(second.history) == len(whole.history)

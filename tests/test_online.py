@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from online_util import interrupted_and_resumed
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import load_dataset, save_dataset
@@ -75,19 +76,8 @@ def test_a_bad_pose_is_rejected_and_leaves_the_state(puma, dataset):
 
 @pytest.mark.parametrize("engine", ["ekf", "isam2"])
 def test_resume_gives_the_same_result(puma, dataset, engine, tmp_path):
-    whole = OnlineRun(dataset, puma, engine, tmp_path / "a.json")
-    for rec in whole.pending():
-        whole.feed(rec)
-    expected = whole.result()
-    first = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
-    for rec in first.pending()[:17]:
-        first.feed(rec)
-    first.close()  # "crash": the journal has no end-of-run mark, closing is the same as dying
-    second = OnlineRun(dataset, puma, engine, tmp_path / "b.json")
-    assert second.resume() == 17
-    for rec in second.pending():
-        second.feed(rec)
-    got = second.result()
+    whole, _, second = interrupted_and_resumed(dataset, puma, engine, tmp_path, 17)  # closing the first: a crash
+    expected, got = whole.result(), second.result()
     np.testing.assert_allclose(got.estimate, expected.estimate, rtol=0, atol=1e-9 * np.abs(expected.estimate).max())
     np.testing.assert_allclose(got.covariance, expected.covariance, rtol=1e-7, atol=1e-12)
     assert got.pose_ids == expected.pose_ids

@@ -4,22 +4,25 @@ seatings each; then the same robot touching a table 24 times). Each engine (EKF,
 end at the batch solve of the same data (parameters, sigmas, held set, set-up section), its own
 running estimate must predict the tool point near the batch's, a resumed run must end as an
 uninterrupted one, and a ``--stdin`` stream of contact lines as the files."""
-import json
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from contact_sim import plane_dataset, two_socket_dataset
+from online_util import (
+    assert_resumed_as_whole,
+    assert_streamed_as_files,
+    interrupted_and_resumed,
+    running_estimate_ratio,
+    stdin_session,
+)
+from online_util import run_online as _online
 from test_contacts_simulated import _merge
 
 from fgcal.estimation.calibrate import GAUGE_REASON, CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.online.engines import make_engine, pose_records
-from fgcal.online.run import OnlineRun
-from fgcal.robots.kinematics import jacobians
 
 URDF = Path(__file__).parent / "data" / "urdf" / "kinova.urdf"
 CHAIN = {"tip": "j2s6s200_end_effector"}
@@ -52,13 +55,6 @@ def _batch(path):
     return _BATCH[path]
 
 
-def _online(ds, model, engine, checkpoint=None):
-    run = OnlineRun(ds, model, engine, checkpoint)
-    for rec in run.pending():
-        run.feed(rec)
-    return run
-
-
 @pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("which", ["sockets", "both"])
 def test_online_contacts_end_at_the_batch(datasets, engine, which):
@@ -81,11 +77,6 @@ def test_online_contacts_end_at_the_batch(datasets, engine, which):
         np.testing.assert_allclose(got[key], est[key], atol=1e-3 if key == "position" else 1e-6)
 
 
-def _tool_points(slots, model, q, ball):
-    jac = jacobians(slots, q, offsets=np.broadcast_to(ball, (len(q), 1, 3)), chain=model.chain)
-    return jac.points[:, 0], jac.point_slots[:, 0]
-
-
 @pytest.mark.parametrize("engine", ["ekf", "isam2", pytest.param("ukf", marks=pytest.mark.xfail(
     strict=True, reason="the UKF's single unscented update per pose stays ~30 batch sigmas off on contacts "
                         "(measured 30.5 here; EKF and iSAM2 0.12); its final smoothing is at the batch. Cause "
@@ -100,23 +91,7 @@ def test_running_estimate_predicts_the_tool_point_near_the_batch(datasets, engin
     within 3 sigmas (the batch's prediction sigma there) of where the batch puts it (measured:
     0.12 for the EKF and iSAM2)."""
     ds, model, batch = _batch(datasets["both"])
-    e = make_engine(engine, ds, model)
-    assert all(e.update(rec).accepted for rec in pose_records(ds, model=model))
-    theta, _ = e.estimate()
-    rng = np.random.default_rng(5)
-    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
-    q = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi), size=(30, model.n_joints))
-    ball = ds.tooling.balls["B"]
-    online, _ = _tool_points(e.params.full(theta, e.held), model, q, ball)
-    slots = batch.slot_vector(model)
-    ref, J = _tool_points(slots, model, q, ball)
-    names = [n for n in batch.names if n in set(model.slot_names)]
-    idx, cols = [model.slot(n) for n in names], [batch.names.index(n) for n in names]
-    scale = np.where(model.slot_is_angle[idx], np.radians(1.0), 1.0)
-    cov = batch.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)
-    Jn = J[:, :, idx]
-    sigma = np.sqrt(np.einsum("nip,pq,niq->n", Jn, cov, Jn))  # root of the trace of each point's covariance
-    ratio = np.linalg.norm(online - ref, axis=1) / sigma
+    ratio = running_estimate_ratio(ds, model, batch, engine, ds.tooling.balls["B"])
     assert ratio.max() < 3.0, ratio.max()
 
 
@@ -141,20 +116,8 @@ def test_resume_of_contacts_is_identical(datasets, engine, tmp_path, monkeypatch
     as an uninterrupted run; the filters from a snapshot (every 15 poses here) holding the blocks."""
     monkeypatch.setattr("fgcal.online.run.SNAPSHOT_EVERY", 15)
     ds, model, _ = _batch(datasets["both"])
-    expected = _online(ds, model, engine, tmp_path / "a.ck").result()
-    first = OnlineRun(ds, model, engine, tmp_path / "b.ck")
-    for rec in first.pending()[:40]:
-        first.feed(rec)
-    first.close()
-    second = OnlineRun(ds, model, engine, tmp_path / "b.ck")
-    assert second.resume() == 40
-    for rec in second.pending():
-        second.feed(rec)
-    got = second.result()
-    assert got.names == expected.names and got.pose_ids == expected.pose_ids
-    np.testing.assert_allclose(got.estimate, expected.estimate, rtol=0, atol=1e-9 * np.abs(expected.estimate).max())
-    np.testing.assert_allclose(got.covariance, expected.covariance, rtol=1e-7, atol=1e-12)
-    assert got.setup == expected.setup
+    whole, first, second = interrupted_and_resumed(ds, model, engine, tmp_path, 40)
+    assert_resumed_as_whole(second, whole)
     # the running estimate at the interruption is the same too (the blocks restored, not re-started)
     np.testing.assert_allclose(second.history[39]["estimate"], first.history[39]["estimate"], rtol=0, atol=1e-9)
 
@@ -169,16 +132,8 @@ def test_stdin_contacts_as_the_files(datasets, engine, tmp_path):
             sel = obs.pose == pid
             lines += [f"contact,{pid},{b},{f}" for b, f in zip(obs.ball[sel], obs.fixture[sel])]
     lines.insert(3, "contact,1,B,nowhere")  # an unknown fixture: reported, skipped, the session goes on
-    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(ds.path), "--stdin", "--engine", engine,
-                          "--checkpoint", str(tmp_path / "s.ck"), "--out", str(tmp_path / "s.json")],
-                         input="\n".join(lines) + "\n", capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
+    run, streamed = stdin_session(ds, engine, tmp_path, lines)
     assert "line 4 skipped: unknown fixture 'nowhere'" in run.stderr
-    streamed = json.loads((tmp_path / "s.json").read_text())
     expected = _online(ds, model, engine).result()
-    assert streamed["n_poses"] == ds.n_poses
-    assert [p["name"] for p in streamed["parameters"]] == expected.names
-    got = np.array([p["estimate"] for p in streamed["parameters"]])
-    np.testing.assert_allclose(got, expected.estimate, rtol=0, atol=1e-6 * np.abs(expected.estimate).max())
+    assert_streamed_as_files(streamed, expected, ds.n_poses)
     assert {h["name"] for h in streamed["held"]} == {h["name"] for h in expected.held}
-    assert streamed["setup"]["estimated"].keys() == expected.setup["estimated"].keys()

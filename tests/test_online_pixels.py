@@ -14,12 +14,13 @@ import pytest
 
 pytest.importorskip("cv2")
 
+from online_util import assert_resumed_as_whole, interrupted_and_resumed, run_online
+from online_util import deviation as _deviation
 from pixel_sim import camera_dataset
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset
 from fgcal.online.engines import make_engine, pose_records
-from fgcal.online.run import OnlineRun
 from fgcal.online.setup_blocks import CAMERA_MIN_IMAGES
 from fgcal.online.stream import read_stream
 
@@ -47,16 +48,7 @@ def eye_in_hand(tmp_path_factory):
 
 
 def _online(ds, model, engine, checkpoint=None, records=None):
-    run = OnlineRun(ds, model, engine, checkpoint)
-    for rec in (run.pending() if records is None else records):
-        assert run.feed(rec)["accepted"]
-    return run
-
-
-def _deviation(names, a, b, sigma):
-    d = np.asarray(a) - np.asarray(b)
-    angle = np.array([n.split(".")[-1] in ("phi", "theta", "psi", "alpha") for n in names])
-    return np.abs(np.where(angle, (d + 180.0) % 360.0 - 180.0, d)) / sigma
+    return run_online(ds, model, engine, checkpoint, records, require_accepted=True)
 
 
 # Eye-to-hand with known intrinsics in each engine: tests/test_matrix.py's pixels cells (30 images).
@@ -120,20 +112,8 @@ def test_resume_of_pixels_is_identical(eye_to_hand, engine, tmp_path, monkeypatc
     and resumed: the same result and running estimate as an uninterrupted run."""
     monkeypatch.setattr("fgcal.online.run.SNAPSHOT_EVERY", 4)
     ds, model, _, _ = eye_to_hand
-    expected = _online(ds, model, engine, tmp_path / "a.ck")
-    first = OnlineRun(ds, model, engine, tmp_path / "b.ck")
-    for rec in first.pending()[:8]:
-        first.feed(rec)
-    first.close()
-    second = OnlineRun(ds, model, engine, tmp_path / "b.ck")
-    assert second.resume() == 8
-    for rec in second.pending():
-        second.feed(rec)
-    got, want = second.result(), expected.result()
-    assert got.names == want.names and got.pose_ids == want.pose_ids
-    np.testing.assert_allclose(got.estimate, want.estimate, rtol=0, atol=1e-9 * np.abs(want.estimate).max())
-    np.testing.assert_allclose(got.covariance, want.covariance, rtol=1e-7, atol=1e-12)
-    assert got.setup == want.setup
+    expected, _, second = interrupted_and_resumed(ds, model, engine, tmp_path, 8, require_accepted=True)
+    assert_resumed_as_whole(second, expected)
     np.testing.assert_allclose(second.history[-1]["estimate"], expected.history[-1]["estimate"], rtol=0, atol=1e-9)
 
 

@@ -5,19 +5,22 @@ of its centres spread across a line give the rigid fit of the predicted centres 
 until then); each engine (EKF, UKF, iSAM2) ends at the batch solve of the same data (parameters
 within 0.01 batch sigma, sigmas within 3%), its running estimate predicts the reflector near the
 batch's, a resumed run ends as an uninterrupted one and a ``--stdin`` stream as the files."""
-import json
-import subprocess
-import sys
-
 import numpy as np
 import pytest
+from online_util import (
+    assert_resumed_as_whole,
+    assert_streamed_as_files,
+    interrupted_and_resumed,
+    running_estimate_ratio,
+    stdin_session,
+)
+from online_util import deviation as _deviation
+from online_util import run_online as _online
 from test_stations import STATIONS, _simulate
 
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset
 from fgcal.online.engines import make_engine, pose_records
-from fgcal.online.run import OnlineRun
-from fgcal.robots.kinematics import jacobians
 
 ENGINES = ("ekf", "ukf", "isam2")
 
@@ -30,22 +33,6 @@ def case(tmp_path_factory):
     ds = load_dataset(tmp / "all")
     model = dataset_model(ds)
     return ds, model, calibrate(ds, model, CalibrationOptions())
-
-
-def _online(ds, model, engine, checkpoint=None):
-    run = OnlineRun(ds, model, engine, checkpoint)
-    for rec in run.pending():
-        run.feed(rec)
-    return run
-
-
-def _deviation(names, a, b, sigma):
-    """|a - b| / sigma (deg angles compared modulo 360: base.phi ends at 180.02 from one start, at
-    -179.98 from another)."""
-    d = np.asarray(a) - np.asarray(b)
-    angle = np.array([n.split(".")[-1] in ("phi", "theta", "psi", "alpha") for n in names])
-    d = np.where(angle, (d + 180.0) % 360.0 - 180.0, d)
-    return np.abs(d) / sigma
 
 
 @pytest.mark.parametrize("engine", ENGINES)
@@ -63,32 +50,13 @@ def test_online_stations_end_at_the_batch(case, engine):
         assert _deviation(["phi", "theta", "psi", "x", "y", "z"], got, pose, [0.05] * 3 + [1.0] * 3).max() < 1.0
 
 
-def _tool_points(slots, model, q, ball):
-    jac = jacobians(slots, q, offsets=np.broadcast_to(ball, (len(q), 1, 3)), chain=model.chain)
-    return jac.points[:, 0], jac.point_slots[:, 0]
-
-
 @pytest.mark.parametrize("engine", ENGINES)
 def test_running_estimate_predicts_the_reflector_near_the_batch(case, engine):
     """Before the final smoothing the engine's own estimate puts the reflector, at 30 new joint
     sets, within 3 of the batch's prediction sigmas there of the batch's (measured: EKF 0.99,
     iSAM2 0.29, UKF 1.32)."""
     ds, model, batch = case
-    e = make_engine(engine, ds, model)
-    assert all(e.update(rec).accepted for rec in pose_records(ds, model=model))
-    theta, _ = e.estimate()
-    rng = np.random.default_rng(5)
-    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
-    q = rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi), size=(30, model.n_joints))
-    ball = ds.tooling.balls["R"]
-    online, _ = _tool_points(e.params.full(theta, e.held), model, q, ball)
-    ref, J = _tool_points(batch.slot_vector(model), model, q, ball)
-    names = [n for n in batch.names if n in set(model.slot_names)]
-    idx, cols = [model.slot(n) for n in names], [batch.names.index(n) for n in names]
-    scale = np.where(model.slot_is_angle[idx], np.radians(1.0), 1.0)
-    cov = batch.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)
-    sigma = np.sqrt(np.einsum("nip,pq,niq->n", J[:, :, idx], cov, J[:, :, idx]))
-    assert (np.linalg.norm(online - ref, axis=1) / sigma).max() < 3.0
+    assert running_estimate_ratio(ds, model, batch, engine, ds.tooling.balls["R"]).max() < 3.0
 
 
 def test_a_station_starts_after_three_centres(case):
@@ -115,20 +83,8 @@ def test_resume_of_stations_is_identical(case, engine, tmp_path, monkeypatch):
     the same result and running estimate as an uninterrupted run."""
     monkeypatch.setattr("fgcal.online.run.SNAPSHOT_EVERY", 8)
     ds, model, _ = case
-    expected = _online(ds, model, engine, tmp_path / "a.ck")
-    first = OnlineRun(ds, model, engine, tmp_path / "b.ck")
-    for rec in first.pending()[:20]:
-        first.feed(rec)
-    first.close()
-    second = OnlineRun(ds, model, engine, tmp_path / "b.ck")
-    assert second.resume() == 20
-    for rec in second.pending():
-        second.feed(rec)
-    got, want = second.result(), expected.result()
-    assert got.names == want.names and got.pose_ids == want.pose_ids
-    np.testing.assert_allclose(got.estimate, want.estimate, rtol=0, atol=1e-9 * np.abs(want.estimate).max())
-    np.testing.assert_allclose(got.covariance, want.covariance, rtol=1e-7, atol=1e-12)
-    assert got.setup == want.setup
+    expected, _, second = interrupted_and_resumed(ds, model, engine, tmp_path, 20)
+    assert_resumed_as_whole(second, expected)
     np.testing.assert_allclose(second.history[-1]["estimate"], expected.history[-1]["estimate"], rtol=0, atol=1e-9)
 
 
@@ -145,15 +101,6 @@ def test_stdin_stations_as_the_files(case, engine, tmp_path):
             lines += [f"centre,{pid},{b},{','.join(repr(float(v)) for v in x)}{tail}"
                       for b, x in zip(obs.ball[sel], obs.xyz[sel], strict=True)]
     lines.insert(2, "centre,1,R,1,2,3,Z")  # an unknown station: reported, skipped, the session goes on
-    run = subprocess.run([sys.executable, "-m", "fgcal.cli", "online", str(ds.path), "--stdin", "--engine", engine,
-                          "--checkpoint", str(tmp_path / "s.ck"), "--out", str(tmp_path / "s.json")],
-                         input="\n".join(lines) + "\n", capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr
+    run, streamed = stdin_session(ds, engine, tmp_path, lines)
     assert "line 3 skipped: unknown station 'Z'" in run.stderr
-    streamed = json.loads((tmp_path / "s.json").read_text())
-    expected = _online(ds, model, engine).result()
-    assert streamed["n_poses"] == ds.n_poses
-    assert [p["name"] for p in streamed["parameters"]] == expected.names
-    got = np.array([p["estimate"] for p in streamed["parameters"]])
-    np.testing.assert_allclose(got, expected.estimate, rtol=0, atol=1e-6 * np.abs(expected.estimate).max())
-    assert streamed["setup"]["estimated"].keys() == expected.setup["estimated"].keys()
+    assert_streamed_as_files(streamed, _online(ds, model, engine).result(), ds.n_poses)

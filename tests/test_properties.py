@@ -79,6 +79,23 @@ def _expect(f, *args, **kw):
         return None
 
 
+def _read_mutated(examples, name, read, check=None) -> None:
+    """Each of ``examples`` (bytes) written to a file ``name`` and read by ``read(path)``: a value
+    (then ``check(value)``, when given) or an FgcalError of one line (:func:`_expect`)."""
+
+    @SETTINGS
+    @given(examples)
+    def run(data):
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / name
+            path.write_bytes(data)
+            out = _expect(read, path)
+            if out is not None and check is not None:
+                check(out)
+
+    run()
+
+
 @pytest.fixture(scope="module")
 def dataset(puma, tmp_path_factory):
     d = tmp_path_factory.mktemp("prop") / "ds"
@@ -120,39 +137,21 @@ def test_dataset_files(dataset, name):
 def test_joints_reader(dataset):
     from fgcal.io.dataset_io import read_joints
 
-    text = (dataset / "joints.csv").read_text()
+    def check(out):
+        ids, q = out
+        assert np.all(np.isfinite(q)) and len(ids) == len(q) and len(set(ids.tolist())) == len(ids)
 
-    @SETTINGS
-    @given(mutated(text))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "j.csv"
-            p.write_bytes(data)
-            out = _expect(read_joints, p)
-            if out is not None:
-                ids, q = out
-                assert np.all(np.isfinite(q)) and len(ids) == len(q) and len(set(ids.tolist())) == len(ids)
-
-    check()
+    _read_mutated(mutated((dataset / "joints.csv").read_text()), "j.csv", read_joints, check)
 
 
 @pytest.mark.parametrize("robot", ["puma560", "ur10"])
 def test_model_files(robot):
     from fgcal.robots.robot_file import load_model
 
-    text = (REPO / "datasets/robots" / f"{robot}.yaml").read_text()
+    def check(m):
+        assert np.all(np.isfinite(m.nominal)) and np.all(m.joint_limits[:, 0] < m.joint_limits[:, 1])
 
-    @SETTINGS
-    @given(mutated(text))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "m.yaml"
-            p.write_bytes(data)
-            m = _expect(load_model, p)
-            if m is not None:
-                assert np.all(np.isfinite(m.nominal)) and np.all(m.joint_limits[:, 0] < m.joint_limits[:, 1])
-
-    check()
+    _read_mutated(mutated((REPO / "datasets/robots" / f"{robot}.yaml").read_text()), "m.yaml", load_model, check)
 
 
 @pytest.mark.parametrize("urdf", ["panda.urdf", "ur10_robot.urdf"])
@@ -208,18 +207,11 @@ def test_results(result_file):
 
     d = json.loads(result_file.read_text())
 
-    @SETTINGS
-    @given(st.one_of(json_edits(d), mutated(result_file.read_text())))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "r.json"
-            p.write_bytes(data)
-            r = _expect(load_result, p)
-            if r is not None:
-                assert np.all(np.isfinite(r.covariance)) and np.all(r.sigma >= 0)
-                r.slot_vector()
+    def check(r):
+        assert np.all(np.isfinite(r.covariance)) and np.all(r.sigma >= 0)
+        r.slot_vector()
 
-    check()
+    _read_mutated(st.one_of(json_edits(d), mutated(result_file.read_text())), "r.json", load_result, check)
 
 
 @pytest.fixture(scope="module")
@@ -237,17 +229,12 @@ def test_checkpoints(checkpoint):
     text = checkpoint.read_text()
     entry = json.loads(text.splitlines()[1])
 
-    @SETTINGS
-    @given(st.one_of(mutated(text), json_edits(entry).map(lambda e: (text.splitlines()[0] + "\n").encode() + e
-                                                            + b"\n")))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "c.ck"
-            p.write_bytes(data)
-            _expect(read_checkpoint, p)
-            _expect(read_snapshot, p)  # a journal is no snapshot: refused in one line
+    def read(p):
+        _expect(read_checkpoint, p)
+        _expect(read_snapshot, p)  # a journal is no snapshot: refused in one line
 
-    check()
+    _read_mutated(st.one_of(mutated(text), json_edits(entry).map(lambda e: (text.splitlines()[0] + "\n").encode() + e
+                                                                 + b"\n")), "c.ck", read)
 
 
 def test_snapshots():
@@ -255,17 +242,10 @@ def test_snapshots():
 
     snap = {"n": 2, "state": {"x": [0.0, 1.0], "P": [[1.0, 0.0], [0.0, 1.0]], "names": ["a", "b"], "setup": {}}}
 
-    @SETTINGS
-    @given(json_edits(snap))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "s.snapshot"
-            p.write_bytes(data)
-            s = _expect(read_snapshot, p)
-            if s is not None:
-                assert len(s["state"]["P"]) == len(s["state"]["x"])
+    def check(s):
+        assert len(s["state"]["P"]) == len(s["state"]["x"])
 
-    check()
+    _read_mutated(json_edits(snap), "s.snapshot", read_snapshot, check)
 
 
 def test_streams(dataset):
@@ -301,18 +281,11 @@ def test_import_tables():
 
     spec = ColumnSpec(joints=("a", "b", "c", "d", "e", "f"), joint_unit=AngleUnit.DEG, point=("x", "y", "z"))
 
-    @SETTINGS
-    @given(mutated(text))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "t.csv"
-            p.write_bytes(data)
-            m = _expect(read_measurements, p, spec)
-            if m is not None:
-                assert np.all(np.isfinite(m.joints_rad)) and np.all(np.isfinite(m.xyz))
-                assert all(len(s) < 400 for s in m.skipped)
+    def check(m):
+        assert np.all(np.isfinite(m.joints_rad)) and np.all(np.isfinite(m.xyz))
+        assert all(len(s) < 400 for s in m.skipped)
 
-    check()
+    _read_mutated(mutated(text), "t.csv", lambda p: read_measurements(p, spec), check)
 
 
 def test_tum():
@@ -320,30 +293,13 @@ def test_tum():
 
     text = "\n".join(f"{i}.0 0.1 0.2 0.3 0 0 0 1" for i in range(6))
 
-    @SETTINGS
-    @given(mutated(text))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "t.txt"
-            p.write_bytes(data)
-            out = _expect(read_tum, p)
-            if out is not None:
-                assert all(len(s) < 400 for s in out[4])
+    def check(out):
+        assert all(len(s) < 400 for s in out[4])
 
-    check()
+    _read_mutated(mutated(text), "t.txt", read_tum, check)
 
 
 def test_targets(dataset):
     from fgcal.io.targets import read_targets
 
-    text = (dataset / "poses.csv").read_text()
-
-    @SETTINGS
-    @given(mutated(text))
-    def check(data):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = Path(tmp) / "t.csv"
-            p.write_bytes(data)
-            _expect(read_targets, p)
-
-    check()
+    _read_mutated(mutated((dataset / "poses.csv").read_text()), "t.csv", read_targets)

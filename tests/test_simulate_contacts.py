@@ -20,13 +20,13 @@ import contact_sim as cs
 import numpy as np
 import pytest
 import yaml
+from predict_util import predicted_points, without_rigid_motion
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.calibrate import CalibrationOptions, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset, save_dataset
 from fgcal.measurements.dataset import Noise
 from fgcal.robots.deviations import Deviations
-from fgcal.robots.kinematics import jacobians
 from fgcal.robots.model import Tooling
 from fgcal.robots.robot_file import load_model
 from fgcal.studies.simulate import SetupSimulation, SimulationSettings, simulate
@@ -110,23 +110,12 @@ def _tool_point_error(result, model, truth, q, ball, align=True):
     """RMS (mm) of the calibrated ``ball`` position against the truth at joints ``q`` (rad) (after the
     best rigid alignment with ``align``), and the covariance's prediction of it (less what the
     alignment absorbs)."""
-    slots = result.slot_vector(model)
-    jac = jacobians(slots, q, offsets=np.broadcast_to(ball, (len(q), 1, 3)), chain=model.chain)
-    pred = jac.points[:, 0]
+    pred, J, cov = predicted_points(result.slot_vector(model), result, model, q, ball)
+    J = J.reshape(-1, J.shape[2])
     T = model.forward(truth, q)
     true = T[:, :3, :3] @ ball + T[:, :3, 3]
-    names = [n for n in result.names if n in set(model.slot_names)]
-    idx = [model.slot(n) for n in names]
-    cols = [result.names.index(n) for n in names]
-    scale = np.where(model.slot_is_angle[idx], np.radians(1.0), 1.0)  # the covariance is in mm, deg
-    cov = result.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)
-    J = jac.point_slots[:, 0][:, :, idx].reshape(-1, len(idx))
     if align:
-        c = pred - pred.mean(0)
-        rigid = np.concatenate([np.broadcast_to(np.eye(3), (len(pred), 3, 3)),
-                                -np.array([[[0, -z, y], [z, 0, -x], [-y, x, 0]] for x, y, z in c])],
-                               axis=2).reshape(-1, 6)
-        J = J - rigid @ np.linalg.lstsq(rigid, J, rcond=None)[0]
+        J = without_rigid_motion(pred, J)
         err = cs.aligned_rms(pred, true)
     else:
         err = float(np.sqrt(np.mean(np.sum((pred - true) ** 2, axis=1))))

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import yaml
 from contact_sim import UrdfChain, new_poses, perturbed_urdf
+from predict_util import predicted_points
 
 from fgcal.estimation.calibrate import CalibrationOptions, build_graph, calibrate
 from fgcal.io.dataset_io import dataset_model, load_dataset
-from fgcal.robots.kinematics import jacobians
 from fgcal.robots.transforms import euler_zyx_trans
 
 DATA = Path(__file__).parent / "data" / "urdf"
@@ -102,17 +102,10 @@ def test_station_rows_and_jacobians(tmp_path):
 
 def _errors(result, model, true_text, seed):
     check = new_poses(true_text, CHAIN, REFLECTOR, np.random.default_rng(100 + seed), 60)
-    slots = result.slot_vector(model)
     q = model.joints_to_internal(check.readings)
-    jac = jacobians(slots, q, offsets=np.broadcast_to(REFLECTOR, (len(q), 1, 3)), chain=model.chain)
-    names = [n for n in result.names if n in set(model.slot_names)]
-    idx = [model.slot(n) for n in names]
-    cols = [result.names.index(n) for n in names]
-    scale = np.where(model.slot_is_angle[idx], np.radians(1.0), 1.0)
-    cov = result.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)
-    J = jac.point_slots[:, 0][:, :, idx]
+    points, J, cov = predicted_points(result.slot_vector(model), result, model, q, REFLECTOR)
     predicted = np.sqrt(np.mean(np.einsum("nip,pq,niq->n", J, cov, J)))
-    err = np.sqrt(np.mean(np.sum((jac.points[:, 0] - check.points) ** 2, axis=1)))
+    err = np.sqrt(np.mean(np.sum((points - check.points) ** 2, axis=1)))
     return err, predicted
 
 

@@ -11,6 +11,7 @@ from hostile_workspace import (
     chain,
     edit,
     fgcal,
+    json_edit,
     line,
     model_file,
     replace_with,
@@ -450,14 +451,8 @@ def _contacts_to(fixture, first, last):
     return f
 
 
-def _result_edit(fn, rel="cres.json"):
-    def f(w):
-        import json
-        p = w / rel
-        d = json.loads(p.read_text())
-        fn(d)
-        p.write_text(json.dumps(d))
-    return f
+def _result_edit(fn):
+    return json_edit(fn, "cres.json")
 
 
 def contact_cases() -> list[Case]:

@@ -8,7 +8,7 @@ import argparse
 import json
 import shutil
 
-from hostile_workspace import REPO, Case, chain, edit, fgcal, line, write
+from hostile_workspace import REPO, Case, chain, edit, fgcal, json_edit, line, write
 
 DS_YAML = "ds/dataset.yaml"
 PUMA = (REPO / "datasets/robots/puma560.yaml").read_text()
@@ -69,13 +69,8 @@ def _own_robot(name="arm.yaml", ref=None):
     return chain(write(f"ds/{name}", PUMA), edit(DS_YAML, "robot: puma560", f"robot: {ref or name}"))
 
 
-def _result(fn, rel="result.json"):
-    def f(w):
-        p = w / rel
-        d = json.loads(p.read_text())
-        fn(d)
-        p.write_text(json.dumps(d))
-    return f
+def _result(fn):
+    return json_edit(fn, "result.json")
 
 
 def _set_cov(d, k, v):

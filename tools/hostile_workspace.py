@@ -3,6 +3,7 @@ command in a limited child, the small workspace every case copies, and the mutat
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import resource
 import shutil
@@ -131,6 +132,16 @@ def edit(rel, old, new):
         t = p.read_text()
         assert old in t, (rel, old)
         p.write_text(t.replace(old, new, 1))
+    return f
+
+
+def json_edit(fn, rel):
+    """An edit of the JSON file ``rel``: ``fn`` changes its parsed content in place."""
+    def f(w):
+        p = w / rel
+        d = json.loads(p.read_text())
+        fn(d)
+        p.write_text(json.dumps(d))
     return f
 
 

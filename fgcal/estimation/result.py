@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
-import secrets
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -12,6 +10,10 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.noise import LevelNoise, Outlier
+from fgcal.estimation.result_json import dumps as _dumps
+from fgcal.estimation.result_json import json_float as _float
+from fgcal.estimation.result_json import json_safe as _json_safe  # noqa: F401 (re-exported for the tests)
+from fgcal.estimation.result_setup import check_setup
 from fgcal.estimation.result_tooling import check_tooling
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
 from fgcal.util.yamlio import atomic_write_text
@@ -280,41 +282,6 @@ class CalibrationResult:
         return d
 
 
-def _json_safe(obj, numeric_lists=None, marker=""):
-    """``obj`` with non-finite floats as JSON can hold them (NaN: null, inf: "Infinity") and numpy
-    scalars as Python's. With ``numeric_lists`` (a list), each non-empty list of finite Python
-    numbers is appended to it and replaced by the string ``marker`` + its index + NUL (see :func:`_dumps`)."""
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None if math.isnan(obj) else ("Infinity" if obj > 0 else "-Infinity")
-    if isinstance(obj, dict):
-        return {k: _json_safe(v, numeric_lists, marker) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        if (numeric_lists is not None and obj and set(map(type, obj)) <= {float, int}
-                and all(map(math.isfinite, obj))):
-            numeric_lists.append(obj)
-            return f"{marker}{len(numeric_lists) - 1}\0"
-        return [_json_safe(v, numeric_lists, marker) for v in obj]
-    if isinstance(obj, (np.floating, np.integer)):
-        return _json_safe(obj.item())
-    return obj
-
-
-def _dumps(obj) -> str:
-    """JSON text of ``obj`` (made safe by :func:`_json_safe`): indented by one space, each list of
-    numbers on one line (written by json's C encoder: the residual lists of 10,000 poses would
-    take seconds through the indenting one). The placeholders carry a random tag: no string of
-    ``obj`` is mistaken for one."""
-    lists: list = []
-    tag = secrets.token_hex(8)
-    text = json.dumps(_json_safe(obj, lists, f"\0{tag}:"), indent=1)
-    pattern = re.compile(r'"\\u0000' + tag + r':(\d+)\\u0000"')
-    return pattern.sub(lambda m: json.dumps(lists[int(m.group(1))]), text)
-
-
-def _float(v):
-    return float("nan") if v is None else (float(v) if not isinstance(v, str) else float(v.replace("Infinity", "inf")))
-
-
 def _pose_residual(d: dict) -> PoseResidual:
     p = PoseResidual(**d)
     for name in ("rms_mm", "moved_mm", "nominal_mm", "max_mm"):
@@ -323,82 +290,6 @@ def _pose_residual(d: dict) -> PoseResidual:
     if p.rotation_deg is not None:
         p.rotation_deg = _float(p.rotation_deg)
     return p
-
-
-SETUP_KEYS = ("fixtures", "constraints", "estimated", "gauge", "start", "refused")
-def _setup_prefixes() -> dict:
-    """A parameter's first name part -> its block's type (``fixture`` -> ``point``, ``station`` -> ``station``),
-    over the registered block kinds (:data:`fgcal.measurements.setup.BLOCK_KINDS`)."""
-    from fgcal.measurements.setup import BLOCK_KINDS
-
-    return {k.prefix: k.type for k in BLOCK_KINDS.values()}
-
-
-def _finite_list(v, n: int) -> bool:
-    return (isinstance(v, list) and len(v) == n
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
-
-
-def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _check_setup(setup, names) -> dict:
-    """The ``setup`` section of a result, checked against itself and the parameters' names
-    (``fixture.NAME.x``, ``plane.NAME.d``): ``ValueError`` saying what is wrong."""
-    if setup is None:
-        setup = {}
-    if not isinstance(setup, dict):
-        raise ValueError(f"setup: must be a mapping, got {type(setup).__name__}")
-    unknown = sorted(str(k)[:24] for k in setup if k not in SETUP_KEYS)
-    if unknown:
-        raise ValueError(f"setup: unknown key(s) {', '.join(unknown[:3])} (expected {', '.join(SETUP_KEYS)})")
-    fixtures = setup.get("fixtures", {})
-    if not isinstance(fixtures, dict):
-        raise ValueError("setup.fixtures: must be a mapping {NAME: {type: point|plane, ...}}")
-    kinds = set(_setup_prefixes().values())
-    for name, f in fixtures.items():
-        if not isinstance(f, dict) or f.get("type") not in kinds:
-            raise ValueError(f"setup.fixtures.{str(name)[:40]}: must be a mapping with type "
-                             f"{' or '.join(sorted(kinds))}")
-    cons = setup.get("constraints", {})
-    if not isinstance(cons, dict) or not isinstance(cons.get("distances", []), list):
-        raise ValueError("setup.constraints: must be a mapping with distances: [[A, B, mm, sigma], ...]")
-    for i, c in enumerate(cons.get("distances", [])):
-        if (not isinstance(c, list) or len(c) != 4 or any(x not in fixtures for x in c[:2] if isinstance(x, str))
-                or not all(isinstance(x, str) for x in c[:2]) or not all(_finite(x) and x > 0 for x in c[2:])):
-            raise ValueError(f"setup.constraints.distances[{i}]: must be [fixture A, fixture B, mm, sigma] "
-                             "of the result's fixtures")
-    estimated = setup.get("estimated", {})
-    if not isinstance(estimated, dict):
-        raise ValueError("setup.estimated: must be a mapping {NAME: {type, position | normal and offset}}")
-    missing = [n for n in fixtures if n not in estimated]
-    if missing:
-        raise ValueError(f"setup.estimated: no value for fixture {str(missing[0])[:40]}")
-    for name, e in estimated.items():
-        where = f"setup.estimated.{str(name)[:40]}"
-        if name not in fixtures:
-            raise ValueError(f"{where}: not among setup.fixtures")
-        if not isinstance(e, dict) or e.get("type") != fixtures[name]["type"]:
-            raise ValueError(f"{where}: must be a mapping with the fixture's type ({fixtures[name]['type']})")
-        if e["type"] == "point" and not _finite_list(e.get("position"), 3):
-            raise ValueError(f"{where}: position must be three finite numbers (mm)")
-        if e["type"] == "plane" and not (_finite_list(e.get("normal"), 3) and _finite(e.get("offset"))
-                                         and abs(float(np.linalg.norm(e["normal"])) - 1.0) < 1e-6):
-            raise ValueError(f"{where}: a plane needs a unit normal (three finite numbers) and a finite offset (mm)")
-        if e["type"] == "station" and not _finite_list(e.get("pose"), 6):
-            raise ValueError(f"{where}: a station needs its pose, six finite numbers (deg, mm)")
-    if "gauge" in setup and not isinstance(setup["gauge"], str):
-        raise ValueError("setup.gauge: must be text")
-    prefixes = _setup_prefixes()
-    for n in names:
-        kind, _, rest = str(n).partition(".")
-        if kind in prefixes:
-            fixture = rest.rpartition(".")[0]
-            if fixtures.get(fixture, {}).get("type") != prefixes[kind]:
-                raise ValueError(f"parameter {str(n)[:60]}: no {prefixes[kind]} fixture {fixture[:40]!r} "
-                                 "in setup.fixtures")
-    return dict(setup)
 
 
 def save_result(result: CalibrationResult, path) -> None:
@@ -450,7 +341,7 @@ def load_result(path) -> CalibrationResult:
             residuals={k: [float(x) for x in v] for k, v in d.get("residuals", {}).items()},
             tool_xyz=[[float(c) for c in p] for p in d.get("tool_xyz", [])],
             robot_model=dict(d.get("robot_model") or {}), joint_errors=dict(d.get("joint_errors") or {}),
-            setup=_check_setup(d.get("setup"), [p.name for p in params]),
+            setup=check_setup(d.get("setup"), [p.name for p in params]),
             tooling=check_tooling(d.get("tooling")), noise_mode=str(d.get("noise_mode", "declared")),
             noise={k: LevelNoise(**v) for k, v in d.get("noise", {}).items()},
             noise_groups={k: LevelNoise(**v) for k, v in d.get("noise_groups", {}).items()},

@@ -55,7 +55,7 @@ JACKKNIFE_GROUPS = 30  # groups of poses left out in turn (29 degrees of freedom
 def jackknife_variances(prob, cols, prior_sigma, groups: int = JACKKNIFE_GROUPS, order=None) -> np.ndarray:
     """Delete-a-group jackknife variances (len(cols),) of the linearised MAP estimate, internal units.
 
-    ``prob`` is a :class:`~fgcal.estimation.model_select.CVProblem`; its poses are dealt into
+    ``prob`` is a :class:`~fgcal.estimation.cross_validation.CVProblem`; its poses are dealt into
     ``groups`` groups (repeated configurations together; at random, seeded, or ``order``
     ``blocked``: contiguous stretches in pose id order) and the estimate is recomputed with each
     group left out: ``(K-1)/K sum_k (x_k - mean)**2``. This is the scatter of the estimate as the
@@ -63,7 +63,7 @@ def jackknife_variances(prob, cols, prior_sigma, groups: int = JACKKNIFE_GROUPS,
     Series B stretches in time over-count it (the drift between stretches: 0.67 of the scatter over
     disjoint random subsets against 0.98 for random groups), hence random groups by default.
     """
-    from fgcal.estimation.model_select import FoldOrder, _folds
+    from fgcal.estimation.cross_validation import FoldOrder, _folds
     from fgcal.estimation.time_validation import FoldSums
 
     k = int(min(groups, len(np.unique(prob.groups))))
@@ -94,8 +94,8 @@ def scatter_covariance(ds, model, result, options, order=None) -> dict:
     """
     from types import SimpleNamespace
 
+    from fgcal.estimation.cross_validation import cv_problem
     from fgcal.estimation.joint_errors import JointErrorSpec, is_block_name
-    from fgcal.estimation.model_select import cv_problem
 
     spec = JointErrorSpec.from_dict(result.joint_errors["spec"])
     names = list(result.names)

@@ -5,7 +5,7 @@ Random (and blocked) folds predict each pose from poses on both sides of it in t
 whose error drifts they are optimistic (on a UR10 tracker series 0.10 mm cross-validated against
 0.25-0.30 mm at the later poses). :func:`forward_errors` fits each model to the first
 :data:`FORWARD_FRACTION` of the training poses in time (pose id) order and predicts the rest, on the
-linearised problem of :func:`fgcal.estimation.model_select.cv_problem`; :func:`drift_sentences`
+linearised problem of :func:`fgcal.estimation.cross_validation.cv_problem`; :func:`drift_sentences`
 compares that with the random folds' error at the same poses; :func:`recommend` chooses a model
 by the errors that predict new poses, among the models whose largest error is no worse than
 each simpler model's. No I/O here.
@@ -36,7 +36,7 @@ def harmonic(name: str) -> int:
 class FoldSums:
     """Normal equations per fold, over all columns, so that any column subset is cheap."""
 
-    def __init__(self, prob, fold: np.ndarray, k: int):  # prob: a model_select.CVProblem
+    def __init__(self, prob, fold: np.ndarray, k: int):  # prob: a cross_validation.CVProblem
         self.prob, self.fold, self.k = prob, fold, k
         P = prob.J.shape[2]
         self.A = np.zeros((k, P, P))
@@ -92,7 +92,7 @@ class FoldSums:
 
 
 def model_columns(prob, kind: str, spec_kw: dict | None = None) -> tuple[list, list]:
-    """Columns of ``prob`` (a :class:`~fgcal.estimation.model_select.CVProblem`) and their prior sigmas
+    """Columns of ``prob`` (a :class:`~fgcal.estimation.cross_validation.CVProblem`) and their prior sigmas
     for the model ``kind`` (the map's ``harmonics`` and ``map_sigma`` in ``spec_kw``)."""
     geo = list(range(prob.n_geometric))
     cols, sig = geo, [np.inf] * len(geo)

@@ -163,14 +163,19 @@ class CameraSpec(FixtureSpec):
         out: dict = {"type": "camera", "mount": self.mount, "width": int(self.width), "height": int(self.height),
                      "intrinsics": {c: float(v) for c, v in zip(INTRINSICS, self.intrinsics, strict=False)},
                      "estimate": list(self.estimate), "pixel_sigma": float(self.pixel_sigma)}
-        pose = self.value[:6] if self.value is not None else self.start_pose
-        if pose is not None:
-            out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
-        if self.sigma is not None:
-            out["sigma"] = float(self.sigma)
-        if self.fixed:
-            out["fixed"] = True
-        return out
+        return _with_mount(out, self.value[:6] if self.value is not None else self.start_pose, self)
+
+
+def _with_mount(out: dict, pose, spec) -> dict:
+    """``out`` (a camera's or target's ``dataset.yaml`` entry) with its ``mount_pose`` (``pose``
+    (6,) mm, rad, written mm, deg) and ``spec``'s ``sigma`` and ``fixed``, where they are given."""
+    if pose is not None:
+        out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
+    if spec.sigma is not None:
+        out["sigma"] = float(spec.sigma)
+    if spec.fixed:
+        out["fixed"] = True
+    return out
 
 
 @dataclass(frozen=True)
@@ -199,11 +204,4 @@ class TargetSpec(FixtureSpec):
     def to_dict(self) -> dict:
         out: dict = {"type": "target", "mount": self.mount,
                      "points": {n: [float(v) for v in p] for n, p in self.points.items()}}
-        pose = self.value if self.value is not None else self.start_pose
-        if pose is not None:
-            out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
-        if self.sigma is not None:
-            out["sigma"] = float(self.sigma)
-        if self.fixed:
-            out["fixed"] = True
-        return out
+        return _with_mount(out, self.value if self.value is not None else self.start_pose, self)

@@ -1,4 +1,4 @@
-"""``fgcal study``: the command's body (its options are in :func:`fgcal.cli.build_parser`)."""
+"""``fgcal study``: the command's body (its options are in :func:`fgcal.cli.parser.build_parser`)."""
 from __future__ import annotations
 
 import contextlib
