@@ -331,15 +331,11 @@ class _Engine:
         """The held parameters as a batch result lists them: ``{"name", "value" (file units), "reason"}``,
         those never seen by the measurements first, then those the final smoothing held."""
         slots = self.held if getattr(self, "_final_slots", None) is None else self._final_slots
-        from fgcal.estimation.gauge import GAUGE_REASON, SCALE_REASON, TOOL_GAUGE_REASON
-
         values = self.model.slots_to_file_units(slots)
         gauge = list(dict.fromkeys([*self.gauge, *getattr(self, "_final_gauge", [])]))
-        reasons = getattr(self, "_gauge_reasons", {})
-        # (a checkpoint from before the reasons were kept: the base's and the tool's by their names)
-        fallback = {"tool.": TOOL_GAUGE_REASON, "base.": GAUGE_REASON}
-        out = [{"name": n, "value": float(values[self.model.slot(n)]),
-                "reason": reasons.get(n) or fallback.get(n.split(".")[0] + ".", SCALE_REASON)} for n in gauge]
+        # every gauge name has its reason: set with it at the start or by the final smoothing
+        out = [{"name": n, "value": float(values[self.model.slot(n)]), "reason": self._gauge_reasons[n]}
+               for n in gauge]
         for n, partners in (*self.unseen.items(), *self.final_held.items()):
             if n in gauge:
                 continue
