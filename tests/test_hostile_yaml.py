@@ -62,6 +62,41 @@ def test_scientific_notation_is_a_number(base, tmp_path):
     assert read_yaml(f) == {"a": 500.0, "b": -1500.0, "c": 3, "d": 0.5, "e": "1e"}
 
 
+BEYOND_FLOAT = str(10**400)  # YAML and JSON integers are unbounded: math.isfinite of it raises OverflowError
+
+
+def test_an_integer_beyond_a_float_is_named_not_a_traceback(puma, base, tmp_path, capsys):
+    """A dataset's noise, a model file's number and a result's estimate of 10**400 are each refused
+    in one line (each raised an OverflowError from math.isfinite)."""
+    import json
+
+    import yaml
+
+    from fgcal.robots.robot_file import model_to_dict
+
+    ds = copy_dataset(base, tmp_path / "ds")
+    _meta(ds, lambda t: t.replace("cmm_sigma: 0.01", f"cmm_sigma: {BEYOND_FLOAT}"))
+    code, _, err = call(["check", ds], capsys)
+    one_line_error(code, err, "dataset.yaml", "noise.cmm_sigma must be a finite number")
+
+    doc = model_to_dict(puma)
+    doc["tool"]["pz"] = 10**400
+    ds_model = copy_dataset(base, tmp_path / "ds_model")
+    (ds_model / "m.yaml").write_text(yaml.safe_dump(doc))
+    _meta(ds_model, lambda t: t.replace("robot: puma560", "robot: m.yaml"))
+    code, _, err = call(["check", ds_model], capsys)
+    one_line_error(code, err, "m.yaml", "expected a finite number")
+
+    res = tmp_path / "r.json"
+    assert call(["calibrate", base, "--out", res], capsys)[0] == 0
+    text = json.dumps({**json.loads(res.read_text()), "parameters": "PARAMETERS"})
+    params = json.loads(res.read_text())["parameters"]
+    body = json.dumps(params).replace(json.dumps(params[0]["estimate"]), BEYOND_FLOAT, 1)
+    res.write_text(text.replace('"PARAMETERS"', body))
+    code, _, err = call(["verify", res, base], capsys)
+    one_line_error(code, err, "r.json")
+
+
 SECRET = "root:x:0:0:hunter2:/root:/bin/bash\ndaemon:x:1:1:hunter2:/usr/sbin:/usr/sbin/nologin\n"
 
 

@@ -16,6 +16,7 @@ from fgcal.estimation.result_json import json_safe as _json_safe  # noqa: F401 (
 from fgcal.estimation.result_setup import check_setup
 from fgcal.estimation.result_tooling import check_tooling
 from fgcal.robots.model import SLOT_NAMES, slots_from_file_units
+from fgcal.util.numbers import finite_number
 from fgcal.util.yamlio import atomic_write_text
 
 __all__ = [
@@ -325,7 +326,7 @@ def load_result(path) -> CalibrationResult:
         cov = np.array(d["covariance"], dtype=float).reshape(len(params), len(params))
         slots = {k: float(v) for k, v in d["slots"].items()}
         bad = [k for k, v in slots.items() if not math.isfinite(v)]
-        bad += [p.name for p in params if not (isinstance(p.estimate, (int, float)) and math.isfinite(p.estimate))]
+        bad += [p.name for p in params if not finite_number(p.estimate)]
         if bad:
             raise ValueError(f"{', '.join(map(str, bad[:3]))}: not a finite number")
         levels = {k: LevelSummary(**v) for k, v in d.get("levels", {}).items()}

@@ -8,12 +8,12 @@ joint-error blocks) has.
 """
 from __future__ import annotations
 
-import math
 import re
 
 import numpy as np
 
 from fgcal.errors import FgcalError
+from fgcal.util.numbers import finite_number
 
 __all__ = ["PSD_TOLERANCE", "validate_result"]
 
@@ -37,7 +37,7 @@ def _short(name) -> str:
 
 
 def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return finite_number(v)
 
 
 def _check_parameters(result) -> None:

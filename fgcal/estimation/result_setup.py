@@ -2,9 +2,9 @@
 estimated set-up unknowns, checked on load against themselves and the result's parameter names."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from fgcal.util.numbers import finite_number
 
 __all__ = ["SETUP_KEYS", "check_setup"]
 
@@ -21,11 +21,11 @@ def _setup_prefixes() -> dict:
 
 def _finite_list(v, n: int) -> bool:
     return (isinstance(v, list) and len(v) == n
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
+            and all(map(finite_number, v)))
 
 
 def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return finite_number(v)
 
 
 def check_setup(setup, names) -> dict:

@@ -3,17 +3,16 @@ centres in the tool frame and the ball that made the contacts, where ``export --
 link ``tool``. Checked on load like the rest of a result."""
 from __future__ import annotations
 
-import math
-
 from fgcal.measurements.contact import CONTACT_FILE
 from fgcal.measurements.types import BY_LEVEL
+from fgcal.util.numbers import finite_number
 
 __all__ = ["check_tooling", "tooling_record"]
 
 
 def _finite3(v) -> bool:
     return (isinstance(v, list) and len(v) == 3
-            and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v))
+            and all(map(finite_number, v)))
 
 
 def tooling_record(ds, levels) -> dict:
@@ -45,7 +44,7 @@ def check_tooling(tooling) -> dict:
     if not isinstance(balls, dict) or not all(isinstance(n, str) and _finite3(v) for n, v in balls.items()):
         raise ValueError("tooling.balls: must map ball names to three finite numbers (mm)")
     r = tooling.get("radius", 0.0)
-    if isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r) or r < 0:
+    if not finite_number(r) or r < 0:
         raise ValueError("tooling.radius: must be a finite number >= 0 (mm)")
     if tooling.get("tool_ball") is not None and tooling["tool_ball"] not in balls:
         raise ValueError(f"tooling.tool_ball: {str(tooling['tool_ball'])[:40]!r} is not among tooling.balls")

@@ -8,7 +8,6 @@ and the line (the header is line 1) or the pose.
 from __future__ import annotations
 
 import logging
-import math
 import os
 from dataclasses import replace
 from pathlib import Path
@@ -37,6 +36,7 @@ from fgcal.measurements.setup import SetupSpec
 from fgcal.measurements.types import kinematic_types, noise_keys
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, RobotModel, Tooling
 from fgcal.robots.robot_file import load_model
+from fgcal.util.numbers import finite_number
 from fgcal.util.yamlio import read_yaml, short_repr
 
 __all__ = ["MAX_JOINTS", "POINT_COLUMNS", "dataset_model", "joint_columns", "load_dataset", "load_dataset_meta",
@@ -68,7 +68,7 @@ def _meta(path: Path) -> tuple[str, Tooling, Noise, dict, dict | None, SetupSpec
             raise DatasetError(f"{path}: chain must be {{base: LINK, tip: LINK}} (URDF link names)")
 
     def num(value, what, minimum=None):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if not finite_number(value):
             raise DatasetError(f"{path}: {what} must be a finite number, got {short_repr(value)}")
         if minimum is not None and value < minimum:
             raise DatasetError(f"{path}: {what} must be >= {minimum}, got {short_repr(value)}")
@@ -136,7 +136,7 @@ def load_truth(path) -> tuple[dict, list]:
     for name, value in data["parameters"].items():
         if not isinstance(name, str) or name.rpartition(".")[2] not in _SLOT_FIELDS or not name.rpartition(".")[0]:
             raise DatasetError(f"{path}: unknown parameter {short_repr(name)}")
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        if not finite_number(value):
             raise DatasetError(f"{path}: parameter {name} must be a finite number, got {short_repr(value)}")
         truth[name] = float(value)
     outliers = []

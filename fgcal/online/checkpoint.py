@@ -2,13 +2,12 @@
 from __future__ import annotations
 
 import json
-import math
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from fgcal.errors import FgcalError
+from fgcal.util.numbers import finite_number
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -64,15 +63,8 @@ def read_checkpoint(path) -> dict:
     return {"header": entries[0], "entries": entries[1:]}
 
 
-def _finite_number(x) -> bool:
-    """A finite float, or an integer a float can hold (JSON integers are unbounded: 10**400)."""
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        return False
-    return math.isfinite(x) if isinstance(x, float) else abs(x) <= sys.float_info.max
-
-
 def _finite_numbers(v, n: int | None = None) -> bool:
-    return isinstance(v, list) and (n is None or len(v) == n) and all(map(_finite_number, v))
+    return isinstance(v, list) and (n is None or len(v) == n) and all(map(finite_number, v))
 
 
 def _entry_problem(e) -> str:

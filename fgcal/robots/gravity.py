@@ -19,13 +19,13 @@ No I/O here.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from fgcal.errors import ModelError
 from fgcal.robots.kinematics import chain_for
+from fgcal.util.numbers import finite_number
 from fgcal.util.yamlio import short_repr
 
 __all__ = ["Inertials", "Payload", "gravity_torques", "inertials_from_dict", "inertials_to_dict", "model_inertials"]
@@ -66,7 +66,7 @@ class Inertials:
 
 
 def _number(v, where):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if not finite_number(v):
         raise ModelError(f"{where}: expected a finite number, got {short_repr(v)}")
     return float(v)
 

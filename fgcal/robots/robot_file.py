@@ -32,6 +32,7 @@ import numpy as np
 from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
+from fgcal.util.numbers import finite_number
 from fgcal.util.resources import builtin_robot_names, builtin_robot_path
 from fgcal.util.yamlio import atomic_write_text, dump_yaml, read_yaml, short_repr
 
@@ -41,7 +42,7 @@ FORMAT = "fgcal-robot/1"
 
 
 def _number(value, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not finite_number(value):
         raise ModelError(f"{where}: expected a finite number, got {short_repr(value)}")
     return float(value)
 

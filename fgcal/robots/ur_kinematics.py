@@ -38,6 +38,7 @@ import numpy as np
 from fgcal.errors import ModelError
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
+from fgcal.util.numbers import finite_number
 
 __all__ = ["ROS_JOINTS", "UR_LINKS", "UrKinematics", "is_ur", "kinematics_text", "model_from_kinematics",
            "parse_kinematics", "rotation_from_angles", "ur_forward", "ur_kinematics", "ur_urdf"]
@@ -293,7 +294,7 @@ def parse_kinematics(data, source: str = "<kinematics>", angles: str = "urdf") -
         values = []
         for key in ("x", "y", "z", "roll", "pitch", "yaw"):
             v = entry.get(key)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            if v is None or not finite_number(v):
                 raise ModelError(f"{source}: kinematics.{name}.{key}: expected a finite number (m or rad), got {v!r}")
             values.append(float(v))
         if max(abs(v) for v in values[:3]) > 10.0:

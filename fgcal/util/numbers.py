@@ -8,10 +8,20 @@ or a subtraction, never a digit of data).
 from __future__ import annotations
 
 import math
+import sys
 
-__all__ = ["clean_number", "format_number"]
+__all__ = ["clean_number", "finite_number", "format_number"]
 
 SHORT_DIGITS = 10  # significant digits of the short form tried first
+
+
+def finite_number(value) -> bool:
+    """Whether a value read from JSON or YAML is a finite number: a float that is finite, or an int a
+    float can hold (their integers are unbounded: ``math.isfinite(10**400)`` raises OverflowError);
+    never a bool."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return math.isfinite(value) if isinstance(value, float) else abs(value) <= sys.float_info.max
 
 
 def clean_number(value: float) -> float:
