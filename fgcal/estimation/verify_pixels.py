@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgcal.errors import FgcalError
+from fgcal.estimation.verification_result import Comparison, ToolPointErrors, Verification
 from fgcal.measurements.camera import INTRINSICS, pose_matrix
 from fgcal.measurements.camera_start import pnp
 from fgcal.measurements.dataset import Dataset
@@ -91,9 +92,7 @@ def tool_point_errors(model, slots, obs, q, ids, values) -> tuple[np.ndarray, st
 
 
 def verify_pixels(result, ds: Dataset, model: RobotModel, slots):
-    """A :class:`~fgcal.estimation.verification.Verification` of ``ds.pixels`` (px per pose)."""
-    from fgcal.estimation.verification import Comparison, ToolPointErrors, Verification
-
+    """A :class:`~fgcal.estimation.verification_result.Verification` of ``ds.pixels`` (px per pose)."""
     obs = ds.pixels
     if obs is None:
         raise FgcalError(f"{ds.path or 'dataset'}: no pixels to verify")

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgcal.report.report_blocks import Block, Section, num
+
 __all__ = ["CORNER_RATIO", "ImagePlaneResiduals", "camera_sections", "image_plane_residuals", "plot_image_plane"]
 
 CORNER_RATIO = 1.5  # the corners' RMS over the centre's beyond which the report names a distortion missed
@@ -100,8 +102,6 @@ def image_plane_residuals(result) -> list[ImagePlaneResiduals]:
 
 def camera_sections(result, limit: int = 10) -> list:
     """The report's section on each camera's reprojection residuals (report_sections' Blocks)."""
-    from fgcal.report.report_sections import Block, Section, num
-
     out = []
     for ip in image_plane_residuals(result):
         worst = sorted(ip.per_image, key=lambda t: -t[2])[:limit]

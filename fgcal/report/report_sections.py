@@ -6,7 +6,6 @@ Answers "is this calibration good enough, and what next" from a result, a verifi
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,6 +23,8 @@ from fgcal.report.accuracy import (
     verification_joints,
 )
 from fgcal.report.budget import budget_sentence, error_budget
+from fgcal.report.camera_report import camera_sections
+from fgcal.report.report_blocks import Block, ReportContent, Section, num
 from fgcal.report.uncertainty import parameter_table, verdict
 
 log = logging.getLogger(__name__)
@@ -31,46 +32,6 @@ log = logging.getLogger(__name__)
 __all__ = ["Block", "ReportContent", "Section", "build_content", "num", "training_flags"]
 
 MAX_FLAGGED_ROWS = 30
-
-
-@dataclass
-class Block:
-    """``kind``: ``banner`` (text, status), ``p`` (text), ``ul`` (items), ``table`` (header, rows,
-    row_flags), ``details`` (text = summary line, header, rows), ``figure`` (name, text = caption)."""
-
-    kind: str
-    text: str = ""
-    items: list = field(default_factory=list)
-    header: list = field(default_factory=list)
-    rows: list = field(default_factory=list)
-    row_flags: list = field(default_factory=list)
-    status: str = ""
-    name: str = ""
-
-
-@dataclass
-class Section:
-    title: str
-    blocks: list[Block] = field(default_factory=list)
-
-
-@dataclass
-class ReportContent:
-    title: str
-    sections: list[Section]
-
-
-def num(v, digits: int = 2) -> str:
-    """A statistic to ``digits`` significant digits, without an exponent between 1e-4 and 1e6."""
-    if v is None or not np.isfinite(v):
-        return "-"
-    if v == 0:
-        return "0"
-    text = f"{v:.{digits}g}"
-    if "e" in text and 1e-4 <= abs(v) < 1e6:
-        decimals = max(0, digits - 1 - int(np.floor(np.log10(abs(v)))))
-        text = f"{v:.{decimals}f}"
-    return text
 
 
 def _listed(ids, limit: int = 20) -> str:
@@ -232,7 +193,6 @@ def build_content(result: CalibrationResult, verification: dict | None = None, t
             held.blocks.append(Block("p", f"Cannot say for this model ({exc})."))
         sections.append(held)
 
-    from fgcal.report.camera_report import camera_sections
 
     sections += camera_sections(result)  # a camera's reprojection residuals per image and over the image
     header, rows, flagged = _parameter_rows(result)

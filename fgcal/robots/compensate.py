@@ -17,9 +17,10 @@ from enum import Enum
 import numpy as np
 
 from fgcal.errors import FgcalError
+from fgcal.robots.base_frame import base_transform, mounting
 from fgcal.robots.ik import BRANCHES, Branch, IKError, _check_puma_structure, solve_numeric, solve_puma_batch
-from fgcal.robots.model import EULER_FIELDS, SLOT_NAMES, RobotModel
-from fgcal.robots.transforms import euler_zyx_trans, pose_difference, rot
+from fgcal.robots.model import SLOT_NAMES, RobotModel
+from fgcal.robots.transforms import pose_difference, rot
 
 __all__ = [
     "MAX_CHANGE_DEG",
@@ -50,36 +51,6 @@ def tcp_matrix(xyz_mm, rxyz_deg=(0.0, 0.0, 0.0)) -> np.ndarray:
     T[:3, :3] = rot(2, rz) @ rot(1, ry) @ rot(0, rx)
     T[:3, 3] = np.asarray(xyz_mm, dtype=float)
     return T
-
-
-def mounting(model: RobotModel) -> np.ndarray:
-    """The chain's base frame in the robot's own base frame (4, 4; mm): what loading folded into the base.
-
-    A robot file's first link theta and d (and, in modified DH, its a and alpha) are folded into the
-    base; a URDF's chain starts at the first joint, placed in the base link. The model keeps that
-    transform (``model.extra["mounting"]``, from :mod:`fgcal.robots.robot_file` and
-    :mod:`fgcal.robots.urdf_import`); identity when nothing was folded.
-    """
-    m = model.extra.get("mounting")
-    if m is None:
-        return np.eye(4)
-    v = [float(m.get(f, 0.0)) for f in EULER_FIELDS]
-    return euler_zyx_trans(*np.radians(v[:3]), *v[3:])
-
-
-def base_transform(model: RobotModel, slots) -> np.ndarray:
-    """The robot's own base frame in the instrument frame (4, 4; mm) for a slot vector (mm, rad).
-
-    The frame of the robot's mounting flange as its maker or URDF defines it: for a URDF robot the
-    base link; for a built-in robot or a DH table the table's base frame (joint 1's axis as z, at
-    the mounting face: for the UR10 127.3 mm below the chain's first frame). It is the calibrated
-    base (the chain's first frame) times the inverse of the nominal :func:`mounting`: the height of
-    the mounting face along joint 1 cannot be told from the base placement by any measurement of
-    the tool, so it keeps its nominal value.
-    """
-    x = np.asarray(slots, dtype=float)
-    chain = euler_zyx_trans(*x[model.slot("base.phi"):model.slot("base.pz") + 1])
-    return chain @ np.linalg.inv(mounting(model))
 
 
 @dataclass

@@ -24,9 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from fgcal.robots.base_frame import base_transform
 from fgcal.robots.ik import Branch, IKError, wrap_into_limits
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import check_transform, euler_zyx_trans, rot
+from fgcal.robots.ur_kinematics import is_ur, rot_z4, ur_kinematics
 
 __all__ = ["is_ur_structure", "solve_ur_any", "solve_ur_batch", "ur_branch_of", "ur_proxy"]
 
@@ -152,8 +154,6 @@ def ur_proxy(model: RobotModel, slots=None, ideal: bool = False) -> tuple[RobotM
     slots; ``None`` when the chain is not of the UR structure (a calibrated one) or not a UR.
     ``ideal``: the nearest chain of the UR structure instead (twists exact, off-structure parts
     dropped) where the chain is a UR's calibrated one, for starting numerical IK."""
-    from fgcal.robots.compensate import base_transform
-    from fgcal.robots.ur_kinematics import is_ur, rot_z4, ur_kinematics
 
     if not is_ur(model):
         return None

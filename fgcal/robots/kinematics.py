@@ -23,6 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from fgcal.robots.chain_jacobians import ChainJacobians
 from fgcal.robots.single_pose import OperationTables, jacobians_one
 from fgcal.robots.transforms import rot
 
@@ -357,32 +358,6 @@ def tool_points(T, offsets) -> np.ndarray:
         return T[:, None, :3, 3] + np.einsum("nij,nbj->nbi", T[:, :3, :3], offsets)
     offsets = offsets.reshape(-1, 3)
     return T[:, None, :3, 3] + np.einsum("nij,bj->nbi", T[:, :3, :3], offsets)
-
-
-@dataclass
-class ChainJacobians:
-    """Tool poses and their Jacobians at N joint readings.
-
-    Attributes
-    ----------
-    T : ndarray, shape (N, 4, 4)
-        Tool poses (mm).
-    pose_slots : ndarray, shape (N, 6, S)
-        d[p; w] / d slots (mm per mm, mm per rad; rad per mm, rad per rad).
-    pose_joints : ndarray, shape (N, 6, n)
-        d[p; w] / d readings.
-    points : ndarray, shape (N, B, 3) or None
-        World positions of the requested tool-frame points.
-    point_slots : ndarray, shape (N, B, 3, S) or None
-    point_joints : ndarray, shape (N, B, 3, n) or None
-    """
-
-    T: np.ndarray
-    pose_slots: np.ndarray
-    pose_joints: np.ndarray
-    points: np.ndarray | None = None
-    point_slots: np.ndarray | None = None
-    point_joints: np.ndarray | None = None
 
 
 def jacobians(x, q, offsets=None, chain: Chain | None = None) -> ChainJacobians:

@@ -28,6 +28,7 @@ from functools import cached_property
 
 import numpy as np
 
+from fgcal.robots.jacobian_rank import minimal_parameters
 from fgcal.robots.transforms import euler_zyx_trans, to_euler_zyx_trans
 
 __all__ = ["SLOT_IS_ANGLE", "SLOT_NAMES", "JointType", "ParameterSet", "RobotModel", "Tooling", "slot_names_for"]
@@ -275,8 +276,6 @@ class RobotModel:
 
     @cached_property
     def _identifiable(self) -> tuple[tuple[str, ...], dict]:
-        from fgcal.robots.identifiability import minimal_parameters
-
         return minimal_parameters(self, self._rule_names())
 
     def identifiable_names(self) -> list[str]:

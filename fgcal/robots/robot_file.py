@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import ModelError
+from fgcal.robots.euler_block import euler_any, euler_dict
 from fgcal.robots.model import EULER_FIELDS, LINK_FIELDS, JointType, RobotModel, Tooling
 from fgcal.robots.transforms import euler_zyx_trans, rot, to_euler_zyx_trans
 from fgcal.util.numbers import finite_number
@@ -292,7 +293,7 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
     out["links"] = [{f: value(f"{j}.{f}") for f in LINK_FIELDS} for j in model.link_names]
     out["tool"] = {f: value(f"tool.{f}") for f in EULER_FIELDS}
     if model.tool_offset is not None:
-        off = _euler_any(model.tool_offset)
+        off = euler_any(model.tool_offset)
         out["tool_offset"] = {f: round(float(math.degrees(v) if i < 3 else v), 15) for i, (f, v) in
                               enumerate(zip(EULER_FIELDS, off))}
     out["joint_limits"] = [[round(float(v), 12) for v in lim] for lim in model.joints_to_file_units(model.joint_limits.T).T]
@@ -314,25 +315,6 @@ def model_to_dict(model: RobotModel, slots=None) -> dict:
         if b is not None:
             out[key] = {"min": [float(c) for c in b[0]], "max": [float(c) for c in b[1]]}
     out.update({k: v for k, v in model.extra.items() if k in ("inertials", "urdf", "mounting", "ur_kinematics")})
-    return out
-
-
-def euler_dict(T) -> dict:
-    """``T`` (4, 4) as a model file's ``{phi, theta, psi (deg), px, py, pz (mm)}`` block."""
-    v = _euler_any(np.asarray(T, dtype=float))
-    return {f: round(float(math.degrees(x) if i < 3 else x), 12) + 0.0  # no -0.0
-            for i, (f, x) in enumerate(zip(EULER_FIELDS, v))}
-
-
-def _euler_any(T) -> np.ndarray:
-    """ZYX Euler angles and local translation of ``T``, including at pitch +-90 deg (then psi = 0)."""
-    R = T[:3, :3]
-    if abs(R[2, 0]) < 1 - 1e-12:
-        return to_euler_zyx_trans(T)
-    theta = -math.copysign(math.pi / 2, R[2, 0])
-    phi = math.atan2(-R[0, 1], R[1, 1])
-    out = np.array([phi, theta, 0.0, 0.0, 0.0, 0.0])
-    out[3:] = (euler_zyx_trans(*out)[:3, :3]).T @ T[:3, 3]
     return out
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fgcal.robots.chain_jacobians import ChainJacobians
+
 __all__ = ["OperationTables", "jacobians_one"]
 
 _EYE4 = np.eye(4)
@@ -79,12 +81,10 @@ def _frames(chain, x, v):
 
 def jacobians_one(chain, x, readings, offsets=None):
     """:meth:`Chain.jacobians` at one joint set ``readings`` (n,) or (1, n); the same
-    :class:`~fgcal.robots.kinematics.ChainJacobians` (leading dimension 1).
+    :class:`~fgcal.robots.chain_jacobians.ChainJacobians` (leading dimension 1).
 
     ``offsets``: tool-frame points (B, 3) or (1, B, 3), mm.
     """
-    from fgcal.robots.kinematics import ChainJacobians
-
     v = chain.joint_values(np.asarray(readings, dtype=float).reshape(1, -1))[0]
     B, T = _frames(chain, x, v)
     K = len(chain.ops)

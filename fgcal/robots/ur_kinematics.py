@@ -36,8 +36,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.errors import ModelError
+from fgcal.robots.base_frame import mounting
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
+from fgcal.robots.urdf_origin import origin_element, rpy
 from fgcal.util.numbers import finite_number
 
 __all__ = ["ROS_JOINTS", "UR_LINKS", "UrKinematics", "is_ur", "kinematics_text", "model_from_kinematics",
@@ -65,7 +67,7 @@ class UrKinematics:
         The calibrated tool frame in ``tool0`` (mm): what no joint origin can hold (identity for a
         flange tool).
     own_base : ndarray, shape (4, 4)
-        The model's own base frame (:func:`fgcal.robots.compensate.base_transform`) in base_link
+        The model's own base frame (:func:`fgcal.robots.base_frame.base_transform`) in base_link
         (mm): ``Rz(pi)`` for a table (the UR's Base frame), identity for a URDF based at base_link.
     """
 
@@ -171,7 +173,6 @@ def ur_kinematics(model: RobotModel, slots, hash: str | None = None) -> UrKinema
     if not is_ur(model):
         raise ModelError(f"{model.name}: not a Universal Robots arm (six uncoupled revolute joints with the UR's "
                          "structure, or a URDF with ur_description's joint names)")
-    from fgcal.robots.compensate import mounting
 
     x = np.asarray(slots, dtype=float)
     if "urdf" in model.extra:
@@ -246,19 +247,13 @@ def ur_forward(kin: UrKinematics, q) -> np.ndarray:
     return out
 
 
-def _rpy(R) -> tuple[float, float, float]:
-    from fgcal.robots.urdf import rpy
-
-    return rpy(R)
-
-
 def _num(v: float) -> str:
     v = float(v)
     return "0" if v == 0.0 else repr(v)  # no negative zero
 
 
 def _entry(T, indent: str) -> list[str]:
-    r, p, y = _rpy(T[:3, :3])
+    r, p, y = rpy(T[:3, :3])
     lines = [f"{indent}{key}: {_num(round(value, 15))}"
              for key, value in zip(("x", "y", "z"), T[:3, 3] / 1000.0, strict=True)]
     angles = zip(("roll", "pitch", "yaw"), (r, p, y), strict=True)
@@ -312,7 +307,6 @@ def ur_urdf(kin: UrKinematics, name: str = "ur", joint_limits=None, tool=None) -
     ``joint_limits`` (6, 2) rad, +-2 pi by default; ``tool`` (4, 4; mm): a ``tool`` link on tool0
     (omitted when None).
     """
-    from fgcal.robots.urdf import origin_element
 
     limits = np.tile([-2 * np.pi, 2 * np.pi], (6, 1)) if joint_limits is None else np.asarray(joint_limits)
     lines = ['<?xml version="1.0"?>', f'<robot name="{name}">',

@@ -23,20 +23,13 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from fgcal.robots.base_frame import base_transform, mounting
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import euler_zyx_trans, rot
+from fgcal.robots.ur_kinematics import is_ur, ur_kinematics, ur_urdf
+from fgcal.robots.urdf_origin import origin_element, rpy, xyz_rpy
 
 __all__ = ["calibrated_urdf", "chain_origins", "export_urdf", "origin_element", "rpy", "to_urdf", "ur_to_urdf"]
-
-
-def rpy(R) -> tuple[float, float, float]:
-    """URDF roll, pitch, yaw (rad) of a rotation matrix: ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
-    R = np.asarray(R, dtype=float)
-    s = -R[2, 0]
-    if abs(s) > 1 - 1e-12:  # gimbal lock: put everything in roll
-        pitch = np.copysign(np.pi / 2, s)
-        return float(np.arctan2(-R[1, 2], R[1, 1])), float(pitch), 0.0
-    return float(np.arctan2(R[2, 1], R[2, 2])), float(np.arcsin(s)), float(np.arctan2(R[1, 0], R[0, 0]))
 
 
 def chain_origins(model: RobotModel, slots) -> list[np.ndarray]:
@@ -52,23 +45,6 @@ def chain_origins(model: RobotModel, slots) -> list[np.ndarray]:
         out.append(M)
     out.append(euler_zyx_trans(*[x[model.slot(f"tool.{f}")] for f in EULER_FIELDS]))
     return out
-
-
-def _xyz_rpy(T) -> tuple[str, str]:
-    from fgcal.util.numbers import format_number
-
-    return (" ".join(format_number(float(v) / 1000.0) for v in T[:3, 3]),
-            " ".join(format_number(v) for v in rpy(T[:3, :3])))
-
-
-def _origin(T) -> str:
-    xyz, angles = _xyz_rpy(T)
-    return f'<origin xyz="{xyz}" rpy="{angles}"/>'
-
-
-def origin_element(T) -> str:
-    """``<origin xyz=... rpy=.../>`` of a transform ``T`` (4, 4; mm): metres and URDF rpy, no negative zero."""
-    return _origin(T)
 
 
 def _at_point(tool_point) -> np.ndarray:
@@ -91,8 +67,6 @@ def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) 
     not part of a model file; they are written as 1e6 (effectively unlimited) rather than 0, which
     URDF consumers (MoveIt, Gazebo) read as "cannot move".
     """
-    from fgcal.robots.compensate import base_transform, mounting
-    from fgcal.robots.ur_kinematics import is_ur
 
     if is_ur(model):
         return ur_to_urdf(model, slots, name, tool_point)
@@ -108,7 +82,7 @@ def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) 
              " frame) by the calibrated base; tool is the calibrated tool frame -->",
              '  <link name="world"/>', '  <link name="base_link"/>',
              f'  <joint name={quoteattr(mounts[0])} type="fixed"><parent link="world"/><child link="base_link"/>'
-             f"{_origin(base_transform(model, slots))}</joint>"]
+             f"{origin_element(base_transform(model, slots))}</joint>"]
     parent = "base_link"
     limits = model.joint_limits.copy()
     prismatic = ~model.joint_is_angle
@@ -119,12 +93,12 @@ def to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=None) 
         child = child_names[k]
         lines.append(f"  <link name={quoteattr(child)}/>")
         lines.append(f'  <joint name={quoteattr(jname)} type="{kind.value}"><parent link={quoteattr(parent)}/>'
-                     f"<child link={quoteattr(child)}/>{_origin(M)}<axis xyz=\"0 0 1\"/>"
+                     f"<child link={quoteattr(child)}/>{origin_element(M)}<axis xyz=\"0 0 1\"/>"
                      f'<limit lower="{float(lo)!r}" upper="{float(hi)!r}" effort="1e6" velocity="1e6"/></joint>')
         parent = child
     lines.append('  <link name="tool"/>')
     lines.append(f'  <joint name={quoteattr(mounts[1])} type="fixed"><parent link={quoteattr(parent)}/><child link="tool"/>'
-                 f"{_origin(origins[-1] @ model.tool_offset_matrix @ _at_point(tool_point))}</joint>")
+                 f"{origin_element(origins[-1] @ model.tool_offset_matrix @ _at_point(tool_point))}</joint>")
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
 
@@ -134,8 +108,6 @@ def ur_to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=Non
     with a ``world`` root (the measuring instrument's frame) placing ``base_link`` (the mounting face)
     by the calibrated base, and a ``tool`` link on ``tool0`` (the calibrated tool frame, or the ball
     centre ``tool_point`` (3,) mm in it)."""
-    from fgcal.robots.compensate import base_transform
-    from fgcal.robots.ur_kinematics import ur_kinematics, ur_urdf
 
     kin = ur_kinematics(model, slots)
     text = ur_urdf(kin, name or model.name, model.joint_limits, tool=kin.tcp @ _at_point(tool_point))
@@ -143,7 +115,7 @@ def ur_to_urdf(model: RobotModel, slots, name: str | None = None, tool_point=Non
     placement = base_transform(model, slots) @ np.linalg.inv(kin.own_base)
     head, rest = text.split('  <link name="base_link"/>', 1)
     world = ('  <link name="world"/>\n  <link name="base_link"/>\n  <joint name="world-base_link" type="fixed">'
-             f'<parent link="world"/><child link="base_link"/>{_origin(placement)}</joint>')
+             f'<parent link="world"/><child link="base_link"/>{origin_element(placement)}</joint>')
     head = head.replace("lengths in metres -->", "world is the measuring instrument's frame (placed by the calibrated "
                         "base); tool the calibrated tool frame; lengths in metres -->")
     return head + world + rest
@@ -195,7 +167,7 @@ def calibrated_urdf(model: RobotModel, slots, tool_point=None) -> str:
         if k > 0:
             assert T_parent is not None  # set by joint k - 1
             origin = np.linalg.inv(T_parent) @ Jw[k]
-            _set_origin(elements[j.name], origin)
+            _setorigin_element(elements[j.name], origin)
         T_parent = Jw[k]
         k_prev = k
     assert k_prev == model.n_joints - 1
@@ -209,7 +181,7 @@ def calibrated_urdf(model: RobotModel, slots, tool_point=None) -> str:
         # The URDF's own root is called world: it becomes the instrument frame, and the joint below
         # it on the way to the chain carries the calibrated placement.
         first = (_path_to_root(joints, links, chain[0].parent) + chain)[0]
-        _set_origin(elements[first.name], world_root @ first.origin)
+        _setorigin_element(elements[first.name], world_root @ first.origin)
     else:
         world = _unique("world", links)  # a link of that name elsewhere in the URDF keeps its name
         _add_link(root, world, first=True)
@@ -252,12 +224,12 @@ def _path_to_root(joints, links, link) -> list:
     return path[::-1]
 
 
-def _set_origin(element, T) -> None:
+def _setorigin_element(element, T) -> None:
     o = element.find("origin")
     if o is None:
         o = ET.SubElement(element, "origin")
-    o.set("xyz", _xyz_rpy(T)[0])
-    o.set("rpy", _xyz_rpy(T)[1])
+    o.set("xyz", xyz_rpy(T)[0])
+    o.set("rpy", xyz_rpy(T)[1])
 
 
 def _add_link(root, name, first=False) -> None:
@@ -272,7 +244,7 @@ def _add_fixed(root, name, parent, child, T) -> None:
     e = ET.SubElement(root, "joint", {"name": name, "type": "fixed"})
     ET.SubElement(e, "parent", {"link": parent})
     ET.SubElement(e, "child", {"link": child})
-    xyz, angles = _xyz_rpy(T)
+    xyz, angles = xyz_rpy(T)
     ET.SubElement(e, "origin", {"xyz": xyz, "rpy": angles})
 
 

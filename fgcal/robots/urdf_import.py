@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from fgcal.errors import ModelError
+from fgcal.robots.euler_block import euler_dict
 from fgcal.robots.model import JointType, RobotModel
 from fgcal.robots.transforms import rot, to_euler_zyx_trans
 from fgcal.util.yamlio import read_text_file, short_repr
@@ -304,8 +305,6 @@ def model_from_urdf(text: str, source: str = "<urdf>", base: str | None = None, 
     clash = [x for x in names if x in ("base", "tool")]
     if clash:
         raise ModelError(f"{source}: a joint named {clash[0]!r} clashes with fgcal's base/tool parameters")
-    from fgcal.robots.robot_file import euler_dict
-
     # the chain's base frame in the base link's: the robot's own base frame is the base link
     extra = {"urdf": {"text": text, "base": base, "tip": tip,
                       "frame_changes": [np.round(c, 15).tolist() for c in C]}, "mounting": euler_dict(A_b)}

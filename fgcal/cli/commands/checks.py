@@ -12,11 +12,13 @@ import stat
 from pathlib import Path
 
 from fgcal.api.selection import MAX_BATCH_ROWS, MAX_POSES, parameter_names
+from fgcal.cli.commands.inputs import DATASET_FILES, dataset_files, robot_files
 from fgcal.cli.commands.options import count, finite, nonnegative, positive
 from fgcal.errors import FgcalError
 from fgcal.util.yamlio import may_replace, must_be_new
 
 __all__ = [
+    "DATASET_FILES",
     "MAX_BATCH_ROWS",
     "MAX_POSES",
     "check_output_dir",
@@ -30,9 +32,6 @@ __all__ = [
     "positive_float",
     "positive_int",
 ]
-
-DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
-
 
 # the option types of earlier rounds, now checked types of fgcal.cli.commands.options (kept for their importers)
 finite_float = finite()
@@ -58,8 +57,6 @@ def dataset_inputs(directory, robot: str | None = None) -> list[Path]:
     """The inputs of a run that reads the dataset ``directory`` (see :mod:`fgcal.cli.commands.inputs`): its
     folder, files and the robot file its ``dataset.yaml`` names; ``robot``, a robot reference
     relative to the folder, is added (the loaded dataset's, when dataset.yaml was unreadable before)."""
-    from fgcal.cli.commands.inputs import dataset_files, robot_files
-
     return dataset_files(directory) + robot_files(robot, directory)
 
 

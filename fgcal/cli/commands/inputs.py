@@ -12,7 +12,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["dataset_files", "robot_files", "run_inputs"]
+__all__ = ["DATASET_FILES", "dataset_files", "robot_files", "run_inputs"]
+
+# the files of the dataset format (the kinematic types add theirs)
+DATASET_FILES = ("dataset.yaml", "joints.csv", "probes.csv", "centres.csv", "poses.csv", "truth.yaml", "robot.yaml")
 
 
 def robot_files(ref, directory=None) -> list[Path]:
@@ -28,7 +31,6 @@ def robot_files(ref, directory=None) -> list[Path]:
 
 def dataset_files(directory) -> list[Path]:
     """A dataset folder, the files of the dataset format in it and the robot file it names."""
-    from fgcal.cli.commands.checks import DATASET_FILES
     from fgcal.errors import FgcalError
     from fgcal.measurements.types import kinematic_types
     from fgcal.util.yamlio import read_yaml
