@@ -6,9 +6,11 @@ import pytest
 
 from fgcal.estimation.calibrate import calibrate
 from fgcal.measurements.dataset import Noise
+from fgcal.robots.deviations import Deviations
 from fgcal.robots.kinematics import forward
 from fgcal.studies.design import (
     Candidates,
+    _scores,
     candidate_pool,
     design_plan,
     indices,
@@ -85,18 +87,21 @@ def test_cli_design(tmp_path):
 
 def test_rank_update_scores_equal_the_direct_inverse(puma):
     """The fast ``pred`` score (Woodbury, rank-r updates) equals trace(W inv(T +- info_k)) directly."""
-    from fgcal.studies.design import _low_rank, _pred_update, _scores
     from fgcal.studies.design_info import information, layout_from_access
+    from fgcal.studies.design_predict import low_rank, pred_update
 
     pool = candidate_pool(puma, 60, np.random.default_rng(122))
+    scale = Deviations().sigmas(puma.parameters().names)
     for level in ("poses", "centres"):
         info = information(puma, pool, layout_from_access(puma, pool, (level,)), NOISE)
-        L = _low_rank(info)
+        L = low_rank(info)
         assert L is not None and L.shape[2] == 6  # a pose moves the tool rigidly: 6 directions
         np.testing.assert_allclose(L @ np.swapaxes(L, 1, 2), info, rtol=1e-9, atol=1e-9 * np.abs(info).max())
         W = np.eye(info.shape[1])
         total = info[:20].sum(axis=0)
-        np.testing.assert_allclose(_pred_update(total, L, W, 1.0), _scores(total[None] + info, None, "pred", W),
+        direct = [-np.sqrt(np.trace(W @ np.linalg.inv(total + s * m))) for s, m in [(1.0, i) for i in info]]
+        np.testing.assert_allclose(pred_update(total, L, W, 1.0, scale), direct, rtol=1e-9)
+        np.testing.assert_allclose(pred_update(total, L, W, 1.0, scale), _scores(total[None] + info, scale, "pred", W),
                                    rtol=1e-9)
-        np.testing.assert_allclose(_pred_update(total, L[:20], W, -1.0),
-                                   _scores(total[None] - info[:20], None, "pred", W), rtol=1e-7)
+        direct = [-np.sqrt(np.trace(W @ np.linalg.inv(total - m))) for m in info[:20]]
+        np.testing.assert_allclose(pred_update(total, L[:20], W, -1.0, scale), direct, rtol=1e-7)

@@ -15,6 +15,7 @@ from fgcal.estimation.noise import NoiseMode
 from fgcal.io.dataset_io import dataset_model, load_dataset, read_joints_and_stations
 from fgcal.studies.design import Candidates, marginal
 from fgcal.studies.design_dataset import dataset_layout, design_from_dataset, with_dataset_tooling
+from fgcal.studies.design_predict import predicted_mse
 
 
 @pytest.fixture(scope="module")
@@ -63,6 +64,11 @@ def test_design_criterion_marginalises_the_stations(stations_ds):
     P = len(prep.names)
     assert prep.n_setup == 12 and list(prep.names) == [n for n in batch.names if not n.startswith("station.")]
     design_cov = np.linalg.inv(marginal(total, prep.n_setup))
+    # the plan determines what the verification sees: its prediction is the inverse's, whether the
+    # stations are marginalised or estimated with the robot (a station it does not visit: undetermined, unseen)
+    pred = np.sqrt(np.trace(prep.W[:P, :P] @ design_cov))
+    assert prep.values(np.nonzero(sel)[0])["pred"] == pytest.approx(pred, rel=1e-9)
+    assert np.sqrt(predicted_mse(total[None], prep.W, prep.scale)[0]) == pytest.approx(pred, rel=1e-6)
     cols = [batch.names.index(n) for n in prep.names]
     scale = np.where(model.slot_is_angle[[model.slot(n) for n in prep.names]], np.radians(1.0), 1.0)
     batch_cov = batch.covariance[np.ix_(cols, cols)] * np.outer(scale, scale)

@@ -143,6 +143,7 @@ def _from_robot(robot, poses, candidates, index, level, seed, noise_values, prog
     from fgcal.studies.design import INDICES as ALL
     from fgcal.studies.design import Candidates, candidate_pool, design_plan, random_design_values
     from fgcal.studies.design_info import layout_from_access
+    from fgcal.studies.design_predict import quantiles
     from fgcal.studies.plans import random_plan
 
     if poses < 5:
@@ -166,11 +167,11 @@ def _from_robot(robot, poses, candidates, index, level, seed, noise_values, prog
     d = design_plan(model, poses, pool, noise, index=index or "pred", prepared=prepared, progress=progress)
     random_pred = [random_design_values(prepared, poses, np.random.default_rng([seed, k]))[1]["pred"]
                    for k in range(200)]
+    q25, med, q75 = quantiles(random_pred, [25, 50, 75])  # inf: a random set that cannot predict
     lines = [f"designed {poses} poses from {len(pool)} candidates by {d.index} ({d.iterations} DETMAX steps)",
              "  " + ", ".join(f"{k} {d.values[k]:.4g}" for k in ALL if k != "pred"),
              f"  predicted position error RMS at new poses: {d.values['pred']:.4g} mm "
-             f"(random {poses}-pose sets from the same candidates: median {np.median(random_pred):.4g}, "
-             f"quartiles {np.percentile(random_pred, 25):.4g}-{np.percentile(random_pred, 75):.4g} mm)",
+             f"(random {poses}-pose sets from the same candidates: median {med:.4g}, quartiles {q25:.4g}-{q75:.4g} mm)",
              "  the estimation error alone: the robot's error that no geometric model describes (compliance, gear "
              "errors) adds to it at every pose; design --dataset of a measured series states that floor"]
     if prepared.dropped:

@@ -12,7 +12,8 @@ Indices on the information scaled by the expected parameter errors:
   candidates, ``sqrt(trace(W Sigma))``: the accuracy the calibration is for (I-optimality).
   ``Sigma`` is the inverse information, or, when the data's error is not what the estimator
   weighs it by (:func:`fgcal.studies.design_info.information_and_middle`), the sandwich
-  ``M^-1 B M^-1``.
+  ``M^-1 B M^-1``; +inf where the plan does not determine what ``W`` sees, decided in units of
+  the expected parameter errors (:mod:`fgcal.studies.design_predict`).
 
 Plans are chosen from a candidate pool by a greedy start and the DETMAX exchange (Mitchell
 1974: add the best candidate, remove the worst design point, until nothing improves). No I/O.
@@ -32,6 +33,7 @@ from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse_information
 from fgcal.robots.model import ParameterSet, RobotModel
 from fgcal.studies.design_info import Layout, information, information_and_middle, layout_from_access
+from fgcal.studies.design_predict import low_rank, marginal, marginal_middle, pred_update, predicted_mse, predicted_rms
 from fgcal.studies.plans import PLAN_MARGIN_DEG, PLAN_MARGIN_MM
 
 __all__ = [
@@ -72,28 +74,6 @@ def verification_weight(model: RobotModel, q_verify, params: ParameterSet | None
     return np.einsum("nrp,nrq->pq", J, J) / len(J)
 
 
-def predicted_rms(info, W, middle=None) -> float:
-    """Predicted position error RMS (mm) at the verification poses of ``W``, given information
-    (and the sandwich's middle ``B``: covariance ``info^-1 B info^-1``)."""
-    try:
-        cov = np.linalg.inv(info)
-        if middle is not None:
-            cov = cov @ middle @ cov
-        return float(np.sqrt(max(np.trace(W @ cov), 0.0)))
-    except np.linalg.LinAlgError:
-        return float("inf")
-
-
-def marginal(info, n_setup: int):
-    """The information (..., P, P) about the parameters of information (..., P + S, P + S) whose
-    last ``n_setup`` entries (set-up blocks estimated with them) are marginalised: the Schur
-    complement ``A - B C^+ B^T``."""
-    if not n_setup:
-        return info
-    A, B, C = info[..., :-n_setup, :-n_setup], info[..., :-n_setup, -n_setup:], info[..., -n_setup:, -n_setup:]
-    return A - B @ np.linalg.pinv(C, hermitian=True) @ np.swapaxes(B, -1, -2)
-
-
 def indices(info, m: int, scale, W=None, middle=None) -> dict[str, float]:
     """O1-O5 of ``info`` (P, P) scaled by the expected parameter errors ``scale`` (P,), and ``pred``
     (with the sandwich's ``middle`` when given)."""
@@ -103,22 +83,17 @@ def indices(info, m: int, scale, W=None, middle=None) -> dict[str, float]:
            "O4": float(s[-1] ** 2 / s[0]) if s[0] > 0 else 0.0,
            "O5": float(1.0 / np.sum(1.0 / np.maximum(s, 1e-300)))}
     if W is not None:
-        out["pred"] = predicted_rms(info, W, middle)
+        out["pred"] = predicted_rms(info, W, middle, scale)
     return out
 
 
-def _scores(infos, scale, index: str, W=None, middles=None) -> np.ndarray:
+def _scores(infos, scale, index: str, W=None, middles=None, strict: bool = True) -> np.ndarray:
     """Criterion (larger is better) for a batch of information matrices (K, P, P) (and sandwich
-    middles, for ``pred``); never NaN."""
+    middles, for ``pred``: minus the predicted RMS, -inf where the plan cannot predict it, or with
+    ``strict`` False the search's finite score, :func:`fgcal.studies.design_predict.predicted_mse`);
+    never NaN."""
     if index == "pred":
-        try:
-            cov = np.linalg.inv(infos)
-            if middles is not None:
-                cov = cov @ middles @ cov
-            out = -np.sqrt(np.clip(np.einsum("pq,kqp->k", W, cov), 0.0, None))
-        except np.linalg.LinAlgError:
-            out = np.array([-predicted_rms(info, W, None if middles is None else middles[i]) for i, info in enumerate(infos)])
-        return np.where(np.isfinite(out), out, -np.inf)
+        return -np.sqrt(predicted_mse(infos, W, scale, middles, strict))
     s = np.sqrt(np.clip(np.linalg.eigvalsh(infos * np.outer(scale, scale)[None]), 1e-300, None))
     if index == "O1":
         out = np.mean(np.log(s), axis=1)  # log of det^(1/L): same order, no overflow
@@ -132,33 +107,6 @@ def _scores(infos, scale, index: str, W=None, middles=None) -> np.ndarray:
         out = 1.0 / np.sum(1.0 / s, axis=1)
     else:
         raise FgcalError(f"unknown index {index!r} ({', '.join(INDICES)})")
-    return np.where(np.isfinite(out), out, -np.inf)
-
-
-def _low_rank(info, rtol: float = 1e-12):
-    """Factors ``L`` (K, P, r) with ``info[k] = L[k] L[k]^T``, or None when the poses' information
-    is not of low rank (then a rank-r update is no cheaper than an inverse)."""
-    w, V = np.linalg.eigh(info)
-    r = int((w > rtol * np.maximum(w[:, -1:], 1e-300)).sum(axis=1).max(initial=0))
-    if r == 0 or 2 * r > info.shape[1]:
-        return None
-    return V[:, :, -r:] * np.sqrt(np.clip(w[:, None, -r:], 0.0, None))
-
-
-def _pred_update(total, L, W, sign: float) -> np.ndarray:
-    """``pred`` score (minus the predicted RMS) of ``total + sign L_k L_k^T`` for every k, by the
-    Woodbury identity: ``tr(W (T + s L L^T)^-1) = tr(W C) - s tr((I + s L^T C L)^-1 L^T C W C L)``
-    with ``C = T^-1``; r-by-r solves instead of P-by-P inverses."""
-    C = np.linalg.inv(total)
-    CL = C @ L
-    G = np.swapaxes(L, 1, 2) @ CL
-    H = np.swapaxes(CL, 1, 2) @ W @ CL
-    eye = np.eye(L.shape[2])[None]
-    try:
-        change = np.einsum("kii->k", np.linalg.solve(eye + sign * G, H))
-    except np.linalg.LinAlgError:
-        return _scores(total[None] + sign * L @ np.swapaxes(L, 1, 2), None, "pred", W)
-    out = -np.sqrt(np.clip(np.trace(W @ C) - sign * change, 0.0, None))
     return np.where(np.isfinite(out), out, -np.inf)
 
 
@@ -285,13 +233,10 @@ class Candidates:
         if not self.n_setup:
             return indices(total, len(sel), self.scale, self.W, middle)
         # A fixture the plan does not visit is undetermined, and irrelevant: the marginal (by a
-        # pseudo-inverse over the blocks) leaves it out, as the pseudo-inverse of the sandwich does.
+        # pseudo-inverse over the blocks) leaves it out, of the information and of the sandwich's middle.
         P = len(self.names)
-        out = indices(marginal(total, self.n_setup), len(sel), self.scale[:P], self.W[:P, :P])
-        if middle is not None and np.isfinite(out["pred"]):
-            inv = np.linalg.pinv(total, hermitian=True)
-            out["pred"] = float(np.sqrt(max(np.trace(self.W @ inv @ middle @ inv), 0.0)))
-        return out
+        return indices(marginal(total, self.n_setup), len(sel), self.scale[:P], self.W[:P, :P],
+                       marginal_middle(total, middle, self.n_setup))
 
 
 def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index: str = "pred",
@@ -331,20 +276,22 @@ def design_plan(model: RobotModel, n_poses: int, candidates, noise: Noise, index
                          f"gives at most {ranks.max(initial=0)} independent equations): at least {need} poses needed")
     say = progress or (lambda text: None)
     mid = prep.middle[pool] if (prep.middle is not None and index == "pred") else None
-    factors = _low_rank(info) if index == "pred" and mid is None else None
+    factors = low_rank(info) if index == "pred" and mid is None else None
     P = len(scale) - S
 
     def criterion(mats, mids=None):
-        """Scores of information matrices (K, P + S, P + S): the indices O1-O5 of their marginal."""
-        if index != "pred" and S:
-            return _scores(marginal(mats, S), scale[:P], index, W[:P, :P])
-        return _scores(mats, scale, index, W, mids)
+        """Search scores of information matrices (K, P + S, P + S), of their marginal: the indices
+        O1-O5, or ``pred`` with the directions at the rounding level counted there (finite)."""
+        if S:
+            mats, mids, sub = marginal(mats, S), marginal_middle(mats, mids, S), slice(0, P)
+            return _scores(mats, scale[sub], index, W[sub, sub], mids, strict=False)
+        return _scores(mats, scale, index, W, mids, strict=False)
 
     def batch(total, sign, members, mtotal=None):
         """Scores of ``total + sign * info[m]`` (sandwich middle ``mtotal + sign * mid[m]``) for
         each candidate m of ``members``."""
         if factors is not None:
-            return _pred_update(total, factors[members], W, sign)
+            return pred_update(total, factors[members], W, sign, scale)
         return criterion(total[None] + sign * info[members], None if mid is None else mtotal[None] + sign * mid[members])
 
     # A vanishing ridge (relative to the parameters' expected spread) makes the first, rank

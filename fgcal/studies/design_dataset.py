@@ -36,6 +36,7 @@ from fgcal.robots.model import RobotModel
 from fgcal.studies.design import Candidates, design_plan, random_design_values
 from fgcal.studies.design_floor import floor_of, pose_misfit, weigh_by_misfit, with_floor
 from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
+from fgcal.studies.design_predict import quantiles
 
 __all__ = [
     "DATASET_INDEX",
@@ -113,25 +114,28 @@ class DatasetDesign:
 
     def random_quartiles(self) -> tuple[float, float, float]:
         """25th percentile, median and 75th percentile of the random plans' ``pred`` (mm)."""
-        q25, q50, q75 = (float(v) for v in np.percentile(self.random_pred, [25, 50, 75]))
+        q25, q50, q75 = quantiles(self.random_pred, [25, 50, 75])
         return q25, q50, q75
 
     def summary(self) -> list[str]:
         lo, med, hi = self.random_quartiles()
+        n_inf = int(np.sum(~np.isfinite(self.random_pred)))
+        blind = f"; {n_inf} of them inf: their poses leave undetermined what new poses see" if n_inf else ""
         lines = [f"designed {len(self.pose_ids)} poses from {self.n_usable} usable of {self.n_candidates} candidates "
                  f"({', '.join(self.levels)}) by {self.index} ({self.iterations} DETMAX steps)",
                  "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")
                                   if k in self.values),
                  f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
                  f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
-                 f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets)"]
+                 f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets{blind})"]
         if self.floor_mm > 0:
             mine, theirs = self.predicted_with_floor()
-            gain = f", a gain of {100 * (1 - mine / theirs):.0f}%" if theirs > 0 else ""
-            alone = f" (of {100 * (1 - self.values['pred'] / med):.0f}% on the estimation error alone)" if med > 0 else ""
+            # a gain over random sets most of which cannot predict (inf) is not stated
+            gain = (f", a gain of {100 * (1 - mine / theirs):.0f}% (of {100 * (1 - self.values['pred'] / med):.0f}% on "
+                    "the estimation error alone)") if np.isfinite(med) else ""
             lines.append(f"  with the error no geometric calibration removes ({self.floor_mm:.4g} mm RMS at the dataset's "
                          f"poses after calibrating all of them): {mine:.4g} mm at new poses against {theirs:.4g} mm for "
-                         f"the median random set{gain}{alone}")
+                         f"the median random set{gain}")
         if self.noise:
             lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
                 f"{k} {used:.3g} {unit} (declared {decl:.3g})" for k, (decl, used, unit) in self.noise.items()))
