@@ -252,13 +252,13 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
     layout = None
     if setup_kinds:
         # the same start and poses (the rebuild once the held parameters are out): the same blocks and terms
-        key = ("setup_layout", _key(start), _key(q), *((k.level, _rows_key(getattr(ds, k.level))) for k in setup_kinds))
-        kept = None if fits is None else fits.get(key)
+        layout_key = ("setup_layout", _key(start), _key(q), *((k.level, _rows_key(getattr(ds, k.level))) for k in setup_kinds))
+        kept = None if fits is None else fits.get(layout_key)
         if kept is None:
             layout = _setup_layout(ds, model, setup_kinds, start, q, row)
             kept = (layout, {k.level: k.terms(getattr(ds, k.level), ds.tooling, row, layout) for k in setup_kinds})
             if fits is not None:
-                fits[key] = kept
+                fits[layout_key] = kept
         layout = kept[0]
         kw["measurements"].update(kept[1])
         # the measurements in registry order (the graph's row layout does not depend on this dict)
