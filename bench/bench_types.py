@@ -11,8 +11,18 @@ about the same number of equations (rows of the least squares):
 
 Each dataset is written in fgcal's format and calibrated by :func:`fgcal.estimation.calibrate.calibrate`
 at the default options; the figure is process CPU time (user + system, best of ``--repeat``) per
-equation, and its ratio to the point type's. Contact poses are found by a damped least-squares IK
-on the perturbed model (not timed). Single-threaded BLAS.
+equation, and its ratio to the point type's; beside it the same CPU per pose and its ratio (every pose
+costs one forward kinematics and Jacobian a linearisation, whatever its rows). The datasets declare
+``joint_resolution: 0``: the joint readings are exact, so there are no joint variables and no joint rows
+(a run of them at 0.001 deg was tried: the noise estimation then takes 35-40 rounds, not settling on the
+centres and planes, where the data have no joint noise to estimate; not a fair figure of the types).
+Contact poses are found by a damped least-squares IK on the perturbed model (not timed). Single-threaded BLAS.
+
+Measured (``--rows 3000 --repeat 5``, 2 shared cores under a load of ~3, so +-10 %): issue 25's second
+pass (branch ``types2``) brought contacts from 1.55-1.77x to 1.33-1.79x in this script (the load moves it
+that much); interleaved runs of the two versions (best of 40 calibrations each) give contacts 174 -> 152 ms
+against centres' 99 -> 97 ms, 1.76x -> 1.56x, and planes 223 -> 206 ms, 2.26x -> 2.12x (planes pay 3x the
+poses for the same equations: per pose they cost 0.7-0.77x the point type).
 
 Run: ``python bench/bench_types.py [--rows 3000] [--repeat 3] [--data DIR]`` (``--data``: the datasets are
 kept in DIR and reused by later runs with the same ``--rows`` and ``--seed``; generating 3,000 rows takes minutes).
