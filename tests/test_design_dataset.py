@@ -234,3 +234,42 @@ def test_landgraf_plan_against_random_sets():
     assert c.plan.values["pred"] < np.percentile(c.plan.random_pred, 5)
     assert 0.1 < c.plan.values["pred"] < 0.25  # measured 0.170 mm; the stated noise would predict 0.008
     assert 0.35 < c.plan_mean < np.percentile(c.random_mean, 90)
+
+
+def test_design_holds_the_scale_as_the_batch_on_planes_alone():
+    """Contacts on three unknown tables (tests/test_scale_gauge.py's UR10): nothing fixes a length,
+    and the batch holds j2.a (SCALE_REASON). The design estimates what the batch estimates: its
+    parameters are the calibration's, its information over them (the planes marginalised) is the
+    graph's normal equations (before, the design left the scale to its rank analysis of the pool,
+    which held the tool's z offset instead)."""
+    from test_scale_gauge import _tables
+
+    from fgcal.estimation.calibrate import CalibrationOptions, build_graph
+    from fgcal.estimation.gauge import SCALE_REASON
+    from fgcal.estimation.noise import NoiseMode
+    from fgcal.studies.design import Candidates
+    from fgcal.studies.design_consistency import candidates_of
+    from fgcal.studies.design_dataset import dataset_noise, with_dataset_tooling
+
+    model, ds, _, _, q = _tables(per_plane=30)
+    model = with_dataset_tooling(ds, model)  # the tables' ball
+    result = calibrate(ds, model)
+    assert [h["name"] for h in result.held if h["reason"] == SCALE_REASON] == ["j2.a"]
+    found = dataset_noise(ds, model, NoiseMode.DECLARED)
+    layout = dataset_layout(ds, model)
+    prep = candidates_of(ds, model, q, layout, found)
+    assert list(prep.names) == [n for n in result.names if not n.startswith("plane.")]
+    graph, state, _ = build_graph(ds, model, list(prep.names), CalibrationOptions(prior="none"))
+    total, _ = prep.total(np.arange(ds.n_poses))
+    expected = graph.parameter_information(state)
+    np.testing.assert_allclose(total, expected, rtol=1e-8, atol=1e-9 * np.abs(expected).max())
+
+    # the base-only rule of before: the scale is left to the pool's rank analysis, which holds another
+    # length than the batch's (the tool's z offset) and designs for a different set of parameters
+    free = type(model.parameters())(model, tuple(n for n in model.parameters().names if not n.startswith("base.")))
+    loose = Candidates.build(model, q, ds.noise, layout=layout, params=free)
+    assert set(loose.dropped) - {"tool.phi", "tool.theta", "tool.psi"} == {"tool.pz"}
+    assert "j2.a" in loose.names and set(loose.names) != set(prep.names)
+
+    plan = design_from_dataset(ds, model, 45, random_sets=50, noise=found)
+    assert np.isfinite(plan.values["pred"]) and plan.values["pred"] < np.median(plan.random_pred)

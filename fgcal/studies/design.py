@@ -176,13 +176,15 @@ class Candidates:
     @classmethod
     def build(cls, model: RobotModel, candidates, noise: Noise, q_verify=None, deviations: Deviations = Deviations(),
               layout: Layout | None = None, params: ParameterSet | None = None, slots=None,
-              sigmas: Sigmas | None = None, actual: Sigmas | None = None, joint_error=0.0):
+              sigmas: Sigmas | None = None, actual: Sigmas | None = None, joint_error=0.0, weight=None):
         """Information of every candidate (measured as ``layout`` says; by default the three most
         accessible balls, probed) and the weight of the accuracy at ``q_verify``, linearised at
         ``slots`` (the nominal by default); ``sigmas`` (the graph's noise) replaces ``noise``'s
         declared values, for example with those estimated from a dataset. ``actual`` (the data's
         noise) and ``joint_error`` (rad, an unmodelled joint-space error) make ``pred`` the
-        sandwich covariance of the estimator at ``sigmas`` under that error."""
+        sandwich covariance of the estimator at ``sigmas`` under that error. ``weight`` (P, P) over
+        ``params``, when given, is the verification weight instead of the tool positions at
+        ``q_verify`` (for contacts, the consistency's: :mod:`fgcal.studies.design_consistency`)."""
         params = params or model.parameters()
         q = np.atleast_2d(np.asarray(candidates, dtype=float))
         layout = layout if layout is not None else layout_from_access(model, q, ("probes",))
@@ -195,7 +197,8 @@ class Candidates:
             info, middle = information_and_middle(model, q, layout, noise, params, slots, sigmas, actual, joint_error)
         else:
             info = information(model, q, layout, noise, params, slots, sigmas)
-        W = verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
+        W = (verification_weight(model, q[usable] if q_verify is None else q_verify, params, slots)
+             if weight is None else np.asarray(weight, dtype=float))
         scale = deviations.sigmas(params.names)
         S, P = layout.n_setup, len(params.names)
         prior = np.zeros((P + S, P + S))

@@ -26,15 +26,15 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _setup_layout
-from fgcal.estimation.gauge import world_is_fixed
 from fgcal.estimation.graph import Sigmas
 from fgcal.estimation.noise import NoiseMode, component_table
 from fgcal.io.dataset_io import joint_columns, read_joints, write_csv
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import kinematic_levels
 from fgcal.robots.model import RobotModel
-from fgcal.studies.design import Candidates, design_plan, random_design_values
-from fgcal.studies.design_floor import floor_of, pose_misfit, weigh_by_misfit, with_floor
+from fgcal.studies.design import design_plan, random_design_values
+from fgcal.studies.design_consistency import candidates_of, contacts_only
+from fgcal.studies.design_floor import floor_of, pose_misfit, with_floor
 from fgcal.studies.design_info import Layout, joint_sensitivity, layout_from_access, sigmas_of
 from fgcal.studies.design_predict import quantiles
 
@@ -70,7 +70,8 @@ class DatasetDesign:
     index : str
         The criterion maximised.
     values : dict of str to float
-        O1-O5 and ``pred`` (predicted position error RMS at poses like the candidates, mm).
+        O1-O5 and ``pred`` (predicted position error RMS at poses like the candidates, or for contacts
+        alone the consistency that the estimate adds at new placements, mm; see ``measure``).
     random_pred : ndarray, shape (k,)
         ``pred`` of ``k`` random plans of n poses from the same usable candidates (mm).
     levels : tuple of str
@@ -89,6 +90,10 @@ class DatasetDesign:
         What no plan removes: the RMS position error at the dataset's poses after calibrating all
         of them (mm; 0 when not known, the declared noise). The predicted error at new poses is
         ``sqrt(floor^2 + pred^2)`` (:func:`predicted_with_floor`).
+    measure : str
+        What ``pred`` predicts: ``position`` (the tool positions at poses like the candidates) or, for
+        contacts alone, ``consistency`` (the contacts' consistency at new placements of the fixtures,
+        what the estimate adds to the contacts' own scatter; :mod:`fgcal.studies.design_consistency`).
     """
 
     pose_ids: np.ndarray
@@ -105,6 +110,7 @@ class DatasetDesign:
     noise_mode: NoiseMode = NoiseMode.DECLARED
     stations: np.ndarray | None = None
     floor_mm: float = 0.0
+    measure: str = "position"
 
     def predicted_with_floor(self) -> tuple[float, float]:
         """Predicted position error RMS at new poses with the floor (mm): the plan's and the median
@@ -121,11 +127,13 @@ class DatasetDesign:
         lo, med, hi = self.random_quartiles()
         n_inf = int(np.sum(~np.isfinite(self.random_pred)))
         blind = f"; {n_inf} of them inf: their poses leave undetermined what new poses see" if n_inf else ""
+        what, where = (("contact consistency", "placements") if self.measure == "consistency"
+                       else ("position error", "poses"))
         lines = [f"designed {len(self.pose_ids)} poses from {self.n_usable} usable of {self.n_candidates} candidates "
                  f"({', '.join(self.levels)}) by {self.index} ({self.iterations} DETMAX steps)",
                  "  " + ", ".join(f"{k} {self.values[k]:.4g}" for k in ("O1", "O2", "O3", "O4", "O5")
                                   if k in self.values),
-                 f"  predicted position error RMS at new poses: {self.values['pred']:.4g} mm (random "
+                 f"  predicted {what} RMS at new {where}: {self.values['pred']:.4g} mm (random "
                  f"{len(self.pose_ids)}-pose sets from the same candidates: median {med:.4g}, quartiles "
                  f"{lo:.4g}-{hi:.4g} mm over {len(self.random_pred)} sets{blind})"]
         if self.floor_mm > 0:
@@ -134,7 +142,7 @@ class DatasetDesign:
             gain = (f", a gain of {100 * (1 - mine / theirs):.0f}% (of {100 * (1 - self.values['pred'] / med):.0f}% on "
                     "the estimation error alone)") if np.isfinite(med) else ""
             lines.append(f"  with the error no geometric calibration removes ({self.floor_mm:.4g} mm RMS at the dataset's "
-                         f"poses after calibrating all of them): {mine:.4g} mm at new poses against {theirs:.4g} mm for "
+                         f"poses after calibrating all of them): {mine:.4g} mm at new {where} against {theirs:.4g} mm for "
                          f"the median random set{gain}")
         if self.noise:
             lines.append(f"  noise designed for ({self.noise_mode.value}): " + ", ".join(
@@ -382,13 +390,7 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
         if layout.setup is None:
             raise FgcalError(f"{where}: a plan per placement needs contacts at fixtures")
         groups = placement_of(layout, layout.setup.spec)
-    params = model.parameters()
-    if not world_is_fixed(ds, layout.levels):  # the gauge, held as the estimator holds it
-        params = type(params)(model, tuple(n for n in params.names if not n.startswith("base.")))
-    prep = Candidates.build(model, q, ds.noise, layout=layout, params=params, slots=found.slots,
-                            sigmas=found.sigmas, actual=found.actual, joint_error=found.joint_error)
-    if candidates is None and found.misfit and misfit_weights:
-        prep = weigh_by_misfit(prep, np.array([found.misfit.get(int(p), 1.0) for p in ids]))
+    prep = candidates_of(ds, model, q, layout, found, misfit_weights and candidates is None)
     if progress is not None:
         progress(f"information of {len(q)} candidates ready ({int(prep.usable.sum())} usable)")
     d = design_plan(model, n_poses, q, ds.noise, index=index, prepared=prep, max_iterations=max_iterations,
@@ -397,7 +399,7 @@ def design_from_dataset(ds: Dataset, model: RobotModel, n_poses: int, candidates
     stations = ds.stations[d.chosen] if ds.stations is not None and candidates is None else None
     return DatasetDesign(ids[d.chosen], q_deg[d.chosen], index, d.values, rand, layout.levels, len(q),
                          int(prep.usable.sum()), d.iterations, prep.dropped, found.levels, found.mode, stations,
-                         found.floor_mm)
+                         found.floor_mm, "consistency" if contacts_only(layout) else "position")
 
 
 def placement_of(layout: Layout, spec) -> np.ndarray:
