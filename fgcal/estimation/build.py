@@ -156,6 +156,11 @@ def _kept(fits: dict | None, fn, *args, **kw):
     return hit
 
 
+def _rows_key(obs) -> tuple:
+    """A key of every array an observation table holds (poses, names, measured values)."""
+    return tuple(_key(v) for v in vars(obs).values() if isinstance(v, np.ndarray))
+
+
 def _key(value):
     if isinstance(value, np.ndarray):
         return value.shape, value.dtype.str, value.tobytes()
@@ -246,9 +251,16 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         start = pivot_start
     layout = None
     if setup_kinds:
-        layout = _setup_layout(ds, model, setup_kinds, start, q, row)
-        for kind in setup_kinds:
-            kw["measurements"][kind.level] = kind.terms(getattr(ds, kind.level), ds.tooling, row, layout)
+        # the same start and poses (the rebuild once the held parameters are out): the same blocks and terms
+        layout_key = ("setup_layout", _key(start), _key(q), *((k.level, _rows_key(getattr(ds, k.level))) for k in setup_kinds))
+        kept = None if fits is None else fits.get(layout_key)
+        if kept is None:
+            layout = _setup_layout(ds, model, setup_kinds, start, q, row)
+            kept = (layout, {k.level: k.terms(getattr(ds, k.level), ds.tooling, row, layout) for k in setup_kinds})
+            if fits is not None:
+                fits[layout_key] = kept
+        layout = kept[0]
+        kw["measurements"].update(kept[1])
         # the measurements in registry order (the graph's row layout does not depend on this dict)
     if block_names:  # --- joint-error block: appended to theta, zero-mean prior, G from the readings
         block = JointErrorBlock.build(options.joint_errors or JointErrorSpec(), model.n_joints,

@@ -37,6 +37,7 @@ from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, Calibration
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 from fgcal.estimation.rounds import WARM_DAMPING, _solve_rounds
+from fgcal.estimation.setup_schur import marginal_information
 from fgcal.estimation.solve import levenberg_marquardt
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
@@ -68,7 +69,6 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 log = logging.getLogger(__name__)
-
 
 
 def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
@@ -128,7 +128,7 @@ def _identifiability(graph: Graph, state: State, lin=None, rtol: float = 1e-6):
     info = graph.parameter_information(state, lin)
     if graph.S:  # the set-up unknowns are estimated with the robot: their information is marginalised
         g, s = np.arange(graph.n_geo), np.arange(graph.n_geo + graph.K, graph.n_geo + graph.K + graph.S)
-        info = info[np.ix_(g, g)] - info[np.ix_(g, s)] @ np.linalg.pinv(info[np.ix_(s, s)]) @ info[np.ix_(s, g)]
+        info = marginal_information(info, g, s)  # per fixture block (fgcal.estimation.setup_schur)
     S = info[np.ix_(order, order)]
     return analyse_information(S, [names[i] for i in order], rtol=rtol)
 

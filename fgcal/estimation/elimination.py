@@ -21,6 +21,16 @@ __all__ = ["POSE_CHUNK", "ArrowElimination"]
 POSE_CHUNK = 2000  # poses per block of work (bounds the temporaries)
 
 
+def _prior_normal(lin: Linearisation) -> np.ndarray:
+    """``prior_J^T prior_J`` (P, P) of ``lin``, formed once on its nonzero rows (a parameter without a
+    prior has a zero row: with 198 socket coordinates, most of them)."""
+    if "prior_normal" not in lin.cache:
+        J = lin.prior_J
+        J = J[np.any(J != 0.0, axis=1)]
+        lin.cache["prior_normal"] = J.T @ J
+    return lin.cache["prior_normal"]
+
+
 class ArrowElimination:
     """Solving and statistics of a graph whose per-pose variables touch only their pose and theta."""
 
@@ -75,11 +85,11 @@ class ArrowElimination:
         Jt2 = lin.J_theta.reshape(-1, P)
         blocks = list(self._blocks(lin))
         if blocks[0][1] is None:
-            A = Jt2.T @ Jt2 + lin.prior_J.T @ lin.prior_J
+            A = Jt2.T @ Jt2 + _prior_normal(lin)
             B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
         else:  # each pose's products on its own columns (the others are zero in its rows)
             Jc_all = lin.cache["columns"].gather(lin.J_theta)  # (N, mt, c)
-            A = lin.prior_J.T @ lin.prior_J
+            A = _prior_normal(lin).copy()
             for c, pc in blocks:
                 assert pc is not None  # one choice for all chunks
                 A = A + pc.inner(Jc_all[c], Jc_all[c])
@@ -151,7 +161,7 @@ class ArrowElimination:
             # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
             # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
             n, mt, P = lin.J_theta.shape
-            S = lin.prior_J.T @ lin.prior_J
+            S = _prior_normal(lin).copy()
             for c, pc in self._blocks(lin):
                 k = len(lin.r[c])
                 pad = ~self.local_used[c]

@@ -201,7 +201,7 @@ class PointContact(SetupMeasurement):
 
     def _payload(self, offsets, fixture, layout, radius) -> tuple:
         """Ball offsets (M, 3) and each fixture's first entry in ``s`` (M,)."""
-        return offsets, np.array([layout.offset[f] for f in fixture.tolist()], dtype=int)
+        return offsets, _per_row(fixture, lambda f: layout.offset[f]).astype(int)
 
     def setup_error(self, theta, q, data, s, index, held, chain):
         offset, start = data
@@ -236,8 +236,8 @@ class PlaneContact(SetupMeasurement):
     def _payload(self, offsets, fixture, layout, radius) -> tuple:
         """Ball offsets (M, 3), each plane's first entry in ``s`` (M,), its reference normal (M, 3)
         and the tool's radius (M,)."""
-        start = np.array([layout.offset[f] for f in fixture.tolist()], dtype=int)
-        n0 = np.array([layout.reference[f] for f in fixture.tolist()]).reshape(-1, 3)
+        start = _per_row(fixture, lambda f: layout.offset[f]).astype(int)
+        n0 = _per_row(fixture, lambda f: layout.reference[f]).reshape(-1, 3)
         return offsets, start, n0, np.full(len(start), float(radius))
 
     def setup_error(self, theta, q, data, s, index, held, chain):
@@ -264,6 +264,12 @@ class PlaneContact(SetupMeasurement):
 
     def residual_summary(self, e) -> dict:
         return {"plane_contacts_mm": np.asarray(e)[:, 0].tolist()}
+
+
+def _per_row(fixture, value) -> np.ndarray:
+    """``value(f)`` of each row's fixture ``f`` (M, ...): once per distinct fixture, then spread over the rows."""
+    names, which = np.unique(np.asarray(fixture).astype(str), return_inverse=True)
+    return np.array([value(f) for f in names.tolist()])[which.ravel()]
 
 
 CONTACT = PointContact()
