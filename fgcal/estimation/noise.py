@@ -44,7 +44,6 @@ __all__ = [
     "readmissible",
     "robust_scale",
     "scaled_inverse",
-    "update_sigmas",
 ]
 
 log = logging.getLogger(__name__)
@@ -159,30 +158,6 @@ def components(graph, lin, h) -> dict[str, tuple[float, float]]:
         p = pose[kept, None]
         out[name] = (float(np.sum(lin.r[p, rows] ** 2)), float(np.sum(1.0 - h[p, rows])))
     return out
-
-
-def update_sigmas(sigmas, comps, declared, tolerance: float = 0.01):
-    """Rescale each estimable component by the square root of its variance factor.
-
-    Returns ``(new sigmas, changed)``; ``changed`` is False when every factor is within
-    ``tolerance`` of 1 (converged).
-    """
-    changed = False
-    new = {}
-    for name, (ssq, red) in comps.items():
-        field = component_table()[name][2]
-        current = np.asarray(getattr(sigmas, field), dtype=float)  # per joint for the joints
-        if red < MIN_REDUNDANCY or np.any(current <= 0):
-            continue
-        f = ssq / red
-        if not np.isfinite(f) or abs(f - 1.0) < tolerance:
-            continue
-        decl = np.asarray(getattr(declared, field), dtype=float)
-        value = np.clip(current * np.sqrt(f), SCALE_LIMITS[0] * decl, SCALE_LIMITS[1] * decl)
-        if np.any(value != current):
-            new[field] = value if value.ndim else float(value)
-            changed = True
-    return sigmas.replaced(**new), changed
 
 
 def robust_scale(t, width: int, cut_alpha: float = SCALE_CUT_ALPHA) -> float:
@@ -376,8 +351,16 @@ def noise_row(unit: str, k: float, used: float, decl: float, ssq: float, red: fl
     ratio2 = (used / decl) ** 2 if decl > 0 else float("nan")
     vf_declared = ssq / red * ratio2 if red > 0 else float("nan")
     estimable = red >= MIN_REDUNDANCY
+    at_floor = decl > 0 and used <= SCALE_LIMITS[0] * decl * (1 + 1e-9)
     if mode is NoiseMode.DECLARED:
         note = "declared (--noise declared)"
+    elif at_floor:  # the rounds brought it down until its rows no longer count (variance_steps)
+        note = (f"not resolved: the data show none of this noise; held at its floor ({SCALE_LIMITS[0]:g} x the "
+                f"declared sigma), where its redundancy is {red:.3g}")
+        estimable = False
+    elif not estimable and decl > 0 and not math.isclose(used, decl, rel_tol=1e-9):
+        note = (f"not resolved: lowered from the declared sigma until its redundancy fell to {red:.3g} "
+                f"(estimating it needs {MIN_REDUNDANCY:g}); the data show no more of this noise")
     elif not estimable:
         note = f"declared: redundancy {red:.3g} is too small to estimate it (needs {MIN_REDUNDANCY:g})"
     else:

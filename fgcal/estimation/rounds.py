@@ -18,10 +18,10 @@ from fgcal.estimation.noise import (
     included_leverage,
     readmissible,
     scaled_inverse,
-    update_sigmas,
 )
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.solve import _solve
+from fgcal.estimation.variance_steps import VarianceSteps, update_sigmas
 
 __all__ = ["LOOSE_TOLERANCE", "MAX_NOISE_ROUNDS", "MAX_READMISSIONS", "WARM_DAMPING"]
 
@@ -50,6 +50,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
                                           damping=damping)
     declared = graph.sigmas
     rounds = readmitted = finishing = 0
+    steps = VarianceSteps()  # the rounds' quasi-Newton steps (Foerstner's alone crawls near zero)
     for rounds in range(1, MAX_NOISE_ROUNDS + 1):  # noqa: B007 (the count is returned)
         lin = graph.linearise(state)
         h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
@@ -59,8 +60,10 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
                 mask = graph.excluded.setdefault(level, np.zeros(len(graph.row[level]), dtype=bool))
                 mask[ks] = True
                 changed = True
+                steps.forget()  # other rows: the factors' last rounds are of another problem
         if noise_mode is NoiseMode.ESTIMATED:
-            graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared)
+            graph.sigmas, moved = update_sigmas(graph.sigmas, components(graph, lin, h), declared,
+                                                  steps=steps)
             changed |= moved
             changed |= update_groups(graph, lin, h)  # each camera's share of the pixels' noise
         if not changed and outlier_mode is OutlierMode.EXCLUDE and readmitted < MAX_READMISSIONS:
@@ -69,6 +72,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
             h_in = included_leverage(graph, state) if graph.excluded else None
             for level, ks in readmissible(graph, lin, h, h_in).items():
                 graph.excluded[level][ks] = False
+                steps.forget()
                 log.info("%s: %d measurement(s) excluded at an earlier round's noise pass the test at the "
                          "final noise: re-admitted", level, len(ks))
                 changed = True
