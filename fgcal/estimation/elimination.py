@@ -14,7 +14,7 @@ import numpy as np
 from fgcal.estimation.column_groups import PoseColumns, active_columns, pose_columns
 
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
-    from fgcal.estimation.graph import Linearisation, State
+    from fgcal.estimation.graph_types import Linearisation, State
 
 __all__ = ["POSE_CHUNK", "ArrowElimination"]
 
