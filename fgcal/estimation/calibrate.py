@@ -23,7 +23,15 @@ from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, gauge_holds, setup_size
 from fgcal.estimation.graph import Graph, Sigmas, State
 from fgcal.estimation.group_noise import group_noise
-from fgcal.estimation.holding import held_parameters, holding_cost, priors_the_data_decide, typical_geometry
+from fgcal.estimation.holding import (
+    STRUCTURAL_RTOL,
+    _identifiability,
+    _unidentifiable,
+    held_parameters,
+    holding_cost,
+    priors_the_data_decide,
+    typical_geometry,
+)
 from fgcal.estimation.noise import (
     NoiseMode,
     OutlierMode,
@@ -37,7 +45,6 @@ from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, Calibration
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
 from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
 from fgcal.estimation.rounds import WARM_DAMPING, _solve_rounds
-from fgcal.estimation.setup_schur import marginal_information
 from fgcal.estimation.solve import levenberg_marquardt
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
@@ -109,37 +116,6 @@ def _joint_sigma_file_units(graph: Graph) -> float:
     model = graph.params.model
     sig = np.broadcast_to(np.asarray(graph.sigmas.joint, dtype=float), (model.n_joints,))
     return float(np.max(model.joints_to_file_units(sig)))
-
-
-def _hold_order(names) -> list[int]:
-    """Column order for blaming: the tool's angles last, so they are held first.
-
-    Position-only data see a point on the tool, not its orientation: holding the tool's angles
-    and keeping its translation keeps that point linear in the parameters wherever the solve goes
-    (holding translations instead leaves a rotation that degenerates away from the start).
-    """
-    late = [i for i, n in enumerate(names) if n in ("tool.phi", "tool.theta", "tool.psi")]
-    return [i for i in range(len(names)) if i not in late] + late
-
-
-def _identifiability(graph: Graph, state: State, lin=None, rtol: float = 1e-6):
-    names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
-    order = _hold_order(names)
-    info = graph.parameter_information(state, lin)
-    if graph.S:  # the set-up unknowns are estimated with the robot: their information is marginalised
-        g, s = np.arange(graph.n_geo), np.arange(graph.n_geo + graph.K, graph.n_geo + graph.K + graph.S)
-        info = marginal_information(info, g, s)  # per fixture block (fgcal.estimation.setup_schur)
-    S = info[np.ix_(order, order)]
-    return analyse_information(S, [names[i] for i in order], rtol=rtol)
-
-
-# At a typical geometry a direction redundant by structure stays at rounding level (1e-16 of the
-# largest eigenvalue); one a typical deviation opens (a ball 0.5 mm off the last axis) is ~1e-7.
-STRUCTURAL_RTOL = 1e-11
-
-
-def _unidentifiable(graph: Graph, state: State, lin=None) -> dict[str, list[str]]:
-    return _identifiability(graph, state, lin).redundant
 
 
 def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):

@@ -9,7 +9,11 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-__all__ = ["Linearisation", "Sigmas", "State", "included"]
+__all__ = ["COST_ROUNDING", "Linearisation", "Sigmas", "State", "included"]
+
+# Relative change of the cost below which two costs are the same up to rounding: the residuals
+# are differences of coordinates of ~1e3 mm computed to ~1e-13 mm, whitened by sigmas of ~1e-2.
+COST_ROUNDING = 1e-10
 
 
 @dataclass(frozen=True)

@@ -11,11 +11,11 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.build import _levels, build_graph
-from fgcal.estimation.calibrate import _unidentifiable
 from fgcal.estimation.gauge import gauge_holds
 from fgcal.estimation.graph import Graph, State
+from fgcal.estimation.graph_types import COST_ROUNDING
+from fgcal.estimation.holding import _unidentifiable
 from fgcal.estimation.options import CalibrationOptions
-from fgcal.estimation.solve import COST_ROUNDING
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.robots.model import RobotModel
@@ -36,7 +36,7 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     to the whole ``Values`` (DESIGN.md section 5): there the cost grew with the square of the poses;
     here it is linear. Stops when an accepted step lowers the error by no more than ``tolerance``
     relative (GTSAM's ``relativeErrorTol``), when a step changes it by rounding only
-    (:data:`fgcal.estimation.solve.COST_ROUNDING`), when no damping up to 1e5 lowers it, or after
+    (:data:`fgcal.estimation.graph_types.COST_ROUNDING`), when no damping up to 1e5 lowers it, or after
     ``max_iterations``.
     """
     import gtsam

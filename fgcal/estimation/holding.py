@@ -17,6 +17,8 @@ import logging
 
 import numpy as np
 
+from fgcal.estimation.graph import Graph, State
+from fgcal.estimation.setup_schur import marginal_information
 from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse, analyse_information, identification_jacobian
 from fgcal.robots.model import ParameterSet, RobotModel
@@ -43,6 +45,39 @@ def held_parameters(graph, state, decide=None) -> dict[str, list[str]]:
         graph.robust, graph.excluded = robust, excluded
 
 
+def _hold_order(names) -> list[int]:
+    """Column order for blaming: the tool's angles last, so they are held first.
+
+    Position-only data see a point on the tool, not its orientation: holding the tool's angles
+    and keeping its translation keeps that point linear in the parameters wherever the solve goes
+    (holding translations instead leaves a rotation that degenerates away from the start).
+    """
+    late = [i for i, n in enumerate(names) if n in ("tool.phi", "tool.theta", "tool.psi")]
+    return [i for i in range(len(names)) if i not in late] + late
+
+
+def _identifiability(graph: Graph, state: State, lin=None, rtol: float = 1e-6):
+    """What the information of ``graph`` at ``state`` identifies (geometry only; the set-up unknowns
+    marginalised per fixture block), its columns in :func:`_hold_order`."""
+    names = list(graph.params.names)[:graph.n_geo]  # a joint-error block has its own prior: geometry only
+    order = _hold_order(names)
+    info = graph.parameter_information(state, lin)
+    if graph.S:  # the set-up unknowns are estimated with the robot: their information is marginalised
+        g, s = np.arange(graph.n_geo), np.arange(graph.n_geo + graph.K, graph.n_geo + graph.K + graph.S)
+        info = marginal_information(info, g, s)  # per fixture block (fgcal.estimation.setup_schur)
+    S = info[np.ix_(order, order)]
+    return analyse_information(S, [names[i] for i in order], rtol=rtol)
+
+
+# At a typical geometry a direction redundant by structure stays at rounding level (1e-16 of the
+# largest eigenvalue); one a typical deviation opens (a ball 0.5 mm off the last axis) is ~1e-7.
+STRUCTURAL_RTOL = 1e-11
+
+
+def _unidentifiable(graph: Graph, state: State, lin=None) -> dict[str, list[str]]:
+    return _identifiability(graph, state, lin).redundant
+
+
 def unseen_parameters(model: RobotModel, names, measurement, n_configurations: int = 64,
                       rtol: float = 1e-8) -> dict[str, list[str]]:
     """The parameters of ``names`` that ``measurement`` can see at no pose, with their partners.
@@ -52,7 +87,7 @@ def unseen_parameters(model: RobotModel, names, measurement, n_configurations: i
     translation does, or not at all), whatever the poses. The identification Jacobian at
     ``n_configurations`` joint sets spread over the limits (a fixed seed: the answer depends on
     the model and the measurement only) names them, in the batch's blame order (the tool's
-    angles held first, :func:`fgcal.estimation.calibrate._hold_order`). What the poses of a
+    angles held first, :func:`_hold_order`). What the poses of a
     particular dataset cannot separate besides is for :func:`held_parameters` to decide.
 
     Parameters
@@ -62,8 +97,6 @@ def unseen_parameters(model: RobotModel, names, measurement, n_configurations: i
     measurement : "pose", "position" or ndarray, shape (B, 3)
         As :func:`~fgcal.robots.identifiability.identification_jacobian`.
     """
-    from fgcal.estimation.calibrate import _hold_order  # the batch's order (calibrate imports this module)
-
     names = [n for n in names if n in set(model.slot_names)]
     if not names:
         return {}

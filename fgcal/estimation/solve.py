@@ -7,16 +7,13 @@ import numpy as np
 
 from fgcal.errors import FgcalError
 from fgcal.estimation.graph import Graph, State
-from fgcal.estimation.graph_types import Linearisation
+from fgcal.estimation.graph_types import COST_ROUNDING, Linearisation
 from fgcal.estimation.options import CalibrationOptions
 
 __all__ = ["COST_ROUNDING", "levenberg_marquardt"]
 
 log = logging.getLogger(__name__)
 
-# Relative change of the cost below which two costs are the same up to rounding: the residuals
-# are differences of coordinates of ~1e3 mm computed to ~1e-13 mm, whitened by sigmas of ~1e-2.
-COST_ROUNDING = 1e-10
 
 
 def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None,

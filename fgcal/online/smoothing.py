@@ -38,8 +38,9 @@ def batch_held(engine, seen: Dataset, names, fits: dict | None = None) -> tuple[
     from dataclasses import replace
 
     from fgcal.estimation.build import _levels, build_graph
-    from fgcal.estimation.calibrate import _check_equations, _unidentifiable, split_held
+    from fgcal.estimation.calibrate import _check_equations, split_held
     from fgcal.estimation.gauge import setup_size
+    from fgcal.estimation.holding import _unidentifiable
 
     options = replace(engine.options, prior="none", noise_scale=None)
     levels = _levels(seen, options)

@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgcal.errors import FgcalError
-from fgcal.estimation.calibrate import _hold_order
 from fgcal.estimation.graph import Sigmas
+from fgcal.estimation.holding import _hold_order
 from fgcal.measurements.dataset import Noise
 from fgcal.robots.deviations import Deviations
 from fgcal.robots.identifiability import analyse_information
