@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from plain_dh import Rx, Rz, Trans
 
+from fgcal.robots import chain_walk
 from fgcal.robots.kinematics import Chain, tool_points
 
 CHAINS = {
@@ -38,8 +39,15 @@ def _close(a, b, what):
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(1.0, np.abs(b).max()), err_msg=what)
 
 
+@pytest.fixture(params=["stacked", "columns"])
+def screws_path(request, monkeypatch):
+    """Both ways of forming the screws: all rotations at once (few poses), or column by column."""
+    monkeypatch.setattr(chain_walk, "STACKED_MAX", 10**9 if request.param == "stacked" else 0)
+    return request.param
+
+
 @pytest.mark.parametrize("kind", sorted(CHAINS))
-def test_batch_kinematics_equal_the_reference_walk(kind):
+def test_batch_kinematics_equal_the_reference_walk(kind, screws_path):
     rng, chain, x, q = _case(kind, 5)
     R_new, p_new, T_new = chain.forward_frames(x, q)
     R_ref, p_ref, T_ref = ref.forward_frames(chain, x, q)
@@ -80,7 +88,7 @@ def test_batch_forward_equals_plain_dh_matrices():
         _close(T, M, "forward against plain DH")
 
 
-def test_batch_jacobians_equal_central_differences():
+def test_batch_jacobians_equal_central_differences(screws_path):
     """Slot and reading Jacobians of tool points on a prismatic, coupled chain with a tool offset."""
     rng = np.random.default_rng(12)
     chain = Chain(("revolute", "prismatic", "revolute", "revolute", "revolute"),
@@ -106,14 +114,14 @@ def test_batch_jacobians_equal_central_differences():
 @pytest.mark.parametrize("kind", ["6R", "prismatic", "coupled_with_tool_offset"])
 def test_projected_point_jacobians_are_the_point_jacobians_along_the_directions(kind):
     """u . (point Jacobians) without the point Jacobians: equal to the full ones projected, and to
-    central differences of u . point; one pose too (the walk, not the single-pose scan)."""
+    central differences of u . point; one pose too (there by the single-pose scan, projected)."""
     rng, chain, x, q = _case(kind, 21, n_poses=6)
     offsets = rng.normal(size=(len(q), 3)) * 80
     u = rng.normal(size=(len(q), 3))
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     for rows in (slice(0, 1), slice(None)):  # one pose, then all (checked below by differences)
         points, along_slots, along_joints = chain.projected_point_jacobians(x, q[rows], offsets[rows], u[rows])
-        full = chain.jacobians(x, q[rows], offsets[rows, None, :])
+        full = chain.jacobians_walk(x, q[rows], offsets[rows, None, :])
         _close(points, full.points[:, 0], "points")
         _close(along_slots, np.einsum("mi,mis->ms", u[rows], full.point_slots[:, 0]), "along slots")
         _close(along_joints, np.einsum("mi,mij->mj", u[rows], full.point_joints[:, 0]), "along joints")

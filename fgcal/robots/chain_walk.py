@@ -26,6 +26,10 @@ Frame = tuple  # (X, Y, Z, p): world axes and origin, each (3, N), or (3, 1) whi
 _UNIT = np.eye(3)[:, :, None]  # the world axes as (3, 1) columns
 _OTHER = ((1, 2), (2, 0), (0, 1))  # the two columns a rotation about axis 0, 1, 2 mixes
 _NEXT, _PREV = [1, 2, 0], [2, 0, 1]  # the cross product's cyclic row orders
+# Up to this many numbers in the (R, 1 + B, 3, N) arrays of all rotations' screws, they are formed at
+# once (few poses: fewer numpy calls); beyond, column by column (fresh arrays that large cost more in
+# page faults than the calls they save).
+STACKED_MAX = 16384
 
 
 class WalkPlan:
@@ -40,6 +44,12 @@ class WalkPlan:
     turned : dict
         The row of each of ``joint_rot_ops`` in the joint angles.
     steps : tuple of (is_rotation, axis, slot or None, joint or None), one per operation
+    rot_ops, trans_ops : ndarray of int
+        The rotations and the translations.
+    origin_runs : list of (start, stop, op)
+        Runs of positions in ``rot_ops`` with no translation between them: one origin, that of ``op``.
+    rot_slots, rot_joints, trans_slots, trans_joints : (ndarray, ndarray)
+        Positions in ``rot_ops`` or ``trans_ops`` of those that take a slot or a joint, and which.
     """
 
     def __init__(self, chain):
@@ -51,6 +61,23 @@ class WalkPlan:
         self.joint_rot_slots = chain.slot_of_op[self.joint_rot_ops]
         self.turned = {int(k): i for i, k in enumerate(self.joint_rot_ops)}
         self.steps = tuple((op.kind == "R", op.axis, op.slot, op.joint) for op in ops)
+        # For few poses, the screws of all rotations at once (:func:`_stacked_screws`).
+        rot = chain.kind_rot
+        self.rot_ops, self.trans_ops = np.flatnonzero(rot), np.flatnonzero(~rot)
+        moved = np.cumsum(~rot)[self.rot_ops]  # translations before each rotation: which origin it has
+        starts = [0] + [i for i in range(1, len(self.rot_ops)) if moved[i] != moved[i - 1]]
+        self.origin_runs = [(a, b, int(self.rot_ops[a])) for a, b in zip(starts, starts[1:] + [len(self.rot_ops)])]
+        self.rot_slots = _columns(self.rot_ops, chain.slot_of_op)
+        self.rot_joints = _columns(self.rot_ops, chain.joint_of_op)
+        self.trans_slots = _columns(self.trans_ops, chain.slot_of_op)
+        self.trans_joints = _columns(self.trans_ops, chain.joint_of_op)
+
+
+def _columns(ops, column_of_op):
+    """``(positions in ops, columns)`` of the operations of ``ops`` that have a column (slot or joint)."""
+    cols = column_of_op[ops]
+    at = np.flatnonzero(cols >= 0)
+    return at, cols[at]
 
 
 def walk(chain, x, v, keep: bool):
@@ -76,26 +103,26 @@ def walk(chain, x, v, keep: bool):
     cols = [_UNIT[0], _UNIT[1], _UNIT[2]]
     p = np.zeros((3, 1))
     frames: list | None = [] if keep else None
-    for k, op in enumerate(chain.ops):
+    for k, (rotation, axis, _, joint) in enumerate(plan.steps):
         if frames is not None:
             frames.append((cols[0], cols[1], cols[2], p))
-        if op.kind == "R":
-            if op.joint is None:
+        if rotation:
+            if joint is None:
                 c, s = const_cos[k], const_sin[k]
                 if s == 0.0 and c == 1.0:
                     continue  # exactly the identity
             else:
                 i = plan.turned[k]
                 c, s = cos[i], sin[i]
-            a, b = _OTHER[op.axis]
+            a, b = _OTHER[axis]
             ca, cb = cols[a], cols[b]
             cols[a], cols[b] = c * ca + s * cb, c * cb - s * ca
         else:
             t = values[k]
-            if op.joint is not None:
-                p = p + (t + readings[op.joint]) * cols[op.axis]
+            if joint is not None:
+                p = p + (t + readings[joint]) * cols[axis]
             elif t != 0.0:
-                p = p + t * cols[op.axis]
+                p = p + t * cols[axis]
     X, Y, Z = cols
     if chain.tool_offset is not None:
         M, o = chain.tool_offset[:3, :3], chain.tool_offset[:3, 3]
@@ -154,37 +181,43 @@ def screws(chain, frames, tool: Frame, points=None):
     """
     p_tool = tool[3]
     n = p_tool.shape[1]
+    B = 0 if points is None else points.shape[0]
     pose_slots = np.empty((n, 6, chain.n_slots))
     pose_values = np.zeros((n, 6, chain.n_joints))
-    B = 0 if points is None else points.shape[0]
     point_slots = np.empty((n, B, 3, chain.n_slots))
     point_values = np.zeros((n, B, 3, chain.n_joints))
-    screw, tmp = np.empty((6, n)), np.empty((3, n))
-    moved, moved_tmp = np.empty((B, 3, n)), np.empty((B, 3, n))
-    screw_t, moved_t = screw.T, moved.transpose(2, 0, 1)  # (N, 6), (N, B, 3): as the outputs' columns
+    # The tool origin and the points at once: a rotation moves each by a x (it - o).
+    tracked = p_tool[None] if points is None else np.concatenate([p_tool[None], points])  # (1 + B, 3, N)
+    out = (pose_slots, pose_values, point_slots, point_values)
+    if len(chain.walk_plan.rot_ops) * tracked.size <= STACKED_MAX:
+        _stacked_screws(chain, frames, tracked, *out)
+    else:
+        _column_screws(chain, frames, tracked, *out)
+    return out if B else (pose_slots, pose_values, None, None)
+
+
+def _column_screws(chain, frames, tracked, pose_slots, pose_values, point_slots, point_values):
+    """:func:`screws` one operation at a time, each column written straight into the outputs."""
+    B, _, n = tracked.shape
+    B -= 1
+    moved, tmp = np.empty((1 + B, 3, n)), np.empty((1 + B, 3, n))
+    pose_moved, points_moved = moved[0].T, moved[1:].transpose(2, 0, 1)  # (N, 3), (N, B, 3): the outputs' columns
     origin = None
-    arm = point_arm = (tmp, tmp)
+    arm = (tmp, tmp)
     for k, (rotation, axis, s, j) in enumerate(chain.walk_plan.steps):
         frame = frames[k]
         a = frame[axis]
         if rotation:
             if frame[3] is not origin:  # rotations with no translation between them share their origin
                 origin = frame[3]
-                arm = _rolled(p_tool - origin)
-                if B:
-                    point_arm = _rolled(points - origin)
-            _cross(a, arm[0], arm[1], screw[:3], tmp)
-            screw[3:] = a
-            if B:
-                _cross(a, point_arm[0], point_arm[1], moved, moved_tmp)
-            if s is not None:
-                pose_slots[:, :, s] = screw_t
-                if B:
-                    point_slots[:, :, :, s] = moved_t
-            if j is not None:
-                pose_values[:, :, j] = screw_t
-                if B:
-                    point_values[:, :, :, j] = moved_t
+                arm = _rolled(tracked - origin)
+            _cross(a, arm[0], arm[1], moved, tmp)
+            for J, P, c in ((pose_slots, point_slots, s), (pose_values, point_values, j)):
+                if c is not None:
+                    J[:, :3, c] = pose_moved
+                    J[:, 3:, c] = a.T
+                    if B:
+                        P[:, :, :, c] = points_moved
         else:
             if s is not None:
                 pose_slots[:, :3, s] = a.T
@@ -195,9 +228,32 @@ def screws(chain, frames, tool: Frame, points=None):
                 pose_values[:, :3, j] = a.T
                 if B:
                     point_values[:, :, :, j] = a.T[:, None, :]
-    if not B:
-        return pose_slots, pose_values, None, None
-    return pose_slots, pose_values, point_slots, point_values
+
+
+def _stacked_screws(chain, frames, tracked, pose_slots, pose_values, point_slots, point_values):
+    """:func:`screws` for all rotations at once on ``(R, 1 + B, 3, N)`` arrays (few poses: fewer calls)."""
+    plan = chain.walk_plan
+    axis = chain.axis
+    A = np.empty((len(plan.rot_ops), 1, 3, tracked.shape[2]))  # each rotation's world axis
+    for i, k in enumerate(plan.rot_ops):
+        A[i, 0] = frames[k][axis[k]]
+    arm = np.empty((len(plan.rot_ops),) + tracked.shape)
+    for a, b, k in plan.origin_runs:
+        arm[a:b] = tracked - frames[k][3]
+    moved = A[:, :, _NEXT] * arm[:, :, _PREV]
+    moved -= A[:, :, _PREV] * arm[:, :, _NEXT]  # (R, 1 + B, 3, N): a x (it - o)
+    shift = np.empty((len(plan.trans_ops), 3, tracked.shape[2]))  # each translation's world axis
+    for i, k in enumerate(plan.trans_ops):
+        shift[i] = frames[k][axis[k]]
+    for J, P, (at, cols) in ((pose_slots, point_slots, plan.rot_slots), (pose_values, point_values, plan.rot_joints)):
+        J[:, :3, cols] = moved[at, 0].transpose(2, 1, 0)
+        J[:, 3:, cols] = A[at, 0].transpose(2, 1, 0)
+        P[:, :, :, cols] = moved[at, 1:].transpose(3, 1, 2, 0)
+    for J, P, (at, cols) in ((pose_slots, point_slots, plan.trans_slots),
+                             (pose_values, point_values, plan.trans_joints)):
+        J[:, :3, cols] = shift[at].transpose(2, 1, 0)
+        J[:, 3:, cols] = 0.0
+        P[:, :, :, cols] = shift[at].transpose(2, 1, 0)[:, None]
 
 
 def projected_screws(chain, frames, points, directions):

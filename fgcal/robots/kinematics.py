@@ -245,14 +245,18 @@ class Chain:
             ``u . d point / d readings``.
         """
         x = self.check_slots(x)
-        v = self.joint_values(self.check_joints(q))
-        n = v.shape[0]
+        q = self.check_joints(q)
+        n = q.shape[0]
         offsets = np.asarray(offsets, dtype=float)
         directions = np.asarray(directions, dtype=float)
         for name, a in (("offsets", offsets), ("directions", directions)):
             if a.shape != (n, 3):
                 raise ValueError(f"{name} must have shape ({n}, 3), one per pose, got {a.shape}")
-        frames, tool = walk(self, x, v, keep=True)
+        if n == 1:  # one pose (GTSAM's per-pose factors): the scan, then projected
+            one = jacobians_one(self, x, q, offsets)
+            u = directions[0]
+            return one.points[:, 0], (u @ one.point_slots[0, 0])[None], (u @ one.point_joints[0, 0])[None]
+        frames, tool = walk(self, x, self.joint_values(q), keep=True)
         points = frame_points(tool, offsets[:, None, :])[0]  # (3, N)
         along_slots, along_values = projected_screws(self, frames, points, np.ascontiguousarray(directions.T))
         return np.ascontiguousarray(points.T), along_slots, self._to_readings(along_values)
