@@ -12,9 +12,13 @@
 
 Run: ``python bench/bench_kinematics.py [--calls 3000] [--poses 1000 3000] [--rounds 7]``.
 
-Measured (2 shared cores; +-10 %), old -> new per call, UR10: jacobians 1,000 poses ~9.5 -> ~1.0 ms,
-3,000 poses ~23 -> ~2.4 ms; with a tool point per pose 1,000 ~10 -> ~1.4 ms, 3,000 ~24 -> ~3.8 ms
-(the coupled and prismatic chains alike); forward 4-6x, forward_frames ~2.3x (it writes every frame).
+Measured (2 cores shared with other work: runs on a quiet and a loaded machine), old -> new per call,
+UR10: jacobians at 1,000 poses 9.4-16.6 -> 0.8-1.5 ms (7-11x), at 3,000 poses 22-33 -> 2.6-5.7 ms
+(6-8.5x); with one tool point per pose 1,000 10-17 -> 1.2-2.0 ms, 3,000 23-32 -> 3.6-6.4 ms (4-7x); the
+coupled chain with a tool offset and the prismatic one 2.2-8x; forward 4.5-7x; forward_frames 1.5-2x
+(it writes every frame); at 21 poses about even (0.85-1.2x; forward_frames 0.65-0.75x). Most of the
+old walk's time was its large temporaries: on this machine a fresh array costs ~2.5 us a 4 kB page in
+faults, which is why the new walk writes its columns straight into the outputs.
 """
 from __future__ import annotations
 

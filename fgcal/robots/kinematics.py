@@ -308,10 +308,10 @@ def tool_points(T, offsets) -> np.ndarray:
     ``offsets`` is ``(B, 3)`` (the same points at every pose) or ``(N, B, 3)`` (per pose).
     """
     offsets = np.asarray(offsets, dtype=float)
-    if offsets.ndim != 3:
-        offsets = offsets.reshape(-1, 3)
+    if offsets.ndim == 3:
+        return T[:, None, :3, 3] + np.einsum("nij,nbj->nbi", T[:, :3, :3], offsets)
+    o = offsets.reshape(-1, 3)[None]  # (1, B, 3): the same at every pose, by columns (einsum loops slower here)
     T = np.asarray(T, dtype=float)
-    o = offsets[None] if offsets.ndim == 2 else offsets  # (1 or N, B, 3)
     return (T[:, None, :3, 3] + T[:, None, :3, 0] * o[..., 0:1] + T[:, None, :3, 1] * o[..., 1:2]
             + T[:, None, :3, 2] * o[..., 2:3])
 
