@@ -123,6 +123,25 @@ def test_points_by_pose_as_the_per_ball_loop():
     assert _rows_of(ids, np.array([9, 7, 1, 1, 3])).tolist() == [2, 0, 3, 3, 1]
 
 
+@pytest.mark.parametrize("n_rows", [0, 1, 45])
+def test_centres_world_points_as_the_per_row_loop(n_rows):
+    """A centres level's points for the base fit: poses in the order of their first row, rows in file order."""
+    from fgcal.measurements.base import Terms
+    from fgcal.measurements.point import POINT
+
+    rng = np.random.default_rng(4)
+    pose = rng.integers(0, 9, n_rows)
+    offsets, xyz = rng.normal(size=(n_rows, 3)), rng.normal(size=(n_rows, 3))
+    expected: dict = {}
+    for i, o, w in zip(pose.tolist(), offsets, xyz):  # the loop PointMeasurement.world_points had
+        a, b = expected.get(i, (np.zeros((0, 3)), np.zeros((0, 3))))
+        expected[i] = (np.vstack([a, o]), np.vstack([b, w]))
+    got = POINT.world_points(Terms(pose, (offsets, xyz)))
+    assert list(got) == list(expected)
+    for k in expected:
+        assert np.array_equal(got[k][0], expected[k][0]) and np.array_equal(got[k][1], expected[k][1])
+
+
 def test_result_text_holds_the_same_values(dataset, tmp_path):
     from fgcal.estimation.calibrate import calibrate
 

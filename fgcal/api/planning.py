@@ -33,7 +33,7 @@ class Plan:
     lines : list of str
         What ``fgcal design`` prints.
     design : object
-        The designer's own record (:class:`~fgcal.studies.design_dataset.DatasetDesign` or the
+        The designer's own record (:class:`~fgcal.studies.design_dataset_plan.DatasetDesign` or the
         random-candidates design).
     """
 
@@ -48,7 +48,7 @@ class Plan:
         from fgcal.io.dataset_io import joint_columns, write_csv
 
         if getattr(self.design, "stations", None) is not None:  # each pose's station too (DESIGN.md 8.3)
-            from fgcal.studies.design_dataset import save_plan
+            from fgcal.studies.design_dataset_plan import save_plan
 
             save_plan(self.design, path)
             return
@@ -117,7 +117,8 @@ def design(robot="puma560", *, dataset=None, poses: int = 12, candidates=None, i
 
 def _from_dataset(dataset, poses, candidates, index, seed, noise, per_placement, progress) -> Plan:
     from fgcal.io.dataset_io import dataset_model
-    from fgcal.studies.design_dataset import DATASET_INDEX, design_from_dataset, load_plan
+    from fgcal.studies.design_dataset import DATASET_INDEX, design_from_dataset
+    from fgcal.studies.design_dataset_plan import load_plan
 
     ds = as_dataset(dataset)
     pool = None

@@ -12,6 +12,7 @@ rounding of another summation order. No I/O here.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -46,13 +47,55 @@ class PoseColumns:
     k: int
 
     def take(self, c: slice) -> PoseColumns:
-        """The columns of the poses ``c``."""
+        """The columns of the poses ``c`` (this object when ``c`` takes them all: its index tables are kept)."""
+        start, stop, step = c.indices(len(self.cols))
+        if start == 0 and stop == len(self.cols) and step == 1:
+            return self
         return PoseColumns(cols=self.cols[c], P=self.P, k=self.k)
+
+    @cached_property
+    def _own_onehot(self):
+        """The (P + 1, N s) one-hot matrix of the poses' own entries (sparse): it sums them onto their columns."""
+        from scipy import sparse  # only on this path: the default calibration imports no scipy
+
+        flat = self.cols[:, self.k:].reshape(-1)
+        return sparse.csr_matrix((np.ones(flat.size), (flat, np.arange(flat.size))), shape=(self.P + 1, flat.size))
+
+    @cached_property
+    def _own_pairs(self) -> np.ndarray:
+        """Flat index (N s s,) in the padded (P + 1, P + 1) matrix of each pose's own-by-own entries."""
+        own = self.cols[:, self.k:]
+        return (own[:, :, None] * (self.P + 1) + own[:, None, :]).reshape(-1)
+
+    @cached_property
+    def _hat_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """Flat indices in the padded (P + 1, P + 1) matrix of each pose's own-by-common (N, s, k) and
+        columns-by-own (N, c, s) entries (:meth:`hat`)."""
+        n1, k = self.P + 1, self.k
+        own = self.cols[:, k:]
+        common = self.cols[0, :k] if len(self.cols) else np.zeros(0, dtype=int)
+        return own[:, :, None] * n1 + common[None, None, :], self.cols[:, :, None] * n1 + own[:, None, :]
+
+    def _flat_index(self, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flat indices (N, m, c) into a C-ordered (N, m, P) array of each pose's columns, and the padding's mask."""
+        key = ("flat", m)
+        cache = self.__dict__.setdefault("_tables", {})
+        if key not in cache:
+            n, c = self.cols.shape
+            col = np.minimum(self.cols, self.P - 1)[:, None, :]
+            base = (np.arange(n)[:, None, None] * m + np.arange(m)[None, :, None]) * self.P
+            cache[key] = ((base + col).astype(np.intp), np.broadcast_to((self.cols < self.P)[:, None, :], (n, m, c)))
+        return cache[key]
+
+    def _sum_by_own(self, Z: np.ndarray) -> np.ndarray:
+        """The (P + 1, k) sums of ``Z`` (N, s, k) over the poses, each row onto its pose's own column."""
+        return np.asarray(self._own_onehot @ Z.reshape(-1, Z.shape[2]))
 
     def gather(self, J: np.ndarray) -> np.ndarray:
         """``J`` (N, m, P) on each pose's columns: (N, m, c)."""
-        out = np.take_along_axis(J, np.minimum(self.cols, self.P - 1)[:, None, :], axis=2)
-        out *= (self.cols < self.P)[:, None, :]  # the padding: zero
+        idx, mask = self._flat_index(J.shape[1])
+        out = np.take(np.ascontiguousarray(J).reshape(-1), idx)
+        out *= mask  # the padding: zero
         return out
 
     def gather_rows(self, B: np.ndarray) -> np.ndarray:
@@ -85,8 +128,9 @@ class PoseColumns:
         n, m = J.shape[:2]
         JM = (Jc.reshape(-1, k) @ M[np.ix_(common, common)]).reshape(n, m, k)
         if own.shape[1]:  # [Jc Jo] [[Mcc Mco] [Moc Moo]] [Jc Jo]^T: the pose's own rows and columns of M
-            JM = np.concatenate([JM + np.matmul(Jo, padded[own[:, :, None], common[None, None, :]]),
-                                 np.matmul(J, padded[self.cols[:, :, None], own[:, None, :]])], axis=2)
+            own_common, cols_own = self._hat_index
+            flat = padded.reshape(-1)
+            JM = np.concatenate([JM + np.matmul(Jo, flat.take(own_common)), np.matmul(J, flat.take(cols_own))], axis=2)
         return np.einsum("nmc,nmc->nm", JM, J)
 
     def scatter(self, X: np.ndarray) -> np.ndarray:
@@ -113,30 +157,20 @@ class PoseColumns:
     def inner(self, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
         """The (P, P) sum over poses of ``X_n^T Y_n``, both (N, m, c) on each pose's columns.
 
-        Without per-pose products: the common columns as one dense (N m, k) matrix (BLAS), a pose's
-        own columns as a sparse (N m, P + 1) one.
+        The common columns as one dense (N m, k) product (BLAS); a pose's own columns by small
+        per-pose products summed onto their columns (a sort made once per pattern).
         """
         n, k = self.P + 1, self.k
         common = self.cols[0, :k] if len(self.cols) else np.zeros(0, dtype=int)
-        Xd, Yd = X[:, :, :k].reshape(-1, k), Y[:, :, :k].reshape(-1, k)
+        Xc, Yc = X[:, :, :k], Y[:, :, :k]
         out = np.zeros((n, n))
-        out[np.ix_(common, common)] = Xd.T @ Yd
-        own = self.cols[:, k:]
-        if own.shape[1]:
-            from scipy import sparse  # only on this path: the default calibration imports no scipy
-
-            m = X.shape[1]
-            rows = np.broadcast_to(np.arange(len(own) * m).reshape(len(own), m, 1), (len(own), m, own.shape[1]))
-            cols = np.broadcast_to(own[:, None, :], rows.shape)
-
-            def own_part(V):
-                return sparse.csr_matrix((V[:, :, k:].reshape(-1), (rows.reshape(-1), cols.reshape(-1))),
-                                         shape=(len(own) * m, n))
-
-            Xs, Ys = own_part(X), own_part(Y)
-            out[:, common] += np.asarray(Xs.T @ Yd)
-            out[common, :] += np.asarray(Ys.T @ Xd).T
-            out += (Xs.T @ Ys).toarray()
+        out[np.ix_(common, common)] = Xc.reshape(-1, k).T @ Yc.reshape(-1, k)
+        if self.cols.shape[1] > k:
+            XoT, YoT = X[:, :, k:].transpose(0, 2, 1), Y[:, :, k:].transpose(0, 2, 1)  # (N, s, m)
+            out[:, common] += self._sum_by_own(np.matmul(XoT, Yc))
+            out[common, :] += self._sum_by_own(np.matmul(YoT, Xc)).T
+            out += np.bincount(self._own_pairs, weights=np.matmul(XoT, Y[:, :, k:]).reshape(-1),
+                               minlength=n * n).reshape(n, n)
         return out[:self.P, :self.P]
 
     def scatter_vector(self, v: np.ndarray) -> np.ndarray:

@@ -262,6 +262,6 @@ class ArrowElimination:
             kept = ~self.excluded.get(level, np.zeros(len(pose), dtype=bool))
             out[level] = (int(rows_[kept].size), float(h[pose[kept, None], rows_[kept]].sum()))
         if self.prior is not None:
-            hp = np.einsum("kp,pq,kq->k", lin.prior_J, covariance, lin.prior_J)
+            hp = np.einsum("kp,kp->k", lin.prior_J @ covariance, lin.prior_J)  # by BLAS: the 3-operand einsum loops (12 ms at P = 219)
             out["prior"] = (len(hp), float(hp.sum()))
         return out

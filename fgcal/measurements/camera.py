@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgcal.measurements.setup import FixtureSpec, _drot
-from fgcal.robots.transforms import rot
+from fgcal.measurements.setup import FixtureSpec
+from fgcal.measurements.setup_geometry import zyx_rotation
 
 __all__ = [
     "CAMERA_SIZE",
@@ -39,10 +39,8 @@ def mount_transform(entries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``R`` (3, 3), ``t`` (3,) of ``T = Trans(t) Rz(phi) Ry(theta) Rx(psi)`` and ``dR`` (3, 3, 3) by
     phi, theta, psi, from the entries ``[px, py, pz, phi, theta, psi]`` (mm, rad)."""
     e = np.asarray(entries, dtype=float)
-    phi, theta, psi = e[3:6]
-    Rz, Ry, Rx = rot(2, phi), rot(1, theta), rot(0, psi)
-    dR = np.stack([_drot(2, phi) @ Ry @ Rx, Rz @ _drot(1, theta) @ Rx, Rz @ Ry @ _drot(0, psi)])
-    return Rz @ Ry @ Rx, e[:3].copy(), dR
+    R, dR = zyx_rotation(*e[3:6])
+    return R, e[:3].copy(), dR
 
 
 def pose_matrix(entries) -> np.ndarray:
@@ -171,11 +169,7 @@ def _with_mount(out: dict, pose, spec) -> dict:
     (6,) mm, rad, written mm, deg) and ``spec``'s ``sigma`` and ``fixed``, where they are given."""
     if pose is not None:
         out["mount_pose"] = [float(v) for v in pose[:3]] + [float(v) for v in np.degrees(pose[3:6])]
-    if spec.sigma is not None:
-        out["sigma"] = float(spec.sigma)
-    if spec.fixed:
-        out["fixed"] = True
-    return out
+    return {**out, **spec.prior_entries()}
 
 
 @dataclass(frozen=True)

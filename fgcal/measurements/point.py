@@ -64,11 +64,12 @@ class PointMeasurement(KinematicMeasurement):
         return Terms(pose, (tooling.offsets(obs.ball).reshape(-1, 3), obs.xyz))
 
     def world_points(self, terms: Terms) -> dict:
-        out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        for i, o, w in zip(terms.pose.tolist(), *terms.data):
-            offs, pts = out.get(i, (np.zeros((0, 3)), np.zeros((0, 3))))
-            out[i] = (np.vstack([offs, o]), np.vstack([pts, w]))
-        return out
+        pose = np.asarray(terms.pose)
+        offsets, xyz = (np.asarray(a, dtype=float).reshape(-1, 3) for a in terms.data)
+        order = np.argsort(pose, kind="stable")  # each pose's rows, in their order
+        groups = np.split(order, np.flatnonzero(np.diff(pose[order])) + 1) if len(pose) else []
+        groups.sort(key=lambda g: int(g[0]))  # poses in the order of their first row (stable sort: g[0] is it)
+        return {int(pose[g[0]]): (offsets[g], xyz[g]) for g in groups}
 
     def design_data(self, forward, offsets) -> tuple:
         return (offsets, tool_points(forward, offsets[:, None, :])[:, 0])

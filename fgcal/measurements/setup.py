@@ -9,16 +9,18 @@ an optional prior (a value and a sigma given in ``dataset.yaml``) or is fixed (`
 (``constraints.distances``) are factors on the blocks alone.
 
 A plane is ``n . x = d`` with ``n`` a unit normal; the ball centre of a touching ball lies
-``tool.radius`` from it on the side ``n`` points to. Its normal is parametrised about a reference
-normal ``n0`` (the given normal, else the start's fit) by two tilts: ``n = normalise(n0 + tan(tilt_u)
-u + tan(tilt_v) v)`` with ``u, v`` orthonormal to ``n0``, so the parameters are free of the
-singularities of angle pairs. No I/O here.
+``tool.radius`` from it on the side ``n`` points to; its normal is parametrised by two tilts about a
+reference normal. What the blocks' entries mean in space (a station's frame, a plane's normal, a
+distance between points) is :mod:`fgcal.measurements.setup_geometry`, whose names are importable
+from here too. No I/O here.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from fgcal.measurements.setup_geometry import distance_error, plane_basis, plane_normal, station_transform
 
 __all__ = [
     "BLOCK_KINDS",
@@ -93,34 +95,6 @@ def register_block_kind(kind: BlockKind) -> None:
     BLOCK_KINDS[kind.type] = kind
 
 
-def station_transform(entries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A station's ``R`` (3, 3), ``p`` (3,) with ``T x = R (x + p)``, and ``dR`` (3, 3, 3) by phi, theta, psi."""
-    from fgcal.robots.transforms import rot
-
-    phi, theta, psi = entries[:3]
-    Rz, Ry, Rx = rot(2, phi), rot(1, theta), rot(0, psi)
-    dR = np.stack([_drot(2, phi) @ Ry @ Rx, Rz @ _drot(1, theta) @ Rx, Rz @ Ry @ _drot(0, psi)])
-    return Rz @ Ry @ Rx, np.asarray(entries[3:6], dtype=float), dR
-
-
-def distance_error(a, b, distance: float) -> tuple[float, np.ndarray]:
-    """``|a - b| - distance`` (mm) of two points (3,) and its gradient in ``a`` (3,) (``-`` it in ``b``)."""
-    diff = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    dist = float(np.linalg.norm(diff))
-    return dist - float(distance), diff / max(dist, 1e-300)
-
-
-def _drot(axis: int, angle: float) -> np.ndarray:
-    """d/dangle of :func:`fgcal.robots.transforms.rot`."""
-    c, s = np.cos(angle), np.sin(angle)
-    D = np.zeros((3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    D[i, i] = D[j, j] = -s
-    D[i, j] = -c
-    D[j, i] = c
-    return D
-
-
 @dataclass(frozen=True)
 class FixtureSpec:
     """One fixture of ``dataset.yaml``'s ``fixtures:``.
@@ -165,6 +139,11 @@ class FixtureSpec:
                 out["pose"] = [float(v) for v in np.degrees(self.value[:3])] + [float(v) for v in self.value[3:]]
             else:  # another kind: its entries (internal units)
                 out["value"] = [float(v) for v in self.value]
+        return {**out, **self.prior_entries()}
+
+    def prior_entries(self) -> dict:
+        """What ``dataset.yaml`` says of the value's prior: ``sigma`` (mm) and ``fixed``, where given."""
+        out: dict = {}
         if self.sigma is not None:
             out["sigma"] = float(self.sigma)
         if self.fixed:
@@ -225,26 +204,6 @@ class SetupSpec:
         used = set(used)
         return SetupSpec({n: f for n, f in self.fixtures.items() if n in used},
                          tuple(c for c in self.distances if c.a in used and c.b in used))
-
-
-def plane_basis(n0) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``u, v`` orthonormal to the unit normal ``n0`` (a fixed, deterministic choice)."""
-    n0 = np.asarray(n0, dtype=float)
-    helper = np.eye(3)[int(np.argmin(np.abs(n0)))]
-    u = np.cross(n0, helper)
-    u /= np.linalg.norm(u)
-    return u, np.cross(n0, u)
-
-
-def plane_normal(n0, tilts) -> tuple[np.ndarray, np.ndarray]:
-    """The unit normal for tilts ``(tilt_u, tilt_v)`` (rad) about ``n0``, and ``dn/dtilt`` (3, 2)."""
-    u, v = plane_basis(n0)
-    tu, tv = np.tan(tilts[0]), np.tan(tilts[1])
-    m = np.asarray(n0, dtype=float) + tu * u + tv * v
-    norm = np.linalg.norm(m)
-    n = m / norm
-    dm = np.column_stack([u / np.cos(tilts[0]) ** 2, v / np.cos(tilts[1]) ** 2])
-    return n, (np.eye(3) - np.outer(n, n)) @ dm / norm
 
 
 @dataclass

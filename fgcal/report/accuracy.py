@@ -172,7 +172,7 @@ def predicted_position_sigma(result: CalibrationResult, joints) -> np.ndarray:
     scale = np.array([np.pi / 180 if result.parameters[i].unit == "deg" else 1.0 for i in mine])
     Jp = J[:, :, cols] * scale  # mm per file unit
     C = np.asarray(result.covariance, dtype=float)[np.ix_(mine, mine)]
-    return np.sqrt(np.maximum(np.einsum("krp,pq,krq->k", Jp, C, Jp), 0.0))
+    return np.sqrt(np.maximum(np.einsum("krp,krp->k", Jp @ C, Jp), 0.0))
 
 
 @dataclass

@@ -121,7 +121,7 @@ def joint_error_map_curves(result: CalibrationResult, n: int = 181) -> dict[int,
         idx = [k for k, _ in terms]
         coef = np.array([result.parameters[k].estimate for k in idx])
         C = np.asarray(result.covariance, dtype=float)[np.ix_(idx, idx)]
-        out[j] = (q, G @ coef, np.sqrt(np.maximum(np.einsum("ip,pq,iq->i", G, C, G), 0.0)))
+        out[j] = (q, G @ coef, np.sqrt(np.maximum(np.einsum("ip,ip->i", G @ C, G), 0.0)))
     return out
 
 

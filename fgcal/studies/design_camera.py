@@ -27,6 +27,7 @@ from fgcal.errors import FgcalError
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.pixels import GRAZING_DEG, MIN_DEPTH_MM, PIXELS, PixelObservations, pixel_model
 from fgcal.robots.model import RobotModel
+from fgcal.studies.design_dataset_plan import DatasetDesign
 
 __all__ = ["MIN_CORNERS", "design_cameras"]
 
@@ -168,7 +169,6 @@ def design_cameras(ds: Dataset, model: RobotModel, n_poses: int, candidates=None
     of ``n_poses`` of the dataset's images (or of ``candidates``: (ids (K,), joints (K, n) deg))
     with the lowest ``pred`` (see the module's text), and ``pred`` of ``random_sets`` random plans."""
     from fgcal.estimation.calibrate import solve_calibration
-    from fgcal.studies.design_dataset import DatasetDesign
 
     rng = rng if rng is not None else np.random.default_rng(0)
     if progress is not None:

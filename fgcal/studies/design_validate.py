@@ -20,7 +20,8 @@ from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.verification import verify
 from fgcal.measurements.dataset import Dataset
 from fgcal.robots.model import RobotModel
-from fgcal.studies.design_dataset import DATASET_INDEX, DatasetDesign, DesignNoise, dataset_layout, design_from_dataset
+from fgcal.studies.design_dataset import DATASET_INDEX, DesignNoise, dataset_layout, design_from_dataset
+from fgcal.studies.design_dataset_plan import DatasetDesign
 
 __all__ = ["HeldOutComparison", "compare_on_held_out"]
 
