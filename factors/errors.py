@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from fgcal.robots.kinematics import jacobians
+from fgcal.robots.kinematics import jacobians, projected_point_jacobians
 from fgcal.robots.transforms import so3_left_jacobian_inverse, so3_log
 
 __all__ = [
+    "ball_centre_along",
     "ball_centre_error",
     "distance_error",
     "joint_error",
@@ -80,6 +81,37 @@ def ball_centre_error(theta, q, offset, centre, index, held, chain=None):
     jac = jacobians(x, q, offsets=np.asarray(offset, dtype=float).reshape(-1, 1, 3), chain=chain)
     e = jac.points[:, 0] - np.atleast_2d(centre)
     return e, jac.point_slots[:, 0][:, :, index], jac.point_joints[:, 0]
+
+
+def ball_centre_along(theta, q, offset, direction, index, held, chain=None):
+    """A ball centre by the forward kinematics, and the Jacobians of its distance along a world
+    direction (one row a measurement, as a plane contact's ``n . centre``) without the full
+    ``(M, 3, P)`` ones of :func:`ball_centre_error`.
+
+    Parameters
+    ----------
+    q : array_like, shape (M, n)
+    offset : array_like, shape (M, 3)
+        The ball's centre in the tool frame (mm).
+    direction : array_like, shape (M, 3)
+        The world direction ``u`` of each measurement (unit vectors).
+    index, held, chain : see :func:`ball_centre_error`.
+
+    Returns
+    -------
+    centre : ndarray, shape (M, 3)
+        ``FK(theta, q) offset`` (mm, world).
+    J_theta : ndarray, shape (M, 1, P)
+        ``u . d centre / d theta``.
+    J_q : ndarray, shape (M, 1, n)
+        ``u . d centre / d q``.
+    """
+    x = slots_of(theta, index, held)
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    offset = np.asarray(offset, dtype=float).reshape(-1, 3)
+    direction = np.asarray(direction, dtype=float).reshape(-1, 3)
+    centre, along_slots, along_joints = projected_point_jacobians(x, q, offset, direction, chain=chain)
+    return centre, along_slots[:, None, np.asarray(index, dtype=int)], along_joints[:, None, :]
 
 
 def pose_ball_centres_error(theta, q, offsets, centres, index, held, chain=None):

@@ -182,3 +182,21 @@ def test_pose_probes_factor_is_its_probe_factors():
     _check(f, v)
     one = [factors.probe_factor(keys[b], p, 6.35, 0.01) for b, p in zip(owner, points, strict=True)]
     np.testing.assert_allclose(f.whitenedError(v), np.concatenate([g.whitenedError(v) for g in one]), rtol=1e-12)
+
+
+def test_ball_centre_along_is_the_ball_centre_error_projected(puma):
+    """factors.errors.ball_centre_along (a plane contact's kinematics): the ball centre of
+    ball_centre_error and its Jacobians along the directions, to rounding."""
+    from factors.errors import ball_centre_along, ball_centre_error
+
+    rng, index, held, theta, _ = _setup(puma, 4)
+    q = random_joints(puma, 9, seed=4)
+    offset = rng.normal(size=(9, 3)) * 50
+    u = rng.normal(size=(9, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    c, J_t, J_q = ball_centre_along(theta, q, offset, u, index, held, puma.chain)
+    e, J_t3, J_q3 = ball_centre_error(theta, q, offset, np.zeros((9, 3)), index, held, puma.chain)
+    np.testing.assert_allclose(c, e, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(J_t, u[:, None, :] @ J_t3, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(J_q, u[:, None, :] @ J_q3, rtol=0, atol=1e-9)
+    assert J_t.shape == (9, 1, len(index)) and J_q.shape == (9, 1, puma.n_joints)

@@ -241,23 +241,28 @@ class PlaneContact(SetupMeasurement):
         return offsets, start, n0, np.full(len(start), float(radius))
 
     def setup_error(self, theta, q, data, s, index, held, chain):
+        from factors.errors import ball_centre_along
+
         offset, start, n0, radius = data
-        p, J_t, J_q = self._ball_points(theta, q, offset, index, held, chain)
         m = len(start)
-        e = np.empty((m, 1))
-        J_s = np.empty((m, 1, 3))
         n_all = np.empty((m, 3))
         # Rows share a plane: its normal is computed once per plane.
+        planes = []
         for k in np.unique(start):
             rows = np.nonzero(start == k)[0]
             n, dn = plane_normal(n0[rows[0]], s[k:k + 2])
             n_all[rows] = n
+            planes.append((k, rows, n, dn))
+        # One row a contact: the kinematics give n . (the point's Jacobians), not the (m, 3, P) ones.
+        p, J_t, J_q = ball_centre_along(theta, q, offset, n_all, index, held, chain)
+        e = np.empty((m, 1))
+        J_s = np.empty((m, 1, 3))
+        for k, rows, n, dn in planes:
             e[rows, 0] = p[rows] @ n - s[k + 2] - radius[rows]
             J_s[rows, 0, :2] = p[rows] @ dn
             J_s[rows, 0, 2] = -1.0
         cols = start[:, None] + np.arange(3)
-        u = n_all[:, None, :]
-        return e, u @ J_t, u @ J_q, J_s, cols
+        return e, J_t, J_q, J_s, cols
 
     def metric(self, e):
         return np.abs(np.asarray(e)[:, 0]), None

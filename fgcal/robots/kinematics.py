@@ -24,8 +24,8 @@ from functools import lru_cache
 import numpy as np
 
 from fgcal.robots.chain_jacobians import ChainJacobians
+from fgcal.robots.chain_walk import WalkPlan, frame_points, homogeneous, projected_screws, screws, walk
 from fgcal.robots.single_pose import OperationTables, jacobians_one
-from fgcal.robots.transforms import rot
 
 __all__ = [
     "Chain",
@@ -38,6 +38,7 @@ __all__ = [
     "forward_frames",
     "jacobians",
     "n_slots",
+    "projected_point_jacobians",
     "tool_points",
 ]
 
@@ -57,13 +58,6 @@ class ChainOp:
 def n_slots(n_joints: int) -> int:
     """Number of geometric slots of an ``n_joints`` chain: base 6, 5 per link 1..n-1, tool 6."""
     return 12 + 5 * (n_joints - 1)
-
-
-def _cross(a, b) -> np.ndarray:
-    """Cross product over the last axis; np.cross costs ~20 us of overhead per call on small arrays."""
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
 class Chain:
@@ -123,16 +117,11 @@ class Chain:
                 self.slot_map[k, op.slot] = 1.0
             if op.joint is not None:
                 self.joint_op_map[k, op.joint] = 1.0
-        self._const_rot = [[k for k, op in enumerate(ops) if op.kind == "R" and op.joint is None and op.axis == a]
-                           for a in range(3)]
-        self._joint_rot = [k for k, op in enumerate(ops) if op.kind == "R" and op.joint is not None]
-        self._slot_ops = np.array([k for k, op in enumerate(ops) if op.slot is not None], dtype=int)
-        self._slot_cols = self.slot_of_op[self._slot_ops]
-        self._joint_ops = np.array([k for k, op in enumerate(ops) if op.joint is not None], dtype=int)
-        self._joint_cols = self.joint_of_op[self._joint_ops]
-        # The gathers of jacobians_walk need each slot and joint in one operation at most.
-        assert len(set(self._slot_cols.tolist())) == len(self._slot_cols)
-        assert len(set(self._joint_cols.tolist())) == len(self._joint_cols)
+        # The screws' scatters (fgcal.robots.chain_walk) need each slot and joint in one operation at most.
+        slot_cols, joint_cols = self.slot_of_op[self.slot_of_op >= 0], self.joint_of_op[self.joint_of_op >= 0]
+        assert len(set(slot_cols.tolist())) == len(slot_cols)
+        assert len(set(joint_cols.tolist())) == len(joint_cols)
+        self.walk_plan = WalkPlan(self)  # for N joint sets (fgcal.robots.chain_walk)
         self.single_pose = OperationTables(self)  # for one joint set (fgcal.robots.single_pose)
 
     def __repr__(self) -> str:
@@ -168,29 +157,6 @@ class Chain:
         return v if self.joint_map is None else np.linalg.solve(self.joint_map, v.T).T
 
     # ------------------------------------------------------------------ kinematics
-    def _op_rotations(self, x, v):
-        """Per operation: its rotation, (3, 3) or (N, 3, 3), or None for a translation."""
-        out = [None] * len(self.ops)
-        for axis, ks in enumerate(self._const_rot):
-            if ks:
-                for k, M in zip(ks, rot(axis, x[self.slot_of_op[ks]])):
-                    out[k] = M
-        if self._joint_rot:
-            ks = self._joint_rot
-            slots = self.slot_of_op[ks]
-            offsets = np.where(slots >= 0, x[np.maximum(slots, 0)], 0.0)
-            mats = rot(2, v[:, self.joint_of_op[ks]] + offsets)  # (N, J, 3, 3)
-            for i, k in enumerate(ks):
-                out[k] = mats[:, i]
-        return out
-
-    def _translation(self, k, x, v):
-        op = self.ops[k]
-        value = x[op.slot] if op.slot is not None else 0.0
-        if op.joint is not None:
-            return (value + v[:, op.joint])[:, None]
-        return value
-
     def forward_frames(self, x, q):
         """Frames before every operation and the final tool frame.
 
@@ -202,44 +168,20 @@ class Chain:
         """
         x = self.check_slots(x)
         v = self.joint_values(self.check_joints(q))
+        frames, tool = walk(self, x, v, keep=True)
         n = v.shape[0]
         K = len(self.ops)
         R_before = np.empty((K, n, 3, 3))
         p_before = np.empty((K, n, 3))
-        R = np.broadcast_to(np.eye(3), (n, 3, 3))
-        p = np.zeros((n, 3))
-        for k, M in enumerate(self._op_rotations(x, v)):
-            R_before[k] = R
-            p_before[k] = p
-            if M is not None:
-                R = R @ M
-            else:
-                p = p + R[:, :, self.ops[k].axis] * self._translation(k, x, v)
-        return R_before, p_before, self._finish(_homogeneous(R, p))
-
-    def _finish(self, T):
-        return T if self.tool_offset is None else T @ self.tool_offset
+        for k, (X, Y, Z, p) in enumerate(frames):
+            R_before[k, :, :, 0], R_before[k, :, :, 1], R_before[k, :, :, 2], p_before[k] = X.T, Y.T, Z.T, p.T
+        return R_before, p_before, homogeneous(tool)
 
     def forward(self, x, q) -> np.ndarray:
         """Tool poses ``(N, 4, 4)`` in the world frame for joint readings ``q`` (N, n)."""
         x = self.check_slots(x)
-        v = self.joint_values(self.check_joints(q))
-        n = v.shape[0]
-        R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-        p = np.zeros((n, 3))
-        for k, op in enumerate(self.ops):
-            if op.kind == "R":
-                value = x[op.slot] if op.slot is not None else 0.0
-                if op.joint is None:
-                    if value != 0.0:
-                        R = R @ rot(op.axis, value)
-                else:
-                    R = R @ rot(op.axis, value + v[:, op.joint])
-            else:
-                t = self._translation(k, x, v)
-                if np.any(t != 0.0):
-                    p = p + R[:, :, op.axis] * t
-        return self._finish(_homogeneous(R, p))
+        _, tool = walk(self, x, self.joint_values(self.check_joints(q)), keep=False)
+        return homogeneous(tool)
 
     def jacobians(self, x, q, offsets=None) -> ChainJacobians:
         """Analytic Jacobians of the tool pose, and of tool-frame points, w.r.t. slots and readings.
@@ -259,57 +201,69 @@ class Chain:
         return self.jacobians_walk(x, q, offsets)
 
     def jacobians_walk(self, x, q, offsets=None) -> ChainJacobians:
-        """:meth:`jacobians` by walking the operations one by one, vectorised over the poses (what
-        :meth:`jacobians` does for more than one pose)."""
-        R_before, p_before, T = self.forward_frames(x, q)
-        n = T.shape[0]
-        p_tool = T[:, :3, 3]
-        axes = R_before[np.arange(len(self.ops)), :, :, self.axis]  # (K, N, 3) world axis of each op
-        rot_ops = self.kind_rot[:, None, None]
-        # A rotation moves a point by axis x (point - origin); a translation by the axis itself.
-        d_pos = np.where(rot_ops, _cross(axes, p_tool[None] - p_before), axes)
-        d_rot = np.where(rot_ops, axes, 0.0)
-        d_pose = np.concatenate([d_pos, d_rot], axis=2).transpose(1, 2, 0)  # (N, 6, K)
-        # Each slot and each joint variable enters one operation: its column is that operation's
-        # screw (a gather, not a product with the 0/1 map).
-        pose_slots = np.zeros((n, 6, self.n_slots))
-        pose_slots[:, :, self._slot_cols] = d_pose[:, :, self._slot_ops]
-        pose_values = np.zeros((n, 6, self.n_joints))
-        pose_values[:, :, self._joint_cols] = d_pose[:, :, self._joint_ops]
-        pose_joints = self._to_readings(pose_values)
-        out = ChainJacobians(T=T, pose_slots=pose_slots, pose_joints=pose_joints)
+        """:meth:`jacobians` by walking the operations, vectorised over the poses (what
+        :meth:`jacobians` does for more than one pose; :mod:`fgcal.robots.chain_walk`)."""
+        x = self.check_slots(x)
+        v = self.joint_values(self.check_joints(q))
+        n = v.shape[0]
         if offsets is not None:
             offsets = np.asarray(offsets, dtype=float)
             offsets = offsets.reshape(-1, 3) if offsets.ndim < 3 else offsets
             if offsets.ndim == 3 and offsets.shape[0] != n:
                 raise ValueError(f"per-pose offsets must have shape ({n}, B, 3), got {offsets.shape}")
-            points = tool_points(T, offsets)
-            out.points = points
-            # A point on the tool moves with it: dp = dp_tool + w x (point - p_tool).
-            arm = (points - p_tool[:, None, :])[..., None]  # (N, B, 3, 1)
-            out.point_slots = _moved_points(pose_slots, arm)
-            out.point_joints = _moved_points(pose_joints, arm)
+        frames, tool = walk(self, x, v, keep=True)
+        points = None if offsets is None else frame_points(tool, offsets)  # (B, 3, N)
+        pose_slots, pose_values, point_slots, point_values = screws(self, frames, tool, points)
+        out = ChainJacobians(T=homogeneous(tool), pose_slots=pose_slots, pose_joints=self._to_readings(pose_values))
+        if points is not None:
+            out.points = np.ascontiguousarray(points.transpose(2, 0, 1))
+            out.point_slots, out.point_joints = point_slots, self._to_readings(point_values)
         return out
+
+    def projected_point_jacobians(self, x, q, offsets, directions):
+        """Jacobians of one tool-frame point per pose along one world direction per pose, ``u . dp``
+        (a plane contact's one row), without forming the ``(N, 3, S)`` point Jacobians.
+
+        Parameters
+        ----------
+        x : array_like, shape (S,)
+            Slot values (mm, rad).
+        q : array_like, shape (N, n)
+            Joint readings (rad or mm).
+        offsets : array_like, shape (N, 3)
+            The tool-frame point of each pose (mm).
+        directions : array_like, shape (N, 3)
+            The world direction ``u`` of each pose (a unit vector, for a distance along it).
+
+        Returns
+        -------
+        points : ndarray, shape (N, 3)
+            The points in the world (mm).
+        along_slots : ndarray, shape (N, S)
+            ``u . d point / d slots``.
+        along_joints : ndarray, shape (N, n)
+            ``u . d point / d readings``.
+        """
+        x = self.check_slots(x)
+        q = self.check_joints(q)
+        n = q.shape[0]
+        offsets = np.asarray(offsets, dtype=float)
+        directions = np.asarray(directions, dtype=float)
+        for name, a in (("offsets", offsets), ("directions", directions)):
+            if a.shape != (n, 3):
+                raise ValueError(f"{name} must have shape ({n}, 3), one per pose, got {a.shape}")
+        if n == 1:  # one pose (GTSAM's per-pose factors): the scan, then projected
+            one = jacobians_one(self, x, q, offsets)
+            u = directions[0]
+            return one.points[:, 0], (u @ one.point_slots[0, 0])[None], (u @ one.point_joints[0, 0])[None]
+        frames, tool = walk(self, x, self.joint_values(q), keep=True)
+        points = frame_points(tool, offsets[:, None, :])[0]  # (3, N)
+        along_slots, along_values = projected_screws(self, frames, points, np.ascontiguousarray(directions.T))
+        return np.ascontiguousarray(points.T), along_slots, self._to_readings(along_values)
 
     def _to_readings(self, J_values):
         """Chain rule from joint variables to readings: ``dv/dr = M``."""
         return J_values if self.joint_map is None else J_values @ self.joint_map
-
-
-def _moved_points(J_pose, arm) -> np.ndarray:
-    """Jacobians (N, B, 3, C) of tool points at ``arm`` (N, B, 3, 1) from the tool's ``J_pose`` (N, 6, C)."""
-    dp, w = J_pose[:, None, :3, :], J_pose[:, None, 3:, :]
-    a0, a1, a2 = arm[:, :, 0], arm[:, :, 1], arm[:, :, 2]
-    w0, w1, w2 = w[:, :, 0], w[:, :, 1], w[:, :, 2]
-    return dp + np.stack([w1 * a2 - w2 * a1, w2 * a0 - w0 * a2, w0 * a1 - w1 * a0], axis=2)
-
-
-def _homogeneous(R, p) -> np.ndarray:
-    T = np.zeros((R.shape[0], 4, 4))
-    T[:, :3, :3] = R
-    T[:, :3, 3] = p
-    T[:, 3, 3] = 1.0
-    return T
 
 
 @lru_cache(maxsize=64)
@@ -356,8 +310,15 @@ def tool_points(T, offsets) -> np.ndarray:
     offsets = np.asarray(offsets, dtype=float)
     if offsets.ndim == 3:
         return T[:, None, :3, 3] + np.einsum("nij,nbj->nbi", T[:, :3, :3], offsets)
-    offsets = offsets.reshape(-1, 3)
-    return T[:, None, :3, 3] + np.einsum("nij,bj->nbi", T[:, :3, :3], offsets)
+    o = offsets.reshape(-1, 3)[None]  # (1, B, 3): the same at every pose, by columns (einsum loops slower here)
+    T = np.asarray(T, dtype=float)
+    return (T[:, None, :3, 3] + T[:, None, :3, 0] * o[..., 0:1] + T[:, None, :3, 1] * o[..., 1:2]
+            + T[:, None, :3, 2] * o[..., 2:3])
+
+
+def projected_point_jacobians(x, q, offsets, directions, chain: Chain | None = None):
+    """See :meth:`Chain.projected_point_jacobians`; ``chain`` defaults to the all-revolute chain of ``x``."""
+    return chain_for(x, chain).projected_point_jacobians(x, q, offsets, directions)
 
 
 def jacobians(x, q, offsets=None, chain: Chain | None = None) -> ChainJacobians:

@@ -1,8 +1,9 @@
 """Forward kinematics and Jacobians of one joint set, for the callers that take one pose at a time
 (the online engines, GTSAM's per-pose factors, inverse kinematics).
 
-:class:`~fgcal.robots.kinematics.Chain` walks its operations one by one, vectorised over the poses:
-for a single pose that is ~40 steps of numpy calls on 3x3 arrays, dominated by call overhead.
+:class:`~fgcal.robots.kinematics.Chain` walks its operations one by one, vectorised over the poses
+(:mod:`fgcal.robots.chain_walk`): for a single pose that is ~40 steps of numpy calls on 3-vectors,
+dominated by call overhead.
 Here every operation becomes a 4x4 matrix at once, and the frames before each operation are the
 running products of those matrices, formed by a scan of ``ceil(log2 K)`` batched products. The
 results are those of :meth:`Chain.jacobians` up to rounding (the products are associated
