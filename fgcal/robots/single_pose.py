@@ -48,36 +48,32 @@ class OperationTables:
         # built once, not per call: the ops that take a slot and a joint, the identity rows, the
         # axis column of each op's frame
         self.has_slot, self.has_joint = chain.slot_of_op >= 0, chain.joint_of_op >= 0
-        self.identity = np.zeros((len(chain.ops), 16))
+        K = len(chain.ops)
+        # the frames with the identity before the first operation: (K + 1, 16), row k + 1 after op k
+        self.identity = np.zeros((K + 1, 16))
         self.identity[:, [0, 5, 10, 15]] = 1.0
-        self.ops = np.arange(len(chain.ops))
+        self.ops = np.arange(K)
+        # every value's flat index in rows 1.. (a rotation's cos, cos, -sin, sin; a translation's shift)
+        self.put_at = 16 + np.concatenate([self.cos_a, self.cos_b, self.minus_sin, self.plus_sin, self.shift])
+        self.slot_and_joint = np.hstack([chain.slot_map, chain.joint_op_map])  # (K, S + n): each op's slot, joint
 
 
 def _frames(chain, x, v):
     """``(B (K, 4, 4), T (4, 4))``: the frame before each operation and the tool frame."""
     tb = chain.single_pose
     K = len(chain.ops)
-    slot, joint = chain.slot_of_op, chain.joint_of_op
-    value = np.where(tb.has_slot, x[slot], 0.0) + np.where(tb.has_joint, v[joint], 0.0)
-    M = tb.identity.copy()
+    value = chain.slot_map @ x + chain.joint_op_map @ v  # each op's slot plus its joint variable
     angle = value[tb.rot_ops]
     c, s = np.cos(angle), np.sin(angle)
-    flat = M.reshape(-1)
-    flat[tb.cos_a] = c
-    flat[tb.cos_b] = c
-    flat[tb.minus_sin] = -s
-    flat[tb.plus_sin] = s
-    flat[tb.shift] = value[tb.trans_ops]
-    F = M.reshape(K, 4, 4)
+    M = tb.identity.copy()
+    M.reshape(-1)[tb.put_at] = np.concatenate([c, c, -s, s, value[tb.trans_ops]])
+    F = M.reshape(K + 1, 4, 4)
     shift = 1
-    while shift < K:  # inclusive scan: F[k] = M[0] ... M[k]
-        F[shift:] = np.matmul(F[:-shift], F[shift:])
+    while shift < K:  # inclusive scan over rows 1..K: F[k] = M[1] ... M[k]
+        F[shift + 1:] = np.matmul(F[1:-shift], F[shift + 1:])
         shift *= 2
-    B = np.empty_like(F)
-    B[0] = _EYE4
-    B[1:] = F[:-1]
-    T = F[-1] if chain.tool_offset is None else F[-1] @ chain.tool_offset
-    return B, T
+    T = F[K] if chain.tool_offset is None else F[K] @ chain.tool_offset
+    return F[:K], T  # row 0 the identity: the frame before op k is row k
 
 
 def jacobians_one(chain, x, readings, offsets=None):
@@ -109,8 +105,9 @@ def jacobians_one(chain, x, readings, offsets=None):
     rot = chain.kind_rot
     d = np.where(rot[:, None, None], d, axes[:, None, :])
     rows = np.concatenate([d[:, 0], np.where(rot[:, None], axes, 0.0), d[:, 1:].reshape(K, -1)], axis=1).T
-    by_slot = rows @ chain.slot_map  # (6 + 3B, S)
-    by_joint = chain._to_readings(rows @ chain.joint_op_map)  # (6 + 3B, n)
+    both = rows @ chain.single_pose.slot_and_joint  # (6 + 3B, S + n)
+    by_slot = both[:, :chain.n_slots]  # (6 + 3B, S)
+    by_joint = chain._to_readings(both[:, chain.n_slots:])  # (6 + 3B, n)
     out = ChainJacobians(T=T[None], pose_slots=by_slot[None, :6], pose_joints=by_joint[None, :6])
     if n_pts:
         out.points = points[None, 1:]
