@@ -31,6 +31,15 @@ def _prior_normal(lin: Linearisation) -> np.ndarray:
     return lin.cache["prior_normal"]
 
 
+def _times(X: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``X @ M`` for a stack ``X`` (n, m, P): one (n m, P) product where ``M`` is one (P, P) matrix (a
+    stack of n small products is 2-2.5 times slower: a 392-parameter map's leverage on 8,400 poses),
+    else the stacked product (``M`` per pose, (n, P, P))."""
+    if M.ndim == 2 and X.flags.c_contiguous:
+        return (X.reshape(-1, X.shape[-1]) @ M).reshape(*X.shape[:-1], M.shape[1])
+    return X @ M
+
+
 class ArrowElimination:
     """Solving and statistics of a graph whose per-pose variables touch only their pose and theta."""
 
@@ -240,15 +249,15 @@ class ArrowElimination:
             # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt
             # rows of a pose depend on theta.
             if not self.nz:
-                h[c, :mt] = np.einsum("nmp,nmp->nm", Jt @ covariance, Jt) if pc is None else pc.hat(Jt, covariance)
+                h[c, :mt] = np.einsum("nmp,nmp->nm", _times(Jt, covariance), Jt) if pc is None else pc.hat(Jt, covariance)
                 continue
             St = covariance if pc is None else pc.gather_matrix(covariance)  # (P, P) or (n, c, c)
             Bc = B[c] if pc is None else lin.cache["B_own"][c]
             E = -np.matmul(Dinv[c], Bc.transpose(0, 2, 1))  # Sigma_z_theta = -D^-1 B^T S^-1 (before S^-1)
-            Szt = E @ St  # (n, nz, P)
+            Szt = _times(E, St)  # (n, nz, P)
             Szz = Dinv[c] + np.matmul(Szt, E.transpose(0, 2, 1))
             h[c] = np.einsum("nmz,nmz->nm", np.matmul(Jz, Szz), Jz)
-            h[c, :mt] += np.einsum("nmp,nmp->nm", Jt @ St + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
+            h[c, :mt] += np.einsum("nmp,nmp->nm", _times(Jt, St) + 2 * np.matmul(Jz[:, :mt], Szt), Jt)
         lin.cache["leverage"] = (covariance, h)
         return h
 

@@ -12,6 +12,8 @@ from fgcal.estimation.options import CalibrationOptions
 
 __all__ = ["COST_ROUNDING", "levenberg_marquardt"]
 
+TRUSTED_DECREASE = 100  # the damping's fall after a step the model predicted (else 10)
+
 log = logging.getLogger(__name__)
 
 
@@ -58,7 +60,11 @@ def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, toleranc
         assert new_lin is not None  # the loop stopped on an accepted step
         gain = cost - new_cost
         state, lin, new_lin = new, new_lin, None  # one name for it: the next step may release it (_normal_only)
-        damping = max(damping / 10, 1e-12)
+        # A step whose decrease the Gauss-Newton model predicted to 10 % says the model holds here:
+        # the damping falls faster (a weak direction, the scale of contacts fixed by the plates'
+        # distances alone, converges by damping / (damping + its share of the diagonal) a step).
+        rho = gain / predicted if predicted > 0 else 0.0
+        damping = max(damping / (TRUSTED_DECREASE if abs(rho - 1.0) < 0.1 else 10), 1e-12)
         small_step = np.max(np.abs(d_theta)) < 1e-12 * (1 + np.max(np.abs(state.theta)))
         if gain <= tolerance * max(cost, 1e-300) or small_step or new_cost < 1e-24:
             return state, it, True
