@@ -81,13 +81,12 @@ class FoldSums:
         X = np.zeros((prob.J.shape[2], self.k))  # each fold's fit over all columns (zero outside cols)
         for f in range(self.k):
             X[cols, f] = self.fit_without(f, cols, prior_sigma)
-        # Every pose predicted by every fold's fit (N x 3 x folds products, no copy of J), then
-        # each pose's own fold's prediction taken.
+        # Each pose predicted by its own fold's fit only (N x 3 products, not N x 3 x folds; no copy of J).
         pos = self._metric.copy()
         for lo in range(0, len(self.fold), _CHUNK):
             c = slice(lo, lo + _CHUNK)
-            pred = self._metric_jacobian(c) @ X  # (n, 3, folds)
-            pos[c] += np.take_along_axis(pred, self.fold[c][:, None, None], axis=2)[:, :, 0] * prob.metric_scale
+            pred = np.matmul(self._metric_jacobian(c), X.T[self.fold[c]][:, :, None])[:, :, 0]  # (n, 3)
+            pos[c] += pred * prob.metric_scale
         return np.linalg.norm(pos, axis=1)
 
 
