@@ -25,6 +25,12 @@ axis; planes: along the normal; seated by the minimum-norm joint change, so the 
 round 3's fifth session the contacts and planes carried 0.002 deg of joint noise, 2.3-2.7 times the 0.01 mm
 they declared, against centres whose noise was as declared: they paid a noise round the point type did not.)
 
+Measured (round 3, session 5; ``--rows 3000 --repeat 5``, 2 shared cores, +-10 %), CPU per equation against
+the point type: as declared, stations 1.03-1.1, contacts 1.59-1.8, planes 1.02-1.14 (per pose 0.34);
+misdeclared, stations 1.0-1.5, contacts 1.7-2.05, planes 1.1-1.4 (the point type's own time moved most
+there: 0.05-0.07 s). Contacts pay their 198 socket coordinates in the elimination (about 2 ms a
+linearisation) and a slower convergence (8 linearisations where the point type takes 7).
+
 Run: ``python bench/bench_types.py [--rows 3000] [--repeat 3] [--data DIR]`` (``--data``: the datasets are
 kept in DIR and reused by later runs with the same ``--rows`` and ``--seed``; generating 3,000 rows takes minutes).
 """
