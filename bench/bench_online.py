@@ -15,7 +15,7 @@ Measured (issue 25; 8 runs of ``--poses 1000 --engines ekf isam2 --repeat 3`` on
 machine, load 1.8-4): EKF 1.34-1.51x the batch (median 1.42; 1.42-1.70, median ~1.6 before), step
 0.35-0.56 ms over the first 100 poses, 0.26-0.45 ms over the last 100; iSAM2 2.08-2.58x (median
 2.18), 0.72-1.02 / 0.68-1.12 ms. Round 3, session 5, after the batch kinematics became 6-11x faster
-(the batch calibration 1.4x, the EKF's single-pose kinematics 10 %): EKF 1.27-1.56 in best-of-3 runs
+(the batch calibration 1.4x, the EKF's single-pose kinematics 14 %): EKF 1.27-1.56 in best-of-3 runs
 (one run at 2.17, its batch in a fast spell), 1.56 with ``--repeat 7`` (EKF 1.07 s, batch 0.68 s);
 iSAM2 1.95-2.72, 2.44 with ``--repeat 7``. The machine's speed moves by up to 1.6x between runs of the
 same command at a load of 0.5: only many repeats give a steady least CPU.

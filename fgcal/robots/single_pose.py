@@ -18,7 +18,10 @@ from fgcal.robots.chain_jacobians import ChainJacobians
 __all__ = ["OperationTables", "jacobians_one"]
 
 _EYE4 = np.eye(4)
-_NEXT = (np.array([1, 2, 0]), np.array([2, 0, 1]))  # the cross product's cyclic index orders
+# (a x P)_i = sum_j a_j C[j, i], C[j, i] = sum_l P_l _SKEW[l, 3 j + i]: C = [[0, -P2, P1], [P2, 0, -P0], [-P1, P0, 0]]
+_SKEW = np.zeros((3, 9))
+for _l, _j, _i, _sign in ((2, 0, 1, -1), (1, 0, 2, 1), (2, 1, 0, 1), (0, 1, 2, -1), (1, 2, 0, -1), (0, 2, 1, 1)):
+    _SKEW[_l, 3 * _j + _i] = _sign
 
 
 class OperationTables:
@@ -93,14 +96,9 @@ def jacobians_one(chain, x, readings, offsets=None):
     points[0] = T[:3, 3]
     points[1:] = T[:3, 3] + offsets @ T[:3, :3].T
     # A rotation moves a point P by a x (P - o) = a x P - a x o; a translation by a itself.
-    # (a x P)_i = sum_j a_j C[j, i] with C = [[0, -P2, P1], [P2, 0, -P0], [-P1, P0, 0]], per point
-    cross_p = np.zeros((3, n_pts + 1, 3))
-    cross_p[0, :, 1], cross_p[0, :, 2] = -points[:, 2], points[:, 1]
-    cross_p[1, :, 0], cross_p[1, :, 2] = points[:, 2], -points[:, 0]
-    cross_p[2, :, 0], cross_p[2, :, 1] = -points[:, 1], points[:, 0]
-    cross_p = cross_p.reshape(3, -1)
-    next1, next2 = _NEXT
-    moment = axes[:, next1] * origins[:, next2] - axes[:, next2] * origins[:, next1]  # axes x origins
+    # (a x P)_i = sum_j a_j C[j, i] with C = [[0, -P2, P1], [P2, 0, -P0], [-P1, P0, 0]] = P . _SKEW, per point
+    cross_p = (points @ _SKEW).reshape(n_pts + 1, 3, 3).transpose(1, 0, 2).reshape(3, -1)
+    moment = np.einsum("kj,kji->ki", axes, (origins @ _SKEW).reshape(K, 3, 3))  # axes x origins
     d = (axes @ cross_p).reshape(K, n_pts + 1, 3) - moment[:, None, :]
     rot = chain.kind_rot
     d = np.where(rot[:, None, None], d, axes[:, None, :])
