@@ -80,7 +80,8 @@ log = logging.getLogger(__name__)
 
 def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
     lin = graph.linearise(state) if lin is None else lin
-    red = graph.leverage_by_level(state, cov_internal, lin)
+    # the information's inverse the noise rounds took at this linearisation (their leverage is kept on it)
+    red = graph.leverage_by_level(state, graph.information_inverse(state, lin), lin)
     out = {}
     units = {"probes": "mm", "kinematic": "mm", "joints": "deg", "prior": "-", "constraints": "mm"}
     sig = graph.sigmas
@@ -383,7 +384,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     cov_file = 0.5 * (cov_file + cov_file.T)  # symmetric but for rounding, which a near-gauge freedom magnifies
     sigma = np.sqrt(np.diag(cov_file))
     levels_summary = _level_summaries(graph, state, cov, lin)
-    h = graph.row_leverage(state, cov, lin)
+    h = graph.row_leverage(state, graph.information_inverse(state, lin), lin)  # the last noise round's, kept
     noise_table = level_noise(components(graph, lin, h), graph.sigmas, declared, noise_mode)
     groups = group_noise(graph, lin, h, declared, noise_mode)  # each camera's, beside the component's
     ssq_declared = sum(n.variance_factor * n.redundancy for n in noise_table.values())

@@ -16,7 +16,7 @@ from fgcal.estimation.column_groups import PoseColumns, active_columns, pose_col
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
     from fgcal.estimation.graph_types import Linearisation, State
 
-__all__ = ["POSE_CHUNK", "ArrowElimination"]
+__all__ = ["POSE_CHUNK", "ArrowElimination", "scaled_inverse"]
 
 POSE_CHUNK = 2000  # poses per block of work (bounds the temporaries)
 
@@ -29,6 +29,17 @@ def _prior_normal(lin: Linearisation) -> np.ndarray:
         J = J[np.any(J != 0.0, axis=1)]
         lin.cache["prior_normal"] = J.T @ J
     return lin.cache["prior_normal"]
+
+
+def scaled_inverse(S) -> np.ndarray:
+    """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first; the
+    pseudo-inverse where it is singular to the last bit (parameters left free that the data cannot
+    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions)."""
+    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    try:
+        return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
+    except np.linalg.LinAlgError:
+        return np.linalg.pinv(S / np.outer(d, d), hermitian=True) / np.outer(d, d)
 
 
 def _times(X: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -216,6 +227,15 @@ class ArrowElimination:
         """
         lin = self.linearise(state) if lin is None else lin
         return self._reduced_at(lin)[0]
+
+    def information_inverse(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
+        """The (P, P) inverse of :meth:`parameter_information`, scaled to unit diagonal first (a
+        pseudo-inverse where singular: :func:`scaled_inverse`), formed once per
+        linearisation: the noise rounds' leverage and the level summaries' are then one product."""
+        lin = self.linearise(state) if lin is None else lin
+        if "information_inverse" not in lin.cache:
+            lin.cache["information_inverse"] = scaled_inverse(self.parameter_information(state, lin))
+        return lin.cache["information_inverse"]
 
     def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
         """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""

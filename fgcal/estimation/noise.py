@@ -25,6 +25,7 @@ from enum import Enum
 
 import numpy as np
 
+from fgcal.estimation.elimination import scaled_inverse
 from fgcal.estimation.graph_types import included
 from fgcal.measurements.types import BY_LEVEL, all_levels, kinematic_types
 from fgcal.util.chi2 import chi2_cdf, chi2_isf, chi2_sf
@@ -130,17 +131,6 @@ class Outlier:
     residual: float
     unit: str
     statistic: float
-
-
-def scaled_inverse(S) -> np.ndarray:
-    """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first; the
-    pseudo-inverse where it is singular to the last bit (parameters left free that the data cannot
-    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions)."""
-    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    try:
-        return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(S / np.outer(d, d), hermitian=True) / np.outer(d, d)
 
 
 def components(graph, lin, h) -> dict[str, tuple[float, float]]:

@@ -17,7 +17,6 @@ from fgcal.estimation.noise import (
     find_outliers,
     included_leverage,
     readmissible,
-    scaled_inverse,
 )
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.solve import _solve
@@ -53,7 +52,7 @@ def _solve_rounds(graph: Graph, state: State, options: CalibrationOptions, dampi
     steps = VarianceSteps()  # the rounds' quasi-Newton steps (Foerstner's alone crawls near zero)
     for rounds in range(1, MAX_NOISE_ROUNDS + 1):  # noqa: B007 (the count is returned)
         lin = graph.linearise(state)
-        h = graph.row_leverage(state, scaled_inverse(graph.parameter_information(state, lin)), lin)
+        h = graph.row_leverage(state, graph.information_inverse(state, lin), lin)
         changed = False
         if outlier_mode is OutlierMode.EXCLUDE:
             for level, ks in find_outliers(graph, lin, h).items():
