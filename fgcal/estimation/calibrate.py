@@ -19,6 +19,7 @@ import numpy as np
 from fgcal._version import __version__
 from fgcal.errors import FgcalError
 from fgcal.estimation.admit import admit_rows
+from fgcal.estimation.admit import check_equations as _check_equations
 from fgcal.estimation.build import _levels, build_graph
 from fgcal.estimation.gauge import GAUGE_REASON, TOOL_GAUGE_REASON, gauge_holds, setup_size
 from fgcal.estimation.graph import Graph, Sigmas, State
@@ -43,7 +44,8 @@ from fgcal.estimation.noise import (
 )
 from fgcal.estimation.options import TYPICAL_DEVIATIONS, WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.residuals import at_readings, pose_residuals, raw_at_readings
-from fgcal.estimation.result import CalibrationResult, LevelSummary, ParameterEstimate
+from fgcal.estimation.result import CalibrationResult, ParameterEstimate
+from fgcal.estimation.result_summary import joint_error_info, level_summaries, setup_info
 from fgcal.estimation.rounds import WARM_DAMPING, _solve_rounds
 from fgcal.estimation.solve import levenberg_marquardt
 from fgcal.measurements.dataset import Dataset
@@ -76,47 +78,6 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 log = logging.getLogger(__name__)
-
-
-def _level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
-    lin = graph.linearise(state) if lin is None else lin
-    # the information's inverse the noise rounds took at this linearisation (their leverage is kept on it)
-    red = graph.leverage_by_level(state, graph.information_inverse(state, lin), lin)
-    out = {}
-    units = {"probes": "mm", "kinematic": "mm", "joints": "deg", "prior": "-", "constraints": "mm"}
-    sig = graph.sigmas
-    for level, (e, s, w) in lin.raw.items():
-        n_rows, h = red.get(level, (0, 0.0))
-        if level in graph.excluded:
-            e = e[~graph.excluded[level]]
-        redundancy = n_rows - h
-        vf = float(np.sum(w * s**2) / redundancy) if redundancy > 1e-9 else float("nan")
-        if level in BY_LEVEL:
-            kind = BY_LEVEL[level]
-            dist, angle = kind.metric(e)
-            sigma, sigma_angle = kind.reported_sigma(sig)
-            out[level] = LevelSummary(len(e), _rms(dist), getattr(kind, "unit", "mm"), sigma, vf, redundancy,
-                                      None if angle is None else _rms(angle), sigma_angle)
-            continue
-        norms = np.linalg.norm(np.reshape(e, (len(e), -1)), axis=1)
-        scale = np.degrees(1.0) if level == "joints" else 1.0
-        sigma = {"probes": sig.probe, "kinematic": sig.kinematic,
-                 "joints": _joint_sigma_file_units(graph), "prior": float("nan"),
-                 "constraints": float("nan")}[level]
-        out[level] = LevelSummary(len(e), float(np.sqrt(np.mean(norms**2)) * scale), units[level], float(sigma),
-                                  vf, redundancy)
-    return out
-
-
-def _rms(values) -> float:
-    return float(np.sqrt(np.mean(np.asarray(values) ** 2)))
-
-
-def _joint_sigma_file_units(graph: Graph) -> float:
-    """The largest joint reading sigma in file units (deg; mm for prismatic joints)."""
-    model = graph.params.model
-    sig = np.broadcast_to(np.asarray(graph.sigmas.joint, dtype=float), (model.n_joints,))
-    return float(np.max(model.joints_to_file_units(sig)))
 
 
 def identifiability_of(ds: Dataset, model: RobotModel, options: CalibrationOptions = CalibrationOptions()):
@@ -306,43 +267,6 @@ def _warm_theta(params, theta, warm) -> np.ndarray:
     return params.from_file_units(values)
 
 
-def _check_equations(ds: Dataset, levels, n_parameters: int) -> None:
-    """Refuse a dataset whose poses give fewer equations than there are parameters."""
-    pose_ids = np.asarray(ds.pose_ids)
-    order = np.argsort(pose_ids)
-
-    def rows(obs_pose):  # the dataset row of each observation's pose (-1: not a pose of ds)
-        k = np.minimum(np.searchsorted(pose_ids[order], obs_pose), len(order) - 1)
-        return np.where(pose_ids[order][k] == obs_pose, order[k], -1)
-
-    full = np.zeros(len(pose_ids), dtype=bool)
-    dof = 0
-    ball_rows, ball_names = [], []  # (pose row, ball) of each ball-placing observation
-    for lv in levels:
-        obs = getattr(ds, lv)
-        r = rows(np.asarray(obs.pose))
-        width = BY_LEVEL[lv].width if lv in BY_LEVEL else 3  # a probed ball places a point
-        if width >= 6:
-            full[r[r >= 0]] = True
-        elif width == 3:
-            ball_rows.append(r[r >= 0])
-            ball_names.append(np.asarray(obs.ball).astype(str)[r >= 0])
-        else:
-            dof += width * int(np.sum(r >= 0))
-    balls = np.zeros(len(pose_ids), dtype=int)  # distinct balls per pose
-    if ball_rows:
-        names, ball = np.unique(np.concatenate(ball_names), return_inverse=True)
-        k = max(len(names), 1)
-        pairs = np.unique(np.concatenate(ball_rows) * k + ball.ravel())
-        balls = np.bincount(pairs // k, minlength=len(pose_ids))
-    # Degrees of freedom per pose: full pose 6, three balls or more 6, two balls 5, one ball 3.
-    dof += int(np.sum(np.where(full, 6, np.array([0, 3, 5, 6])[np.minimum(balls, 3)])))
-    if dof < n_parameters:
-        raise FgcalError(f"{ds.path or 'dataset'}: {ds.n_poses} poses give {dof} equations but the "
-                         f"{n_parameters} parameters need at least {n_parameters} "
-                         f"(at least {int(np.ceil(n_parameters / 6))} full poses; more to average the noise)")
-
-
 def solution_covariance(sol: Solution) -> np.ndarray:
     """The parameters' covariance (P, P), internal units, at the solution's noise."""
     return _covariance(sol.graph, sol.state, sol.graph.linearise(sol.state))
@@ -383,7 +307,7 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     cov_file = final.covariance_to_file_units(cov)
     cov_file = 0.5 * (cov_file + cov_file.T)  # symmetric but for rounding, which a near-gauge freedom magnifies
     sigma = np.sqrt(np.diag(cov_file))
-    levels_summary = _level_summaries(graph, state, cov, lin)
+    levels_summary = level_summaries(graph, state, cov, lin)
     h = graph.row_leverage(state, graph.information_inverse(state, lin), lin)  # the last noise round's, kept
     noise_table = level_noise(components(graph, lin, h), graph.sigmas, declared, noise_mode)
     groups = group_noise(graph, lin, h, declared, noise_mode)  # each camera's, beside the component's
@@ -437,33 +361,5 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
                   "p_value": fit_test(ssq_declared, red_total), "noise_rounds": rounds},
         at_readings=at_readings(graph, state, read_raw),
         pose_residuals=pose_residuals(graph, state, theta_start, pose_ids, read_raw, lin.raw, sol.start_raw),
-        joint_errors=_joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
-        setup=_setup_info(graph, state, held_info, sol.refused), tooling=tooling_record(ds, levels))
-
-
-def _setup_info(graph: Graph, state: State, held_info, refused=()) -> dict:
-    """What a result keeps of the set-up unknowns (see :class:`CalibrationResult`); with cameras
-    also their start and the refused corners."""
-    if graph.setup is None:
-        return {}
-    out = {**graph.setup.spec.to_dict(), "estimated": graph.setup.describe(graph.setup_values(state.theta))}
-    if any(f.type == "camera" for f in graph.setup.spec.fixtures.values()):
-        out["start"] = graph.setup.describe(graph.setup.start)
-    if refused:
-        out["refused"] = list(refused)
-    if any(h["reason"] == GAUGE_REASON for h in held_info):
-        out["gauge"] = GAUGE_REASON
-    return out
-
-
-def _joint_error_info(params, options: CalibrationOptions, qd) -> dict:
-    """What a result keeps of its joint-error block: the spec, the names, the joint region (file units)."""
-    if getattr(params, "block", None) is None:  # BlockParameters, or set-up parameters around them
-        return {}
-    names = list(params.block.names)
-    assert options.joint_errors is not None  # a block is built only from a spec
-    return {"spec": options.joint_errors.to_dict(), "names": names,
-            "map_terms": sum(n.startswith("map.") for n in names),
-            "joint_ranges_deg": [[float(lo), float(hi)] for lo, hi in zip(qd.min(axis=0), qd.max(axis=0))],
-            "validity": "the joint error map holds only inside these joint ranges and in the set-up it was "
-                        "fitted on (tool, payload, mounting)" if any(n.startswith("map.") for n in names) else ""}
+        joint_errors=joint_error_info(final, options, model.joints_to_file_units(graph.readings)),
+        setup=setup_info(graph, state, held_info, sol.refused), tooling=tooling_record(ds, levels))
