@@ -276,7 +276,7 @@ def main(argv=None) -> int:
             rows = _datasets(root, model, x, rng, args.rows, sigma)
             print(f"\nnoise {case}: {sigma:g} mm where the datasets declare {SIGMA:g} mm (estimated: noise rounds)")
             print(f"{'type':10s} {'poses':>6s} {'equations':>9s} {'CPU s':>7s} {'us/eq':>7s} {'ratio':>6s} "
-                  f"{'us/pose':>8s} {'ratio':>6s}  sigma mm  converged")
+                  f"{'us/pose':>8s} {'ratio':>6s}  sigma mm  LM steps  converged")
             ref = ref_pose = None
             for name, n_rows in rows.items():
                 cpu, result = cpu_of(root / name, args.repeat)
@@ -285,7 +285,7 @@ def main(argv=None) -> int:
                 ref_pose = per_pose if ref_pose is None else ref_pose
                 used = next(iter(result.noise.values())).used
                 print(f"{name:10s} {result.n_poses:6d} {n_rows:9d} {cpu:7.2f} {per:7.1f} {per / ref:6.2f} "
-                      f"{per_pose:8.1f} {per_pose / ref_pose:6.2f}  {used:8.4f}  {result.converged}")
+                      f"{per_pose:8.1f} {per_pose / ref_pose:6.2f}  {used:8.4f}  {result.iterations:8d}  {result.converged}")
     return 0
 
 

@@ -4,6 +4,7 @@ those agree with a dense factorisation of the whole problem."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import fgcal.estimation.elimination as elimination
 from fgcal.estimation.column_groups import active_columns, pose_columns
@@ -73,7 +74,11 @@ def test_pose_columns_list_each_pose_s_own_columns_after_the_common_ones():
     assert pose_columns(np.ones((N, K), dtype=bool)) is None
 
 
-def test_pose_column_products_equal_the_dense_ones(monkeypatch):
+@pytest.mark.parametrize("chunk", [elimination.POSE_CHUNK, 50])
+def test_pose_column_products_equal_the_dense_ones(monkeypatch, chunk):
+    """Also in chunks of poses (50 of 120 here, as a graph of more poses than POSE_CHUNK has them),
+    each chunk's index tables kept on the pattern's object."""
+    monkeypatch.setattr(elimination, "POSE_CHUNK", chunk)
     lin = _contact_linearisation(np.random.default_rng(7))
     sparse = _everything(lin)
     assert lin.cache["columns"] is not None  # the pose-column path ran

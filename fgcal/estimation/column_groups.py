@@ -51,7 +51,11 @@ class PoseColumns:
         start, stop, step = c.indices(len(self.cols))
         if start == 0 and stop == len(self.cols) and step == 1:
             return self
-        return PoseColumns(cols=self.cols[c], P=self.P, k=self.k)
+        # kept, so that a chunk's index tables are made once too (more poses than a chunk)
+        chunks = self.__dict__.setdefault("_chunks", {})
+        if (start, stop, step) not in chunks:
+            chunks[(start, stop, step)] = PoseColumns(cols=self.cols[c], P=self.P, k=self.k)
+        return chunks[(start, stop, step)]
 
     @cached_property
     def _own_onehot(self):

@@ -15,10 +15,10 @@ from fgcal.measurements.types import BY_LEVEL
 __all__ = ["joint_error_info", "level_summaries", "setup_info"]
 
 
-def level_summaries(graph: Graph, state: State, cov_internal, lin=None) -> dict[str, LevelSummary]:
-    """Each level's :class:`LevelSummary` at ``state`` (its linearisation ``lin``); ``cov_internal`` the
-    parameters' covariance (internal units), kept for the signature: the leverage is the information's
-    inverse the noise rounds took (:meth:`~fgcal.estimation.graph.Graph.information_inverse`)."""
+def level_summaries(graph: Graph, state: State, lin=None) -> dict[str, LevelSummary]:
+    """Each level's :class:`LevelSummary` at ``state`` (its linearisation ``lin``); the redundancy from
+    the leverage at the information's inverse the noise rounds took
+    (:meth:`~fgcal.estimation.graph.Graph.information_inverse`)."""
     lin = graph.linearise(state) if lin is None else lin
     # the information's inverse the noise rounds took at this linearisation (their leverage is kept on it)
     red = graph.leverage_by_level(state, graph.information_inverse(state, lin), lin)

@@ -17,7 +17,6 @@ TRUSTED_DECREASE = 100  # the damping's fall after a step the model predicted (e
 log = logging.getLogger(__name__)
 
 
-
 def levenberg_marquardt(graph: Graph, state: State, max_iterations=100, tolerance=1e-12, lin=None,
                         damping: float = 1e-4):
     """Minimise the graph's cost; returns ``(state, iterations, converged)``.

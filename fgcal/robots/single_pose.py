@@ -25,7 +25,7 @@ for _l, _j, _i, _sign in ((2, 0, 1, -1), (1, 0, 2, 1), (2, 1, 0, 1), (0, 1, 2, -
 
 
 class OperationTables:
-    """Where each operation's values go in the (K, 16) flat operation matrices, built once per
+    """Where each operation's values go in the (K + 1, 16) flat frames (row 0 the identity), built once per
     chain (:attr:`Chain.single_pose`); the rest (kinds, axes, slot and joint maps) is the chain's.
 
     Attributes
@@ -48,9 +48,6 @@ class OperationTables:
         self.cos_a, self.cos_b = r * 16 + i * 5, r * 16 + j * 5
         self.minus_sin, self.plus_sin = r * 16 + i * 4 + j, r * 16 + j * 4 + i
         self.shift = t * 16 + axis[t] * 4 + 3
-        # built once, not per call: the ops that take a slot and a joint, the identity rows, the
-        # axis column of each op's frame
-        self.has_slot, self.has_joint = chain.slot_of_op >= 0, chain.joint_of_op >= 0
         K = len(chain.ops)
         # the frames with the identity before the first operation: (K + 1, 16), row k + 1 after op k
         self.identity = np.zeros((K + 1, 16))
