@@ -44,7 +44,7 @@ def _contact_linearisation(rng) -> Linearisation:
     J_local = np.concatenate([rng.normal(size=(N, MT, NZ)), np.broadcast_to(10.0 * np.eye(NZ), (N, NZ, NZ))], axis=1)
     prior_J = np.zeros((3, P))
     prior_J[:, K:K + 3] = np.eye(3)  # a gauge prior on one socket
-    return Linearisation(r=rng.normal(size=(N, MT + NZ)), J_theta=J_theta, J_local=J_local,
+    return Linearisation(r=rng.normal(size=(N, MT + NZ)), J_stored=J_theta, J_local=J_local,
                          prior_r=rng.normal(size=3), prior_J=prior_J, cost=0.0)
 
 
@@ -126,7 +126,7 @@ def test_without_joint_variables_the_step_and_leverage_match_a_dense_least_squar
     solution of the damped system and the leverage (PoseColumns.hat) is the hat matrix's diagonal."""
     rng = np.random.default_rng(5)
     full = _contact_linearisation(rng)
-    lin = Linearisation(r=full.r[:, :MT].copy(), J_theta=full.J_theta, J_local=np.zeros((N, MT, 0)),
+    lin = Linearisation(r=full.r[:, :MT].copy(), J_stored=full.J_theta, J_local=np.zeros((N, MT, 0)),
                         prior_r=full.prior_r, prior_J=full.prior_J, cost=0.0)
     graph = _Arrow(lin)
     graph.m, graph.nz, graph.joint_vars = MT, 0, False

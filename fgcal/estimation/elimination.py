@@ -86,6 +86,8 @@ class ArrowElimination:
         The columns None: the dense products over all of theta (no set-up columns, or too few
         skipped to pay: :func:`fgcal.estimation.column_groups.pose_columns`).
         """
+        if "columns" not in lin.cache and lin.columns is not None:  # formed on its pose columns
+            lin.cache["columns"] = lin.columns
         if "columns" not in lin.cache:
             active = active_columns(lin.J_theta)
             last = getattr(self, "_last_columns", None)
@@ -101,6 +103,15 @@ class ArrowElimination:
             c = slice(lo, lo + POSE_CHUNK)
             yield c, None if pc is None else pc.take(c)
 
+    def _on_columns(self, lin: Linearisation) -> np.ndarray:
+        """``lin``'s theta Jacobian on its pose columns (N, m_theta, c): as formed, or gathered from
+        the dense one once."""
+        if lin.columns is not None:
+            return lin.J_stored
+        if "J_columns" not in lin.cache:
+            lin.cache["J_columns"] = lin.cache["columns"].gather(lin.J_theta)
+        return lin.cache["J_columns"]
+
     def normal_equations(self, lin: Linearisation):
         """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
 
@@ -108,14 +119,16 @@ class ArrowElimination:
         """
         if "normal" in lin.cache:
             return lin.cache["normal"]
-        n, mt, P = lin.J_theta.shape
-        Jt2 = lin.J_theta.reshape(-1, P)
+        mt = lin.J_stored.shape[1]
         blocks = list(self._blocks(lin))
         if blocks[0][1] is None:
+            Jt2 = lin.J_theta.reshape(-1, lin.J_theta.shape[2])
             A = Jt2.T @ Jt2 + _prior_normal(lin)
             B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
+            g_t = Jt2.T @ lin.r[:, :mt].reshape(-1)
         else:  # each pose's products on its own columns (the others are zero in its rows)
-            Jc_all = lin.cache["columns"].gather(lin.J_theta)  # (N, mt, c)
+            Jc_all = self._on_columns(lin)  # (N, mt, c)
+            g_t = lin.cache["columns"].transpose_times(Jc_all, lin.r[:, :mt])
             A = _prior_normal(lin).copy()
             for c, pc in blocks:
                 assert pc is not None  # one choice for all chunks
@@ -125,7 +138,7 @@ class ArrowElimination:
             # and placed into the (N, P, nz) the step uses.
             lin.cache["B_own"] = np.matmul(Jc_all.transpose(0, 2, 1), lin.J_local[:, :mt])
             B = lin.cache["columns"].place_rows(lin.cache["B_own"])
-        g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
+        g_t = g_t + lin.prior_J.T @ lin.prior_r
         JzT = lin.J_local.transpose(0, 2, 1)
         D = np.matmul(JzT, lin.J_local)
         g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
@@ -188,7 +201,7 @@ class ArrowElimination:
             Dinv = self._inverses(self.normal_equations(lin)[2])
             # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
             # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
-            n, mt, P = lin.J_theta.shape
+            mt, P = lin.J_stored.shape[1], lin.prior_J.shape[1]
             S = _prior_normal(lin).copy()
             for c, pc in self._blocks(lin):
                 k = len(lin.r[c])
@@ -197,7 +210,7 @@ class ArrowElimination:
                 width = P if pc is None else pc.cols.shape[1]  # zero columns would give zero rows of R
                 M = np.zeros((k, self.m + extra, self.nz + width))
                 M[:, :self.m, :self.nz] = lin.J_local[c]
-                M[:, :mt, self.nz:] = lin.J_theta[c] if pc is None else pc.gather(lin.J_theta[c])
+                M[:, :mt, self.nz:] = lin.J_theta[c] if pc is None else self._on_columns(lin)[c]
                 if extra:
                     M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
                 R = np.asarray(np.linalg.qr(M, mode="r"))[:, self.nz:, self.nz:]
@@ -290,7 +303,8 @@ class ArrowElimination:
             return cached[1]
         _, B, _, _, _ = self.normal_equations(lin)
         _, Dinv = self._reduced_at(lin)
-        Jt_all, Jz_all = lin.J_theta, lin.J_local
+        Jz_all = lin.J_local
+        Jt_all = lin.J_theta if lin.cache["columns"] is None else self._on_columns(lin)
         mt = Jt_all.shape[1]
         h = np.zeros(lin.r.shape)
         # In chunks of poses: the temporaries are as large as J_theta (on 8,000 poses with a
@@ -298,7 +312,7 @@ class ArrowElimination:
         for c, pc in self._blocks(lin):
             # A pose's rows are zero off its columns: only that block of Sigma reaches them.
             Jz = Jz_all[c]
-            Jt = Jt_all[c] if pc is None else pc.gather(Jt_all[c])
+            Jt = Jt_all[c]  # (n, mt, P), or on the poses' columns (n, mt, c)
             # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt
             # rows of a pose depend on theta.
             if not self.nz:
