@@ -19,7 +19,7 @@ def test_gtsam_engine_ends_at_the_batch_optimum(puma, robust):
 
 
 def test_grouped_graph_has_the_rows_of_the_per_row_graph(puma):
-    """One factor per pose's centres and per pose's probes: the same total error as the graph of one
+    """One factor per pose's balls (its probe and centre rows): the same total error as the graph of one
     factor per row, at a point off the optimum."""
     from fgcal.estimation.build import build_graph
     from fgcal.estimation.gtsam_graph import nonlinear_graph
