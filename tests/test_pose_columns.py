@@ -20,6 +20,7 @@ class _Arrow(ArrowElimination):
 
     def __init__(self, lin: Linearisation):
         self.n_poses, self.m, self.nz, self.n_joints = N, MT + NZ, NZ, NZ
+        self.n_geo, self.K, self.S = K, 0, 3 * SOCKETS  # theta: the kinematics, then the sockets
         self.local_used = np.ones((N, NZ), dtype=bool)
         self.joint_vars = True
         self.ball_pose = np.zeros(0, dtype=int)
@@ -84,6 +85,7 @@ def test_pose_column_products_equal_the_dense_ones(monkeypatch, chunk):
     assert lin.cache["columns"] is not None  # the pose-column path ran
     dense_lin = _contact_linearisation(np.random.default_rng(7))
     monkeypatch.setattr(elimination, "pose_columns", lambda active: None)
+    monkeypatch.setattr(elimination.SetupSplit, "of", classmethod(lambda cls, S, g, s: None))
     dense = _everything(dense_lin)
     assert dense_lin.cache["columns"] is None
     for name, value in dense.items():
@@ -91,8 +93,11 @@ def test_pose_column_products_equal_the_dense_ones(monkeypatch, chunk):
 
 
 def test_pose_column_covariance_and_leverage_match_a_dense_factorisation():
+    """The step's solve and the covariance by the sockets' blocks (SetupSplit) among them."""
     lin = _contact_linearisation(np.random.default_rng(11))
     out = _everything(lin)
+    split = _Arrow(lin)._setup_split(out["information"])
+    assert split is not None and [b.shape for b in split.blocks] == [(SOCKETS, 3)]
     # The whole whitened Jacobian: theta columns, then every pose's joints.
     J = np.zeros((N * (MT + NZ) + 3, P + N * NZ))
     for i in range(N):

@@ -171,8 +171,10 @@ class PoseColumns:
         out[np.ix_(common, common)] = Xc.reshape(-1, k).T @ Yc.reshape(-1, k)
         if self.cols.shape[1] > k:
             XoT, YoT = X[:, :, k:].transpose(0, 2, 1), Y[:, :, k:].transpose(0, 2, 1)  # (N, s, m)
-            out[:, common] += self._sum_by_own(np.matmul(XoT, Yc))
-            out[common, :] += self._sum_by_own(np.matmul(YoT, Xc)).T
+            cross = self._sum_by_own(np.matmul(XoT, Yc))
+            out[:, common] += cross
+            # X^T X (the normal equations): the other cross block is this one's transpose
+            out[common, :] += cross.T if X is Y else self._sum_by_own(np.matmul(YoT, Xc)).T
             out += np.bincount(self._own_pairs, weights=np.matmul(XoT, Y[:, :, k:]).reshape(-1),
                                minlength=n * n).reshape(n, n)
         return out[:self.P, :self.P]

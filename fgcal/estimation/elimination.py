@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fgcal.estimation.column_groups import PoseColumns, active_columns, pose_columns
+from fgcal.estimation.setup_schur import SetupSplit
+from fgcal.robots.jacobian_rank import ScaledSpectrum
 
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
     from fgcal.estimation.graph_types import Linearisation, State
@@ -31,13 +33,15 @@ def _prior_normal(lin: Linearisation) -> np.ndarray:
     return lin.cache["prior_normal"]
 
 
-def scaled_inverse(S) -> np.ndarray:
+def scaled_inverse(S, split: SetupSplit | None = None) -> np.ndarray:
     """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first; the
     pseudo-inverse where it is singular to the last bit (parameters left free that the data cannot
-    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions)."""
+    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions).
+    ``split``: the inverse by the set-up block's blocks (:class:`~fgcal.estimation.setup_schur.SetupSplit`)."""
     d = np.sqrt(np.maximum(np.diag(S), 1e-300))
     try:
-        return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
+        scaled = S / np.outer(d, d)
+        return (np.linalg.inv(scaled) if split is None else split.inverse(scaled)) / np.outer(d, d)
     except np.linalg.LinAlgError:
         return np.linalg.pinv(S / np.outer(d, d), hermitian=True) / np.outer(d, d)
 
@@ -56,6 +60,9 @@ class ArrowElimination:
 
     # The layout, supplied by Graph (declared here for the type checker).
     n_poses: int
+    n_geo: int
+    K: int
+    S: int
     m: int
     nz: int
     n_joints: int
@@ -112,7 +119,8 @@ class ArrowElimination:
             A = _prior_normal(lin).copy()
             for c, pc in blocks:
                 assert pc is not None  # one choice for all chunks
-                A = A + pc.inner(Jc_all[c], Jc_all[c])
+                Jc = Jc_all[c]
+                A = A + pc.inner(Jc, Jc)  # the same object: inner's symmetric shortcut
             # B on each pose's columns (N, c, nz), kept for the Schur complement and the leverage,
             # and placed into the (N, P, nz) the step uses.
             lin.cache["B_own"] = np.matmul(Jc_all.transpose(0, 2, 1), lin.J_local[:, :mt])
@@ -204,7 +212,8 @@ class ArrowElimination:
         """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
         A, B, D, g_t, g_z = self.normal_equations(lin)
         S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping, lin=lin)
-        d_theta = -np.linalg.solve(S, rhs)
+        split = self._setup_split(S)
+        d_theta = -(np.linalg.solve(S, rhs) if split is None else split.solve(S, rhs))
         d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
         new = state.copy()
         new.theta = state.theta + d_theta
@@ -234,16 +243,40 @@ class ArrowElimination:
         linearisation: the noise rounds' leverage and the level summaries' are then one product."""
         lin = self.linearise(state) if lin is None else lin
         if "information_inverse" not in lin.cache:
-            lin.cache["information_inverse"] = scaled_inverse(self.parameter_information(state, lin))
+            S = self.parameter_information(state, lin)
+            lin.cache["information_inverse"] = scaled_inverse(S, self._setup_split(S))
         return lin.cache["information_inverse"]
 
+    def _setup_split(self, S: np.ndarray) -> SetupSplit | None:
+        """The :class:`~fgcal.estimation.setup_schur.SetupSplit` of ``S`` (P, P) (None: dense algebra),
+        made once per pattern of its set-up block (the graph's structure: the same at every step)."""
+        if self.S <= 0:
+            return None
+        g, s = np.arange(self.n_geo + self.K), np.arange(self.n_geo + self.K, len(S))
+        pattern = S[self.n_geo + self.K:, self.n_geo + self.K:] != 0.0
+        last = getattr(self, "_last_split", None)
+        if last is None or last[0].shape != pattern.shape or not np.array_equal(last[0], pattern):
+            self._last_split: tuple[np.ndarray, SetupSplit | None] = (pattern, SetupSplit.of(S, g, s))
+        return self._last_split[1]
+
     def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
-        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""
+        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms
+        (:meth:`information_inverse`, which the noise rounds have formed at the solution already),
+        symmetrised."""
         lin = self.linearise(state) if lin is None else lin
         if "covariance" not in lin.cache:
-            S = self._reduced_at(lin)[0]
-            lin.cache["covariance"] = np.linalg.inv(0.5 * (S + S.T))
+            V = self.information_inverse(state, lin)
+            lin.cache["covariance"] = 0.5 * (V + V.T)
         return lin.cache["covariance"]
+
+    def parameter_spectrum(self, state: State, lin: Linearisation | None = None) -> ScaledSpectrum:
+        """The :class:`~fgcal.robots.jacobian_rank.ScaledSpectrum` of :meth:`parameter_information`,
+        formed once per linearisation (the covariance's singularity check and the identifiability at
+        the solution share it)."""
+        lin = self.linearise(state) if lin is None else lin
+        if "spectrum" not in lin.cache:
+            lin.cache["spectrum"] = ScaledSpectrum(self.parameter_information(state, lin))
+        return lin.cache["spectrum"]
 
     def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
         """Diagonal of the hat matrix (N, m) of the whitened rows; ``covariance`` is theta's (P, P).
