@@ -37,8 +37,9 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     here it is linear. Without a robust loss each pose's balls are one factor
     (:func:`factors.pose_balls_factor`) whose rows, for all poses at once, are filled before each
     linearisation (:class:`factors.PoseBallRows`): the callbacks only hand GTSAM their blocks. The
-    damped systems share one COLAMD ordering (their structure is the same). Stops when an accepted step lowers the error by no more than ``tolerance``
-    relative (GTSAM's ``relativeErrorTol``), when a step changes it by rounding only
+    damped systems share one COLAMD ordering (their structure is the same). Stops when an accepted
+    step lowers the error by no more than ``tolerance`` relative (GTSAM's ``relativeErrorTol``),
+    when a step changes it by rounding only
     (:data:`fgcal.estimation.graph_types.COST_ROUNDING`), when no damping up to 1e5 lowers it, or after
     ``max_iterations``.
     """
