@@ -10,7 +10,7 @@ about the same number of equations (rows of the least squares):
 * ``station_centres``: one reflector seen from three tracker stations, two of them unknown frames.
 
 Each dataset is written in fgcal's format and calibrated by :func:`fgcal.estimation.calibrate.calibrate`
-at the default options; the figure is process CPU time (user + system, best of ``--repeat``) per
+at the default options; the figure is process CPU time (user + system, least of ``--repeat`` interleaved rounds) per
 equation, and its ratio to the point type's; beside it the same CPU per pose and its ratio (every pose
 costs one forward kinematics and Jacobian a linearisation, whatever its rows). The datasets declare
 ``joint_resolution: 0``: the joint readings are exact, so there are no joint variables and no joint rows
@@ -25,13 +25,25 @@ axis; planes: along the normal; seated by the minimum-norm joint change, so the 
 round 3's fifth session the contacts and planes carried 0.002 deg of joint noise, 2.3-2.7 times the 0.01 mm
 they declared, against centres whose noise was as declared: they paid a noise round the point type did not.)
 
-Measured (round 3, session 5; ``--rows 3000 --repeat 5``, 2 shared cores, +-10 %), CPU per equation against
-the point type: as declared, stations 1.03-1.1, contacts 1.59-1.8, planes 1.02-1.14 (per pose 0.34);
-misdeclared, stations 1.0-1.5, contacts 1.7-2.05, planes 1.1-1.4 (the point type's own time moved most
-there: 0.05-0.07 s). Contacts pay their 198 socket coordinates in the elimination (about 2 ms a
-linearisation) and a slower convergence (8 linearisations where the point type takes 7).
+Measured (round 3, session 5; ``--rows 3000 --repeat 5``, sequential best-of runs, 2 shared cores, +-10 %), CPU
+per equation against the point type: as declared, stations 1.03-1.1, contacts 1.59-1.8, planes 1.02-1.14 (per
+pose 0.34); misdeclared, stations 1.0-1.5, contacts 1.7-2.05, planes 1.1-1.4.
 
-Run: ``python bench/bench_types.py [--rows 3000] [--repeat 3] [--data DIR]`` (``--data``: the datasets are
+Measured (round 3, session 6; ``--rows 3000 --repeat 20``, interleaved rounds, two runs): the point type itself
+became 1.3x faster (12.7 -> 9.3-9.9 us a row: its base-fit points by views of one sort, the final covariance and
+identifiability sharing one inverse and one eigenvalue decomposition), so the ratios rose where every type's
+own time fell. As declared: stations 12.6 us a row (was 17.0), 1.27-1.35; contacts 15.3 (was 23.5), 1.54-1.57
+(the session's starting code, measured the same way: 1.82-1.89); planes 15.4 (was 16.5), 1.55-1.56,
+per pose 0.52. Misdeclared: stations 1.31-1.32, contacts 1.64-1.74, planes 1.48-1.64. Not met: as fast per row
+as the point type. What is left, measured: stations and contacts take one more LM step (6 against 5: the
+second noise round moves their optimum, the set-up priors' and distances' weight against the data changing
+with the noise, where the point type's does not move), about 15 % of a calibration; contacts pay their 198
+socket coordinates in the elimination's per-pose products on 24 columns (PoseColumns.inner, ~0.5 ms a
+linearisation) and the set-up start and identifiability (block_starts, marginal_information: ~4 ms a
+calibration); a plane touch is one row for a whole pose's kinematics where a centre is three, so per row it
+pays three times the kinematics (per pose it is half the point type's cost).
+
+Run: ``python bench/bench_types.py [--rows 3000] [--repeat 10] [--data DIR]`` (``--data``: the datasets are
 kept in DIR and reused by later runs with the same ``--rows`` and ``--seed``; generating 3,000 rows takes minutes).
 """
 from __future__ import annotations
