@@ -74,6 +74,7 @@ class _Engine:
         self.final_held: dict[str, list[str]] = {}  # held by the final smoothing besides
         self.params = ParameterSet(model, tuple(names))
         self.index = self.params.index  # slot of each parameter (P,) (a property that builds it anew)
+        self.is_angle = self.params.is_angle.astype(float)  # (P,) 1 for an angle, 0 for a length
         self.held = model.nominal.copy()
         self.sigmas: Sigmas = _sigmas(ds, model, options)
         self.prior_sigma = self._prior_sigma()
@@ -98,6 +99,7 @@ class _Engine:
         """Estimate ``names`` (a restored snapshot's); the others of the model's are held as unseen."""
         self.params = ParameterSet(self.model, tuple(names))
         self.index = self.params.index
+        self.is_angle = self.params.is_angle.astype(float)
         self.prior_sigma = self._prior_sigma()
         self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names
                        if n not in names and n not in self.gauge}
