@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
@@ -18,14 +17,6 @@ __all__ = ["LINEAR_ENOUGH", "FilterState", "KalmanEngine"]
 # relinearised: the relinearised update would move the estimate by about as little, in posterior
 # sigmas (the whitened error bounds the change; on the PUMA bench it stayed within 1e-4 sigma).
 LINEAR_ENOUGH = 1e-3
-
-
-@lru_cache(maxsize=8)
-def _identity(n: int) -> np.ndarray:
-    """The identity (n, n), formed once per size (read-only)."""
-    eye = np.eye(n)
-    eye.flags.writeable = False
-    return eye
 
 
 @dataclass
@@ -128,10 +119,12 @@ class KalmanEngine(_Engine):
         reason = None if it == 0 and gate is not None else NoiseTracker.implausible(innovation, S)
         if reason:
             return reason
-        # Joseph form, linearised at the iterated point: symmetric and positive whatever the rounding
-        I_KH = _identity(len(x0)) - K @ H
+        # Joseph form, linearised at the iterated point: (I - K H) P0 (I - K H)' + K f R K', for any
+        # gain K, symmetric and positive whatever the rounding; its products by the thin factors
+        # (P0 H' is PHt: (I - K H) P0 = P0 - K PHt'), not by the (P, P) I - K H.
+        left = P0 - K @ PHt.T
         self.kf.x = x0 + K @ innovation
-        self.kf.P = I_KH @ P0 @ I_KH.T + K @ (f * R) @ K.T
+        self.kf.P = left - (left @ H.T) @ K.T + (K @ (f * R)) @ K.T
         return None
 
     def _unscented_update(self, m: PoseMeasurement, x0, P0, f: float) -> None:

@@ -85,8 +85,9 @@ class NoiseTracker:
     def observe(self, v, A, R) -> float:
         """Record innovation ``v`` (A, R as above); returns the factor to gate and update it with."""
         f = self.factor()
-        Si = np.linalg.inv(A + f * R)
-        d2, a, b = float(v @ Si @ v), float(np.trace(Si @ A)), float(np.trace(Si @ R))
+        m = len(v)
+        X = np.linalg.solve(A + f * R, np.hstack([v[:, None], A, R]))  # S^-1 [v, A, R]: one factorisation
+        d2, a, b = float(v @ X[:, 0]), float(np.trace(X[:, 1:m + 1])), float(np.trace(X[:, m + 1:]))
         self.last = None
         if f * b >= REDUNDANCY * len(v):
             self.add(max((d2 - a) / b, 0.0), f * b)
