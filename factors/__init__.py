@@ -4,6 +4,7 @@
 directly by fgcal's batched solver); :mod:`factors.gtsam_factors` wraps each as a GTSAM factor:
 
 * probe point on the sphere around a ball-centre variable,
+* one pose's balls (its probe points and ball centres) in one factor (:mod:`factors.pose_balls`),
 * ball centre (variable or measured) at the forward kinematics times the ball's offset,
 * measured tool pose against the forward kinematics,
 * a ballbar length from the world origin (its pivot) to a tool ball,
@@ -21,6 +22,7 @@ from .errors import (
     slots_of,
 )
 
+_POSE_BALLS_NAMES = ("PoseBallRows", "pose_balls_factor")
 _GTSAM_NAMES = ("PoseKinematics", "ball_centre_factor", "ball_centres_factor", "centre_key", "distance_factor", "joint_key", "joint_prior",
                 "kinematic_factor", "noise_model", "parameter_prior", "pose_centres_factor", "pose_factor",
                 "pose_probes_factor", "probe_factor", "probes_factor", "theta_key")
@@ -32,10 +34,15 @@ def __getattr__(name):
         from . import gtsam_factors
 
         return getattr(gtsam_factors, name)
+    if name in _POSE_BALLS_NAMES:
+        from . import pose_balls
+
+        return getattr(pose_balls, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = [
+    "PoseBallRows",
     "PoseKinematics",
     "ball_centre_error",
     "ball_centre_factor",
@@ -50,6 +57,7 @@ __all__ = [
     "noise_model",
     "parameter_prior",
     "pose_ball_centres_error",
+    "pose_balls_factor",
     "pose_centres_factor",
     "pose_error",
     "pose_factor",

@@ -184,6 +184,39 @@ def test_pose_probes_factor_is_its_probe_factors():
     np.testing.assert_allclose(f.whitenedError(v), np.concatenate([g.whitenedError(v) for g in one]), rtol=1e-12)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("variant", ["joint variables", "fixed joints, one centre's rows excluded"])
+def test_pose_balls_factor_is_its_probe_and_centre_factors(puma, seed, variant):
+    """One pose's balls in one factor: analytic Jacobians against numerical ones, and the same
+    whitened rows (and error) as its probe_factors followed by its ball_centre_factors."""
+    rng, index, held, theta, q = _setup(puma, seed)
+    offsets = np.array([[60.0, 0, 0], [0, 60.0, 0], [0, -90.0, 0]])
+    T = forward(held, q)[0]
+    centres = offsets @ T[:3, :3].T + T[:3, 3] + rng.normal(size=(3, 3))
+    owner = np.array([0, 1, 2, 0, 1, 2, 2, 0, 1, 1])
+    d = rng.normal(size=(len(owner), 3))
+    points = centres[owner] + 6.35 * d / np.linalg.norm(d, axis=1, keepdims=True) + 0.01 * rng.normal(size=(len(owner), 3))
+    keys = [factors.centre_key(b) for b in range(3)]
+    v = gtsam.Values()
+    v.insert(factors.theta_key(), theta)
+    for k, c in zip(keys, centres, strict=True):
+        v.insert(k, c)
+    kinematic = np.array([True, True, True]) if variant == "joint variables" else np.array([True, False, True])
+    if variant == "joint variables":
+        v.insert(factors.joint_key(0), q)
+        qargs = {"q_key": factors.joint_key(0)}
+    else:
+        qargs = {"q_fixed": q}
+    f = factors.pose_balls_factor(index, held, keys, offsets, points, owner, 6.35, 0.01, 0.02,
+                                  t_key=factors.theta_key(), kinematic=kinematic, **qargs)
+    _check(f, v)
+    one = [factors.probe_factor(keys[b], p, 6.35, 0.01) for b, p in zip(owner, points, strict=True)]
+    one += [factors.ball_centre_factor(index, held, offsets[b], 0.02, t_key=factors.theta_key(), c_key=keys[b], **qargs)
+            for b in np.flatnonzero(kinematic)]
+    np.testing.assert_allclose(f.whitenedError(v), np.concatenate([g.whitenedError(v) for g in one]), rtol=1e-12)
+    assert f.error(v) == pytest.approx(sum(g.error(v) for g in one), rel=1e-12)
+
+
 def test_ball_centre_along_is_the_ball_centre_error_projected(puma):
     """factors.errors.ball_centre_along (a plane contact's kinematics): the ball centre of
     ball_centre_error and its Jacobians along the directions, to rounding."""

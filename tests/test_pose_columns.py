@@ -20,6 +20,7 @@ class _Arrow(ArrowElimination):
 
     def __init__(self, lin: Linearisation):
         self.n_poses, self.m, self.nz, self.n_joints = N, MT + NZ, NZ, NZ
+        self.n_geo, self.K, self.S = K, 0, 3 * SOCKETS  # theta: the kinematics, then the sockets
         self.local_used = np.ones((N, NZ), dtype=bool)
         self.joint_vars = True
         self.ball_pose = np.zeros(0, dtype=int)
@@ -43,7 +44,7 @@ def _contact_linearisation(rng) -> Linearisation:
     J_local = np.concatenate([rng.normal(size=(N, MT, NZ)), np.broadcast_to(10.0 * np.eye(NZ), (N, NZ, NZ))], axis=1)
     prior_J = np.zeros((3, P))
     prior_J[:, K:K + 3] = np.eye(3)  # a gauge prior on one socket
-    return Linearisation(r=rng.normal(size=(N, MT + NZ)), J_theta=J_theta, J_local=J_local,
+    return Linearisation(r=rng.normal(size=(N, MT + NZ)), J_stored=J_theta, J_local=J_local,
                          prior_r=rng.normal(size=3), prior_J=prior_J, cost=0.0)
 
 
@@ -84,6 +85,7 @@ def test_pose_column_products_equal_the_dense_ones(monkeypatch, chunk):
     assert lin.cache["columns"] is not None  # the pose-column path ran
     dense_lin = _contact_linearisation(np.random.default_rng(7))
     monkeypatch.setattr(elimination, "pose_columns", lambda active: None)
+    monkeypatch.setattr(elimination.SetupSplit, "of", classmethod(lambda cls, S, g, s: None))
     dense = _everything(dense_lin)
     assert dense_lin.cache["columns"] is None
     for name, value in dense.items():
@@ -91,8 +93,11 @@ def test_pose_column_products_equal_the_dense_ones(monkeypatch, chunk):
 
 
 def test_pose_column_covariance_and_leverage_match_a_dense_factorisation():
+    """The step's solve and the covariance by the sockets' blocks (SetupSplit) among them."""
     lin = _contact_linearisation(np.random.default_rng(11))
     out = _everything(lin)
+    split = _Arrow(lin)._setup_split(out["information"])
+    assert split is not None and [b.shape for b in split.blocks] == [(SOCKETS, 3)]
     # The whole whitened Jacobian: theta columns, then every pose's joints.
     J = np.zeros((N * (MT + NZ) + 3, P + N * NZ))
     for i in range(N):
@@ -121,7 +126,7 @@ def test_without_joint_variables_the_step_and_leverage_match_a_dense_least_squar
     solution of the damped system and the leverage (PoseColumns.hat) is the hat matrix's diagonal."""
     rng = np.random.default_rng(5)
     full = _contact_linearisation(rng)
-    lin = Linearisation(r=full.r[:, :MT].copy(), J_theta=full.J_theta, J_local=np.zeros((N, MT, 0)),
+    lin = Linearisation(r=full.r[:, :MT].copy(), J_stored=full.J_theta, J_local=np.zeros((N, MT, 0)),
                         prior_r=full.prior_r, prior_J=full.prior_J, cost=0.0)
     graph = _Arrow(lin)
     graph.m, graph.nz, graph.joint_vars = MT, 0, False

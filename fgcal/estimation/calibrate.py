@@ -51,6 +51,7 @@ from fgcal.estimation.solve import levenberg_marquardt
 from fgcal.measurements.dataset import Dataset
 from fgcal.measurements.types import BY_LEVEL
 from fgcal.robots.identifiability import analyse_information
+from fgcal.robots.jacobian_rank import ScaledSpectrum
 from fgcal.robots.model import RobotModel
 
 __all__ = [
@@ -96,15 +97,17 @@ def _covariance(graph: Graph, state: State, lin) -> np.ndarray:
     """The parameters' covariance, computed in one place: the inverse of the Schur complement the
     solve forms (:meth:`Graph.covariance`; ``gtsam.Marginals`` agrees, see the tests). A singular
     information ends in one line instead of a meaningless inverse."""
-    S = graph.parameter_information(state, lin)
-    d = np.sqrt(np.maximum(np.diag(S), 1e-300))
-    ev, vec = np.linalg.eigh(S / np.outer(d, d))
-    weak = ev <= 1e-12 * ev[-1]
+    spectrum = graph.parameter_spectrum(state, lin)  # shared with the identifiability at the solution
+    if not spectrum.live.all():  # a parameter without information: scaled by its own (tiny) diagonal
+        spectrum = ScaledSpectrum(graph.parameter_information(state, lin), floor=0.0)
+    weak = spectrum.values <= 1e-12 * spectrum.values[-1]
     if weak.any() and graph.prior is not None:
         # A direction that only a finite prior determines is not singular (exact data beside a
         # prior of typical deviations): the prior's share of its information says so.
-        p = np.where(np.isfinite(graph.prior[1]), 1.0 / np.asarray(graph.prior[1]) ** 2, 0.0) / d**2
-        weak &= np.einsum("pk,p,pk->k", vec, p, vec) < 0.5 * ev
+        vec = spectrum.vectors
+        weak = spectrum.values <= 1e-12 * spectrum.values[-1]
+        p = np.where(np.isfinite(graph.prior[1]), 1.0 / np.asarray(graph.prior[1]) ** 2, 0.0) * spectrum.scale**2
+        weak &= np.einsum("pk,p,pk->k", vec, p, vec) < 0.5 * spectrum.values
     if weak.any():
         raise FgcalError(f"the {graph.n_poses} poses cannot determine the {len(state.theta)} parameters "
                          "(singular information): measure more poses")
@@ -295,7 +298,8 @@ def calibrate(ds: Dataset, model: RobotModel, options: CalibrationOptions = Cali
     lin = graph.linearise(state)  # the solve's last one (remembered by the graph)
     cov = _covariance(graph, state, lin)
     final = graph.params
-    identifiability = analyse_information(graph.parameter_information(state, lin), final.names)
+    identifiability = analyse_information(graph.parameter_information(state, lin), final.names,
+                                          spectrum=graph.parameter_spectrum(state, lin))
     sv = identifiability.singular_values
     still = identifiability.redundant
     if still:

@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["PoseColumns", "active_columns", "pose_columns"]
+__all__ = ["PoseColumns", "active_columns", "pose_columns", "setup_columns"]
 
 COMMON_SHARE = 0.5  # a column nonzero in at least this share of the poses is taken for every pose
 MIN_SAVING = 0.5  # the per-pose width squared must be at most this share of P**2 to leave the dense products
@@ -171,15 +171,55 @@ class PoseColumns:
         out[np.ix_(common, common)] = Xc.reshape(-1, k).T @ Yc.reshape(-1, k)
         if self.cols.shape[1] > k:
             XoT, YoT = X[:, :, k:].transpose(0, 2, 1), Y[:, :, k:].transpose(0, 2, 1)  # (N, s, m)
-            out[:, common] += self._sum_by_own(np.matmul(XoT, Yc))
-            out[common, :] += self._sum_by_own(np.matmul(YoT, Xc)).T
+            cross = self._sum_by_own(np.matmul(XoT, Yc))
+            out[:, common] += cross
+            # X^T X (the normal equations): the other cross block is this one's transpose
+            out[common, :] += cross.T if X is Y else self._sum_by_own(np.matmul(YoT, Xc)).T
             out += np.bincount(self._own_pairs, weights=np.matmul(XoT, Y[:, :, k:]).reshape(-1),
                                minlength=n * n).reshape(n, n)
         return out[:self.P, :self.P]
 
+    def place(self, J: np.ndarray) -> np.ndarray:
+        """``J`` (N, m, c) on each pose's columns placed in a dense (N, m, P): the inverse of :meth:`gather`."""
+        n, m, c = J.shape
+        out = np.zeros((n, m, self.P + 1))
+        np.put_along_axis(out, np.broadcast_to(self.cols[:, None, :], (n, m, c)), J, axis=2)
+        return out[:, :, :self.P]
+
+    def transpose_times(self, J: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """The (P,) sum over poses of ``J_n^T r_n`` for ``J`` (N, m, c) on each pose's columns and ``r`` (N, m)."""
+        k = self.k
+        out = np.zeros(self.P + 1)
+        out[self.cols[0, :k] if len(self.cols) else np.zeros(0, dtype=int)] = J[:, :, :k].reshape(-1, k).T @ r.reshape(-1)
+        if self.cols.shape[1] > k:
+            own = np.einsum("nms,nm->ns", J[:, :, k:], r)
+            out += np.bincount(self.cols[:, k:].reshape(-1), weights=own.reshape(-1), minlength=self.P + 1)
+        return out[:self.P]
+
+    def slots(self, pose: np.ndarray, where: np.ndarray) -> np.ndarray:
+        """The position in each pose's columns (M, k) of the theta columns ``where`` (M, k) of rows
+        of poses ``pose`` (M,); every one must be among its pose's columns."""
+        cols = self.cols[pose]  # (M, c)
+        hit = cols[:, None, :] == where[:, :, None]  # (M, k, c): one True each (the columns are distinct)
+        return np.argmax(hit, axis=2)
+
     def scatter_vector(self, v: np.ndarray) -> np.ndarray:
         """The (P,) sum over poses of ``v`` (N, c) placed on each pose's columns."""
         return np.bincount(self.cols.reshape(-1), weights=v.reshape(-1), minlength=self.P + 1)[:self.P]
+
+
+def setup_columns(n: int, k: int, P: int, pose: np.ndarray, where: np.ndarray) -> PoseColumns | None:
+    """The columns of a graph whose first ``k`` theta columns (the robot's) are every pose's and whose
+    others (set-up unknowns) a pose touches where one of its rows does: ``(pose, where)`` pairs (M,)
+    of a pose and a theta column its rows touch (from the graph's structure, not from the values: a
+    zero Jacobian entry keeps its column). None where the products on them would not save enough."""
+    active = np.zeros((n, P), dtype=bool)
+    active[:, :k] = True
+    active[np.asarray(pose, dtype=int), np.asarray(where, dtype=int)] = True
+    pc = pose_columns(active)
+    if pc is None or pc.k != k or not np.array_equal(pc.cols[0, :k], np.arange(k)):
+        return None  # a set-up column every pose touches: the dense layout (it keeps the robot's k first)
+    return pc
 
 
 def pose_columns(active: np.ndarray) -> PoseColumns | None:

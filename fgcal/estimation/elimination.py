@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from fgcal.estimation.column_groups import PoseColumns, active_columns, pose_columns
+from fgcal.estimation.setup_schur import SetupSplit
+from fgcal.robots.jacobian_rank import ScaledSpectrum
 
 if TYPE_CHECKING:  # annotations only: graph.py imports this module
     from fgcal.estimation.graph_types import Linearisation, State
@@ -31,13 +33,15 @@ def _prior_normal(lin: Linearisation) -> np.ndarray:
     return lin.cache["prior_normal"]
 
 
-def scaled_inverse(S) -> np.ndarray:
+def scaled_inverse(S, split: SetupSplit | None = None) -> np.ndarray:
     """Inverse of a symmetric positive (semi)definite ``S`` (P, P), scaled to unit diagonal first; the
     pseudo-inverse where it is singular to the last bit (parameters left free that the data cannot
-    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions)."""
+    see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions).
+    ``split``: the inverse by the set-up block's blocks (:class:`~fgcal.estimation.setup_schur.SetupSplit`)."""
     d = np.sqrt(np.maximum(np.diag(S), 1e-300))
     try:
-        return np.linalg.inv(S / np.outer(d, d)) / np.outer(d, d)
+        scaled = S / np.outer(d, d)
+        return (np.linalg.inv(scaled) if split is None else split.inverse(scaled)) / np.outer(d, d)
     except np.linalg.LinAlgError:
         return np.linalg.pinv(S / np.outer(d, d), hermitian=True) / np.outer(d, d)
 
@@ -56,6 +60,9 @@ class ArrowElimination:
 
     # The layout, supplied by Graph (declared here for the type checker).
     n_poses: int
+    n_geo: int
+    K: int
+    S: int
     m: int
     nz: int
     n_joints: int
@@ -79,6 +86,8 @@ class ArrowElimination:
         The columns None: the dense products over all of theta (no set-up columns, or too few
         skipped to pay: :func:`fgcal.estimation.column_groups.pose_columns`).
         """
+        if "columns" not in lin.cache and lin.columns is not None:  # formed on its pose columns
+            lin.cache["columns"] = lin.columns
         if "columns" not in lin.cache:
             active = active_columns(lin.J_theta)
             last = getattr(self, "_last_columns", None)
@@ -94,6 +103,15 @@ class ArrowElimination:
             c = slice(lo, lo + POSE_CHUNK)
             yield c, None if pc is None else pc.take(c)
 
+    def _on_columns(self, lin: Linearisation) -> np.ndarray:
+        """``lin``'s theta Jacobian on its pose columns (N, m_theta, c): as formed, or gathered from
+        the dense one once."""
+        if lin.columns is not None:
+            return lin.J_stored
+        if "J_columns" not in lin.cache:
+            lin.cache["J_columns"] = lin.cache["columns"].gather(lin.J_theta)
+        return lin.cache["J_columns"]
+
     def normal_equations(self, lin: Linearisation):
         """``A`` (P, P), ``B`` (N, P, nz), ``D`` (N, nz, nz), ``g_t`` (P,), ``g_z`` (N, nz) of ``lin``.
 
@@ -101,23 +119,26 @@ class ArrowElimination:
         """
         if "normal" in lin.cache:
             return lin.cache["normal"]
-        n, mt, P = lin.J_theta.shape
-        Jt2 = lin.J_theta.reshape(-1, P)
+        mt = lin.J_stored.shape[1]
         blocks = list(self._blocks(lin))
         if blocks[0][1] is None:
+            Jt2 = lin.J_theta.reshape(-1, lin.J_theta.shape[2])
             A = Jt2.T @ Jt2 + _prior_normal(lin)
             B = np.matmul(lin.J_theta.transpose(0, 2, 1), lin.J_local[:, :mt])
+            g_t = Jt2.T @ lin.r[:, :mt].reshape(-1)
         else:  # each pose's products on its own columns (the others are zero in its rows)
-            Jc_all = lin.cache["columns"].gather(lin.J_theta)  # (N, mt, c)
+            Jc_all = self._on_columns(lin)  # (N, mt, c)
+            g_t = lin.cache["columns"].transpose_times(Jc_all, lin.r[:, :mt])
             A = _prior_normal(lin).copy()
             for c, pc in blocks:
                 assert pc is not None  # one choice for all chunks
-                A = A + pc.inner(Jc_all[c], Jc_all[c])
+                Jc = Jc_all[c]
+                A = A + pc.inner(Jc, Jc)  # the same object: inner's symmetric shortcut
             # B on each pose's columns (N, c, nz), kept for the Schur complement and the leverage,
             # and placed into the (N, P, nz) the step uses.
             lin.cache["B_own"] = np.matmul(Jc_all.transpose(0, 2, 1), lin.J_local[:, :mt])
             B = lin.cache["columns"].place_rows(lin.cache["B_own"])
-        g_t = Jt2.T @ lin.r[:, :mt].reshape(-1) + lin.prior_J.T @ lin.prior_r
+        g_t = g_t + lin.prior_J.T @ lin.prior_r
         JzT = lin.J_local.transpose(0, 2, 1)
         D = np.matmul(JzT, lin.J_local)
         g_z = np.matmul(JzT, lin.r[:, :, None])[:, :, 0]
@@ -180,7 +201,7 @@ class ArrowElimination:
             Dinv = self._inverses(self.normal_equations(lin)[2])
             # S itself from a QR elimination of each pose's whitened rows [J_local, J_theta], as
             # GTSAM does: B D^-1 B^T cancels ~1e-4 of A's entries under the 1e-4 mm kinematic sigma.
-            n, mt, P = lin.J_theta.shape
+            mt, P = lin.J_stored.shape[1], lin.prior_J.shape[1]
             S = _prior_normal(lin).copy()
             for c, pc in self._blocks(lin):
                 k = len(lin.r[c])
@@ -189,7 +210,7 @@ class ArrowElimination:
                 width = P if pc is None else pc.cols.shape[1]  # zero columns would give zero rows of R
                 M = np.zeros((k, self.m + extra, self.nz + width))
                 M[:, :self.m, :self.nz] = lin.J_local[c]
-                M[:, :mt, self.nz:] = lin.J_theta[c] if pc is None else pc.gather(lin.J_theta[c])
+                M[:, :mt, self.nz:] = lin.J_theta[c] if pc is None else self._on_columns(lin)[c]
                 if extra:
                     M[:, self.m:, :self.nz] = pad[:, :, None] * np.eye(self.nz)  # unit rows keep padding at zero
                 R = np.asarray(np.linalg.qr(M, mode="r"))[:, self.nz:, self.nz:]
@@ -204,7 +225,8 @@ class ArrowElimination:
         """A damped Gauss-Newton step: ``(new state, d_theta, predicted cost decrease)``."""
         A, B, D, g_t, g_z = self.normal_equations(lin)
         S, rhs, Dinv = self.reduced(A, B, D, g_t, g_z, damping, lin=lin)
-        d_theta = -np.linalg.solve(S, rhs)
+        split = self._setup_split(S)
+        d_theta = -(np.linalg.solve(S, rhs) if split is None else split.solve(S, rhs))
         d_z = -np.matmul(Dinv, (g_z + np.matmul(d_theta, B))[:, :, None])[:, :, 0]
         new = state.copy()
         new.theta = state.theta + d_theta
@@ -234,16 +256,40 @@ class ArrowElimination:
         linearisation: the noise rounds' leverage and the level summaries' are then one product."""
         lin = self.linearise(state) if lin is None else lin
         if "information_inverse" not in lin.cache:
-            lin.cache["information_inverse"] = scaled_inverse(self.parameter_information(state, lin))
+            S = self.parameter_information(state, lin)
+            lin.cache["information_inverse"] = scaled_inverse(S, self._setup_split(S))
         return lin.cache["information_inverse"]
 
+    def _setup_split(self, S: np.ndarray) -> SetupSplit | None:
+        """The :class:`~fgcal.estimation.setup_schur.SetupSplit` of ``S`` (P, P) (None: dense algebra),
+        made once per pattern of its set-up block (the graph's structure: the same at every step)."""
+        if self.S <= 0:
+            return None
+        g, s = np.arange(self.n_geo + self.K), np.arange(self.n_geo + self.K, len(S))
+        pattern = S[self.n_geo + self.K:, self.n_geo + self.K:] != 0.0
+        last = getattr(self, "_last_split", None)
+        if last is None or last[0].shape != pattern.shape or not np.array_equal(last[0], pattern):
+            self._last_split: tuple[np.ndarray, SetupSplit | None] = (pattern, SetupSplit.of(S, g, s))
+        return self._last_split[1]
+
     def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:
-        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms."""
+        """The (P, P) covariance of theta: the inverse of the Schur complement the solve forms
+        (:meth:`information_inverse`, which the noise rounds have formed at the solution already),
+        symmetrised."""
         lin = self.linearise(state) if lin is None else lin
         if "covariance" not in lin.cache:
-            S = self._reduced_at(lin)[0]
-            lin.cache["covariance"] = np.linalg.inv(0.5 * (S + S.T))
+            V = self.information_inverse(state, lin)
+            lin.cache["covariance"] = 0.5 * (V + V.T)
         return lin.cache["covariance"]
+
+    def parameter_spectrum(self, state: State, lin: Linearisation | None = None) -> ScaledSpectrum:
+        """The :class:`~fgcal.robots.jacobian_rank.ScaledSpectrum` of :meth:`parameter_information`,
+        formed once per linearisation (the covariance's singularity check and the identifiability at
+        the solution share it)."""
+        lin = self.linearise(state) if lin is None else lin
+        if "spectrum" not in lin.cache:
+            lin.cache["spectrum"] = ScaledSpectrum(self.parameter_information(state, lin))
+        return lin.cache["spectrum"]
 
     def row_leverage(self, state: State, covariance, lin: Linearisation | None = None) -> np.ndarray:
         """Diagonal of the hat matrix (N, m) of the whitened rows; ``covariance`` is theta's (P, P).
@@ -257,7 +303,8 @@ class ArrowElimination:
             return cached[1]
         _, B, _, _, _ = self.normal_equations(lin)
         _, Dinv = self._reduced_at(lin)
-        Jt_all, Jz_all = lin.J_theta, lin.J_local
+        Jz_all = lin.J_local
+        Jt_all = lin.J_theta if lin.cache["columns"] is None else self._on_columns(lin)
         mt = Jt_all.shape[1]
         h = np.zeros(lin.r.shape)
         # In chunks of poses: the temporaries are as large as J_theta (on 8,000 poses with a
@@ -265,7 +312,7 @@ class ArrowElimination:
         for c, pc in self._blocks(lin):
             # A pose's rows are zero off its columns: only that block of Sigma reaches them.
             Jz = Jz_all[c]
-            Jt = Jt_all[c] if pc is None else pc.gather(Jt_all[c])
+            Jt = Jt_all[c]  # (n, mt, P), or on the poses' columns (n, mt, c)
             # Hat diagonal per row: J_i Sigma J_i^T with J = [J_theta, J_local]; only the first mt
             # rows of a pose depend on theta.
             if not self.nz:

@@ -16,10 +16,12 @@ linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 from __future__ import annotations
 
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 
 import factors.errors as fx
+from fgcal.estimation.column_groups import setup_columns
 from fgcal.estimation.elimination import POSE_CHUNK, ArrowElimination
 from fgcal.estimation.graph_block import JointErrorColumns, compact_design
 from fgcal.estimation.graph_types import Linearisation, Sigmas, State, _robust
@@ -89,6 +91,9 @@ class Graph(ArrowElimination, JointErrorColumns):
         self.setup = setup
         self.S = 0 if setup is None else setup.n_free
         self._setup_col = None if setup is None else self.n_geo + self.K + setup.column()  # < n_geo+K: fixed
+        # The pose columns the theta Jacobian is formed on (set-up unknowns): False until the first
+        # linearisation has shown which set-up columns each pose's rows touch, then None (dense) or them.
+        self._pose_columns: Any = False if self.S else None
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -246,9 +251,19 @@ class Graph(ArrowElimination, JointErrorColumns):
         n, m, mt, P, nz = self.n_poses, self.m, self.m_theta, self.n_geo + self.K + self.S, self.nz
         theta = state.theta[:self.n_geo]
         r = np.zeros((n, m))
-        Jt = np.zeros((n, mt, 0 if residuals_only else P))
-        Jz = np.zeros((n, m, nz))
         q = self.joints(state)
+        # The set-up levels' rows first: their entries say which columns each pose's rows touch (the
+        # graph's structure, known from its first linearisation on), before the Jacobian is allocated.
+        setup_rows = {level: BY_LEVEL[level].setup_error(theta, q[terms.pose], terms.data, self.setup_values(state.theta),
+                                                         self.index, self.held, self.chain)
+                      for level, terms in self.measurements.items() if getattr(BY_LEVEL[level], "uses_setup", False)}
+        if self._pose_columns is False and not residuals_only:
+            touched = [self._setup_touched(self.measurements[lv].pose, rows[4]) for lv, rows in setup_rows.items()]
+            self._pose_columns = setup_columns(n, self.n_geo + self.K, P, *map(np.concatenate, zip(*touched))) \
+                if touched else None
+        on_columns = None if residuals_only else self._pose_columns
+        Jt = np.zeros((n, mt, 0 if residuals_only else P if on_columns is None else on_columns.cols.shape[1]))
+        Jz = np.zeros((n, m, nz))
         cost = 0.0
         raw = {}
         excluded_rows: list = []
@@ -291,7 +306,7 @@ class Graph(ArrowElimination, JointErrorColumns):
                     if with_block:
                         Jt[at + (slice(self.n_geo, self.n_geo + self.K),)] = self._block_columns(pose[c], J_q[c] * s_)
                 if setup is not None:
-                    self._setup_into(Jt, pose, rows_, *setup, sw)
+                    self._setup_into(Jt, pose, rows_, *setup, sw, on_columns)
             if J_q is not None and self.joint_vars:
                 Jz[pose[:, None], rows_, :self.n_joints] = J_q * sw[:, :, None]
             if J_c is not None:
@@ -334,9 +349,7 @@ class Graph(ArrowElimination, JointErrorColumns):
         for level, terms in self.measurements.items():
             kind = BY_LEVEL[level]
             if getattr(kind, "uses_setup", False):
-                e, J_t, J_q, J_s, cols = kind.setup_error(theta, q[terms.pose], terms.data,
-                                                          self.setup_values(state.theta), self.index, self.held,
-                                                          self.chain)
+                e, J_t, J_q, J_s, cols = setup_rows.pop(level)
                 put(level, terms.pose, self.row[level], e, self._with_block(terms.pose, J_t, J_q), J_q,
                     sigma=kind.sigma(self.sigmas), setup=(J_s, cols))
             else:
@@ -351,7 +364,7 @@ class Graph(ArrowElimination, JointErrorColumns):
             J_joints = None
             if self.K:  # the joint variable is the reading plus the block's correction
                 e = fx.joint_error(state.q, self.readings + self.block_correction(state.theta))
-                J_joints = np.zeros((n, nj, 0 if residuals_only else P))
+                J_joints = np.zeros((n, nj, 0 if residuals_only else self.n_geo + self.K))  # nothing beyond the block
                 if not residuals_only:
                     J_joints[:, self.g_joint, self.n_geo + np.arange(self.K)] = -self.g
             else:
@@ -371,7 +384,7 @@ class Graph(ArrowElimination, JointErrorColumns):
             prior_r, prior_J = np.concatenate([prior_r, c_r]), np.vstack([prior_J, c_J])
             raw["constraints"] = (c_e[:, None], np.abs(c_r), np.ones(len(c_r)))
             cost += 0.5 * float(c_r @ c_r)
-        return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw, excluded_rows=excluded_rows)
+        return Linearisation(r, Jt, Jz, prior_r, prior_J, cost, raw, excluded_rows=excluded_rows, columns=on_columns)
 
     def cost(self, state: State) -> float:
         return self.linearise(state).cost

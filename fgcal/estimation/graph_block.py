@@ -84,13 +84,25 @@ class JointErrorColumns:
         block = np.zeros(J_t.shape[:2] + (self.K,)) if self.joint_vars else self._block_columns(pose, J_q)
         return np.concatenate([J_t, block], axis=2)
 
-    def _setup_into(self, Jt, pose, rows_, J_s, cols, sw):
+    def _setup_touched(self, pose, cols) -> tuple[np.ndarray, np.ndarray]:
+        """``(pose, theta column)`` pairs (flat) of the free set-up entries ``cols`` (M, k) of rows of
+        poses ``pose`` (M,)."""
+        assert self._setup_col is not None  # a graph with set-up blocks
+        where = self._setup_col[cols]
+        free = where >= self.n_geo + self.K
+        return np.broadcast_to(np.asarray(pose)[:, None], where.shape)[free], where[free]
+
+    def _setup_into(self, Jt, pose, rows_, J_s, cols, sw, columns=None):
         """Write a set-up Jacobian ``J_s`` (M, w, k) at set-up entries ``cols`` (M, k), whitened by
-        ``sw`` (M, w), into the rows ``rows_`` (M, w) of poses ``pose`` (M,) of ``Jt`` (N, m_theta, P):
-        no (M, w, P) array of the factors' mostly zero set-up columns."""
+        ``sw`` (M, w), into the rows ``rows_`` (M, w) of poses ``pose`` (M,) of ``Jt`` (N, m_theta, P),
+        or, on pose ``columns`` (:class:`~fgcal.estimation.column_groups.PoseColumns`), of ``Jt``
+        (N, m_theta, c) at each entry's place among its pose's columns: no (M, w, P) array of the
+        factors' mostly zero set-up columns."""
         assert self._setup_col is not None  # a graph with set-up blocks
         where = self._setup_col[cols]  # (M, k) columns of theta; fixed entries map below n_geo + K
         free = where >= self.n_geo + self.K
+        if columns is not None:  # each free entry's place among its pose's columns (a fixed one's unused)
+            where = columns.slots(np.asarray(pose), np.where(free, where, where.max(initial=0)))
         if free.all():  # unknown blocks: every entry has its column
             Jt[pose[:, None, None], rows_[:, :, None], where[:, None, :]] = J_s * sw[:, :, None]
             return

@@ -6,6 +6,7 @@ holds the graph itself. No I/O here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -69,8 +70,10 @@ class Linearisation:
     Attributes
     ----------
     r : ndarray, shape (N, m)
-    J_theta : ndarray, shape (N, m_theta, P)
-        The first ``m_theta`` rows of each pose (the others do not depend on theta).
+    J_stored : ndarray, shape (N, m_theta, P), or (N, m_theta, c) on ``columns``
+        The theta Jacobian of the first ``m_theta`` rows of each pose (the others do not depend on
+        theta) as the graph formed it: dense, or on each pose's own columns where set-up unknowns
+        make most of a dense row zero (no (N, m_theta, P) array of zeros to fill, scan and gather).
     J_local : ndarray, shape (N, m, nz)
     prior_r, prior_J : global rows on theta only, shapes (k,), (k, P)
     cost : float
@@ -79,12 +82,15 @@ class Linearisation:
         ``{level: (e, s, w)}``: raw errors, whitened norms and weights per factor.
     excluded_rows : list
         The rows of the excluded measurements as they would be included (zero in ``r`` and the
-        Jacobians): ``(pose (k, 1), rows (k, w), r, J_local, J_theta or None)`` per level, for
+        Jacobians): ``(pose (k, 1), rows (k, w), r, J_local, J_stored rows or None)`` per level, for
         :func:`included`.
+    columns : PoseColumns or None
+        The pose columns ``J_stored`` is on (:class:`fgcal.estimation.column_groups.PoseColumns`);
+        None: it is dense.
     """
 
     r: np.ndarray
-    J_theta: np.ndarray
+    J_stored: np.ndarray
     J_local: np.ndarray
     prior_r: np.ndarray
     prior_J: np.ndarray
@@ -92,6 +98,17 @@ class Linearisation:
     raw: dict = field(default_factory=dict)
     cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
     excluded_rows: list = field(default_factory=list)
+    columns: Any = None
+
+    @property
+    def J_theta(self) -> np.ndarray:
+        """The dense theta Jacobian (N, m_theta, P) (placed from ``J_stored`` once where it is on
+        ``columns``: for the callers that index theta's columns directly)."""
+        if self.columns is None:
+            return self.J_stored
+        if "J_dense" not in self.cache:
+            self.cache["J_dense"] = self.columns.place(self.J_stored)
+        return self.cache["J_dense"]
 
 
 def included(lin: Linearisation) -> Linearisation:
@@ -100,13 +117,13 @@ def included(lin: Linearisation) -> Linearisation:
     ``lin`` itself when nothing was excluded."""
     if not lin.excluded_rows:
         return lin
-    r, J_theta, J_local = lin.r.copy(), lin.J_theta.copy(), lin.J_local.copy()
+    r, J_stored, J_local = lin.r.copy(), lin.J_stored.copy(), lin.J_local.copy()
     for pose, rows, r_ex, Jz_ex, Jt_ex in lin.excluded_rows:
         r[pose, rows] = r_ex
         J_local[pose, rows] = Jz_ex
         if Jt_ex is not None:
-            J_theta[pose, rows] = Jt_ex
-    return Linearisation(r, J_theta, J_local, lin.prior_r, lin.prior_J, float("nan"), lin.raw)
+            J_stored[pose, rows] = Jt_ex
+    return Linearisation(r, J_stored, J_local, lin.prior_r, lin.prior_J, float("nan"), lin.raw, columns=lin.columns)
 
 
 def _robust(s, kind, k):

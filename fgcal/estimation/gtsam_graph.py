@@ -34,8 +34,12 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     ``GaussianFactorGraph.optimize`` and moves by ``Values.retract``. Inside
     ``gtsam.LevenbergMarquardtOptimizer`` every ``CustomFactor`` callback costs time proportional
     to the whole ``Values`` (DESIGN.md section 5): there the cost grew with the square of the poses;
-    here it is linear. Stops when an accepted step lowers the error by no more than ``tolerance``
-    relative (GTSAM's ``relativeErrorTol``), when a step changes it by rounding only
+    here it is linear. Without a robust loss each pose's balls are one factor
+    (:func:`factors.pose_balls_factor`) whose rows, for all poses at once, are filled before each
+    linearisation (:class:`factors.PoseBallRows`): the callbacks only hand GTSAM their blocks. The
+    damped systems share one COLAMD ordering (their structure is the same). Stops when an accepted
+    step lowers the error by no more than ``tolerance`` relative (GTSAM's ``relativeErrorTol``),
+    when a step changes it by rounding only
     (:data:`fgcal.estimation.graph_types.COST_ROUNDING`), when no damping up to 1e5 lowers it, or after
     ``max_iterations``.
     """
@@ -45,11 +49,11 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
 
     g, values, shared = _nonlinear_graph(graph, state)
     keys = list(values.keys())
-    q_keys = [fx.joint_key(i) for i in range(graph.n_poses)] if graph.joint_vars else []
 
-    def at(v):  # the built-in pose factors' kinematics at v, all poses at once, then v itself
-        if shared is not None:
-            shared.fill(v.atVector(fx.theta_key()), [v.atVector(k) for k in q_keys] if q_keys else graph.readings)
+    def at(v):  # the pose factors' rows at v, all poses at once, then v itself
+        if shared is not None:  # (the values' q and c vectors in key order: q_0 ... q_{N-1}, c_0 ...)
+            q = gtsam.utilities.extractVectors(v, "q") if graph.joint_vars else graph.readings
+            shared.fill(v, v.atVector(fx.theta_key()), q, gtsam.utilities.extractVectors(v, "c"))
         return v
 
     dims = [values.atVector(k).shape[0] for k in keys]
@@ -62,15 +66,19 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     lin = g.linearize(at(values))
     error = lin.error(zero) if exact else g.error(values)
     lam, iterations, converged = 1e-5, 0, False  # GTSAM's lambdaInitial
+    ordering = None
     while iterations < max_iterations and not converged:
         iterations += 1
         while True:
             assert lin is not None  # None only once converged
-            damped = lin.clone()
+            damped = gtsam.GaussianFactorGraph()
+            damped.push_back(lin)  # lin's factors themselves (elimination only reads them): no copy
             model = {d: gtsam.noiseModel.Isotropic.Sigma(d, 1.0 / np.sqrt(lam)) for d in eye}
             for k, d in zip(keys, dims, strict=True):
-                damped.add(gtsam.JacobianFactor(k, eye[d], zero_of[d], model[d]))
-            new = at(values.retract(damped.optimize()))
+                damped.add(k, eye[d], zero_of[d], model[d])
+            if ordering is None:  # every damped system has the same structure: its COLAMD ordering once
+                ordering = gtsam.Ordering.ColamdGaussianFactorGraph(damped)
+            new = at(values.retract(damped.optimize(ordering)))
             new_lin = g.linearize(new) if exact else None
             new_error = new_lin.error(zero) if new_lin is not None else g.error(new)
             log.debug("LM %d: lambda %.1e error %.12g -> %.12g", iterations, lam, error, new_error)
@@ -89,9 +97,9 @@ def gtsam_levenberg_marquardt(graph: Graph, state: State, max_iterations=100, to
     out = state.copy()
     out.theta = np.asarray(values.atVector(fx.theta_key()), dtype=float)
     if graph.joint_vars:
-        out.q = np.array([values.atVector(fx.joint_key(i)) for i in range(graph.n_poses)]).reshape(state.q.shape)
+        out.q = gtsam.utilities.extractVectors(values, "q").reshape(state.q.shape)
     if len(graph.ball_pose):
-        out.c = np.array([values.atVector(fx.centre_key(j)) for j in range(len(graph.ball_pose))])
+        out.c = gtsam.utilities.extractVectors(values, "c").reshape(state.c.shape)
     return out, iterations, converged
 
 
@@ -184,8 +192,8 @@ def nonlinear_graph(graph: Graph, state: State):
 
 
 def _nonlinear_graph(graph: Graph, state: State, share: bool = True):
-    """:func:`nonlinear_graph` and the :class:`factors.PoseKinematics` its pose-centre factors read
-    (None: ``share`` False, or no such factors); the optimiser that owns the values fills it."""
+    """:func:`nonlinear_graph` and the :class:`factors.PoseBallRows` its pose factors read (None:
+    ``share`` False, or no such factors); the optimiser that owns the values fills it."""
     import gtsam
 
     import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
@@ -214,10 +222,13 @@ def _nonlinear_graph(graph: Graph, state: State, share: bool = True):
     for j in range(len(graph.ball_pose)):
         values.insert(fx.centre_key(j), np.asarray(state.c[j], dtype=float))
     shared = None
-    if robust is None:  # grouped: one factor per pose's centres and one per pose's probes (same rows, fewer callbacks)
+    if robust is None:  # grouped: one factor per pose's balls, its probe and centre rows (same rows, fewer callbacks)
         if share and len(graph.ball_pose):
-            shared = fx.PoseKinematics(graph.index, graph.held, graph.pose_offsets, graph.chain)
-        _grouped_ball_factors(g, graph, kept, qargs, t_key, shared)
+            import factors.pose_balls as pb
+
+            shared = pb.PoseBallRows(fx.PoseKinematics(graph.index, graph.held, graph.pose_offsets, graph.chain),
+                                     graph.radius if graph.probes is not None else 0.0)
+        _pose_ball_factors(g, graph, kept, qargs, t_key, shared)
     else:  # a robust loss is per row: one factor each
         for j, keep in enumerate(kept("kinematic", len(graph.ball_pose))):
             if keep:
@@ -248,37 +259,34 @@ def _nonlinear_graph(graph: Graph, state: State, share: bool = True):
     return g, values, shared
 
 
-def _grouped_ball_factors(g, graph: Graph, kept, qargs, t_key: int, shared=None) -> None:
-    """The kinematic rows of each pose's ball centres in one factor (one kinematics call for its
-    balls, or its rows of ``shared``, a :class:`factors.PoseKinematics`) and each pose's probe
-    points in one factor; excluded rows are left out."""
-    import factors.gtsam_factors as fx  # the module itself: no lazy look-up per name (40,000 at 1,000 poses)
+def _pose_ball_factors(g, graph: Graph, kept, qargs, t_key: int, shared=None) -> None:
+    """Each pose's balls in one factor (:func:`factors.pose_balls_factor`): its kept probe rows and
+    the kept centre rows of its balls (excluded rows are left out); ``shared``, a
+    :class:`factors.PoseBallRows`, lays out the same rows to fill for all poses at once."""
+    import factors.gtsam_factors as fx  # the modules themselves: no lazy look-up per name (40,000 at 1,000 poses)
+    import factors.pose_balls as pb
 
-    sig = graph.sigmas
-    keep_c = np.flatnonzero(kept("kinematic", len(graph.ball_pose)))
-    by_pose = keep_c[np.argsort(graph.ball_pose[keep_c], kind="stable")]
-    for js in np.split(by_pose, _cuts(graph.ball_pose[by_pose])):
-        if len(js):
-            pose = int(graph.ball_pose[js[0]])
-            g.add(fx.pose_centres_factor(graph.index, graph.held, graph.ball_offset[js], sig.kinematic, t_key=t_key,
-                                         c_keys=[fx.centre_key(int(j)) for j in js], **qargs(pose),
-                                         shared=None if shared is None else (shared, pose, graph.ball_slot[js])))
-    if graph.probes is None:
-        return
-    var, xyz = graph.probes[1], graph.probes[2]
+    sig, n_poses = graph.sigmas, graph.n_poses
+    keep_c = kept("kinematic", len(graph.ball_pose))
+    var, xyz = (graph.probes[1], graph.probes[2]) if graph.probes is not None else (np.zeros(0, int), np.zeros((0, 3)))
     keep_p = np.flatnonzero(kept("probes", len(var)))
-    pose_of = graph.ball_pose[var[keep_p]]
-    by_pose = keep_p[np.argsort(pose_of, kind="stable")]
-    for rows in np.split(by_pose, _cuts(graph.ball_pose[var[by_pose]])):
-        if len(rows):
-            balls, owner = np.unique(var[rows], return_inverse=True)
-            g.add(fx.pose_probes_factor([fx.centre_key(int(j)) for j in balls], owner.ravel(), xyz[rows], graph.radius,
-                                        sig.probe))
-
-
-def _cuts(sorted_owner) -> np.ndarray:
-    """Where a sorted array of owners changes: the split points of its groups."""
-    return np.flatnonzero(np.diff(sorted_owner)) + 1
+    used = keep_c.copy()  # the balls with a row: their kept centre rows or a kept probe point
+    used[var[keep_p]] = True
+    balls = np.flatnonzero(used)
+    balls = balls[np.argsort(graph.ball_pose[balls], kind="stable")]  # by pose, then by variable
+    probes = keep_p[np.argsort(graph.ball_pose[var[keep_p]], kind="stable")]  # by pose, in the file's order
+    ball_cut = np.searchsorted(graph.ball_pose[balls], np.arange(n_poses + 1))
+    probe_cut = np.searchsorted(graph.ball_pose[var[probes]], np.arange(n_poses + 1))
+    radius = graph.radius if graph.probes is not None else 0.0
+    for i in range(n_poses):
+        js = balls[ball_cut[i]:ball_cut[i + 1]]
+        if not len(js):
+            continue
+        rows = probes[probe_cut[i]:probe_cut[i + 1]]
+        g.add(pb.pose_balls_factor(graph.index, graph.held, [fx.centre_key(int(j)) for j in js], graph.ball_offset[js],
+                                   xyz[rows], np.searchsorted(js, var[rows]), radius, sig.probe, sig.kinematic,
+                                   t_key=t_key, kinematic=keep_c[js], **qargs(i),
+                                   shared=None if shared is None else (shared, i, graph.ball_slot[js], js)))
 
 
 def distance_constraint_factor(setup, i: int, setup_column: int, t_key: int):

@@ -77,7 +77,7 @@ def _normal_only(graph: Graph, lin):
     is linearised (with a joint-error map on 8,000 poses, 160 MB)."""
     graph.normal_equations(lin)  # formed, kept in its cache
     graph.forget(lin)
-    n, mt, _ = lin.J_theta.shape  # (a view of J_theta would keep all of it)
+    n, mt, _ = lin.J_stored.shape  # (a view of J_stored would keep all of it)
     return Linearisation(lin.r, np.zeros((n, mt, 0)), lin.J_local, lin.prior_r, lin.prior_J, lin.cost, lin.raw,
                          {"normal": lin.cache["normal"]})
 

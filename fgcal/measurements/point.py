@@ -66,10 +66,15 @@ class PointMeasurement(KinematicMeasurement):
     def world_points(self, terms: Terms) -> dict:
         pose = np.asarray(terms.pose)
         offsets, xyz = (np.asarray(a, dtype=float).reshape(-1, 3) for a in terms.data)
-        order = np.argsort(pose, kind="stable")  # each pose's rows, in their order
-        groups = np.split(order, np.flatnonzero(np.diff(pose[order])) + 1) if len(pose) else []
-        groups.sort(key=lambda g: int(g[0]))  # poses in the order of their first row (stable sort: g[0] is it)
-        return {int(pose[g[0]]): (offsets[g], xyz[g]) for g in groups}
+        if not len(pose):
+            return {}
+        # Poses in the order of their first row, each pose's rows in their order: one sort, then
+        # views of the sorted arrays (a fancy index per pose cost 2 ms at 1,000 poses).
+        _, first, inverse = np.unique(pose, return_index=True, return_inverse=True)
+        order = np.argsort(first[inverse.ravel()], kind="stable")
+        poses, offsets, xyz = pose[order].tolist(), offsets[order], xyz[order]
+        cuts = (np.flatnonzero(np.diff(pose[order])) + 1).tolist()
+        return {int(poses[a]): (offsets[a:z], xyz[a:z]) for a, z in zip([0, *cuts], [*cuts, len(order)])}
 
     def design_data(self, forward, offsets) -> tuple:
         return (offsets, tool_points(forward, offsets[:, None, :])[:, 0])

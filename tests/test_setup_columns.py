@@ -1,0 +1,77 @@
+"""A graph with many set-up unknowns forms its theta Jacobian on each pose's columns (the robot's and
+its fixture's): the same rows, the same dense Jacobian placed from them, the same normal equations,
+step, covariance and leverage as the graph formed densely, with joint variables and excluded rows."""
+import numpy as np
+import pytest
+
+from fgcal.estimation.calibrate import CalibrationOptions, build_graph
+from fgcal.estimation.graph_types import included
+from fgcal.measurements.contact import ContactObservations
+from fgcal.measurements.dataset import Dataset, Noise
+from fgcal.measurements.setup import DistanceConstraint, FixtureSpec, SetupSpec
+from fgcal.robots.model import Tooling
+
+SOCKETS = 24
+
+
+def _many_sockets(model, joint_resolution, seed=3, n=120):
+    """Contacts of one ball in SOCKETS unknown points (pairs 50 mm apart) at random joints (the rows
+    need not be zero: the linearisations are compared, not solved)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
+    q = rng.uniform(np.maximum(lo, -2.5), np.minimum(hi, 2.5), size=(n, model.n_joints))
+    names = [f"s{k}" for k in range(SOCKETS)]
+    fixtures = {f: FixtureSpec(f, "point") for f in names}
+    distances = tuple(DistanceConstraint(names[k], names[k + 1], 50.0, 0.01) for k in range(0, SOCKETS, 2))
+    ds = Dataset(robot=model.name, tooling=Tooling(4.0, {"B": np.array([10.0, -5.0, 60.0])}),
+                 noise=Noise(cmm_sigma=0.01, joint_resolution=joint_resolution, extra=(("contact_sigma", 0.02),)),
+                 provenance={}, pose_ids=np.arange(1, n + 1), joints_deg=model.joints_to_file_units(q),
+                 setup=SetupSpec(fixtures, distances))
+    ds.contacts = ContactObservations(ds.pose_ids, np.full(n, "B"), np.array(names)[rng.integers(0, SOCKETS, n)])
+    return ds
+
+
+def _graphs(model, joint_resolution):
+    ds = _many_sockets(model, joint_resolution)
+    names = model.parameters().names
+    graph, state, _ = build_graph(ds, model, names, CalibrationOptions())
+    dense, _, _ = build_graph(ds, model, names, CalibrationOptions())
+    dense._pose_columns = None  # the dense layout: every theta column in every row
+    rng = np.random.default_rng(11)
+    state.theta = state.theta + rng.normal(scale=1e-3, size=state.theta.shape)
+    state.q = state.q + rng.normal(scale=1e-4, size=state.q.shape)
+    return graph, dense, state
+
+
+@pytest.mark.parametrize("joint_resolution", [0.0, 0.001])
+def test_pose_column_linearisation_equals_the_dense_one(puma, joint_resolution):
+    graph, dense, state = _graphs(puma, joint_resolution)
+    lin, ref = graph.linearise(state), dense.linearise(state)
+    P = len(state.theta)
+    assert lin.columns is not None and ref.columns is None
+    assert lin.J_stored.shape[2] < P // 2 and lin.J_theta.shape == ref.J_theta.shape
+    np.testing.assert_array_equal(lin.r, ref.r)
+    np.testing.assert_array_equal(lin.J_theta, ref.J_theta)
+    for a, b in zip(graph.normal_equations(lin), dense.normal_equations(ref)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * max(np.abs(b).max(initial=0.0), 1.0))
+    _, step, _ = graph.step(state, lin, 1e-3)
+    _, step_ref, _ = dense.step(state, ref, 1e-3)
+    np.testing.assert_allclose(step, step_ref, rtol=0, atol=1e-9 * np.abs(step_ref).max())
+    cov, cov_ref = graph.covariance(state, lin), dense.covariance(state, ref)
+    np.testing.assert_allclose(cov, cov_ref, rtol=0, atol=1e-9 * np.abs(cov_ref).max())
+    np.testing.assert_allclose(graph.row_leverage(state, cov, lin), dense.row_leverage(state, cov_ref, ref),
+                               rtol=0, atol=1e-9)
+
+
+def test_excluded_rows_are_put_back_on_their_columns(puma):
+    graph, dense, state = _graphs(puma, 0.0)
+    out = np.zeros(graph.n_poses, dtype=bool)
+    out[::7] = True
+    graph.excluded = dense.excluded = {"contacts": out}
+    lin, ref = graph.linearise(state), dense.linearise(state)
+    pose, rows = graph.factor_rows("contacts")
+    assert np.all(lin.J_theta[pose[out, None], rows[out]] == 0.0)
+    back, back_ref = included(lin), included(ref)
+    assert back.columns is lin.columns
+    np.testing.assert_array_equal(back.J_theta, back_ref.J_theta)
+    assert np.any(back.J_theta[pose[out, None], rows[out]] != 0.0)
