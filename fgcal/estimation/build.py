@@ -23,7 +23,14 @@ from fgcal.robots.kinematics import tool_points
 from fgcal.robots.model import EULER_FIELDS, RobotModel
 from fgcal.robots.transforms import to_euler_zyx_trans
 
-__all__ = ["build_graph"]
+__all__ = ["MIRRORS", "PLAIN_FITS", "build_graph"]
+
+# Keys of ``fits`` (:func:`build_graph`) for fits the caller made of single balls before, each
+# sphere's fit being independent of the others fitted with it: ``{(radius, points' bytes): centre}``
+# of :func:`fit_spheres_batch` and ``{(points' bytes, centre's bytes): mirror}`` of
+# :func:`mirror_through_points` (an online engine's sphere fits, taken by its final smoothing).
+PLAIN_FITS = "plain fits"
+MIRRORS = "mirrors"
 
 
 def _sigmas(ds: Dataset, model: RobotModel, options: CalibrationOptions, scale=None) -> Sigmas:
@@ -156,6 +163,20 @@ def _kept(fits: dict | None, fn, *args, **kw):
     return hit
 
 
+def _known(fits: dict | None, table: str, fn, points, other):
+    """``fn(points, other)`` (K spheres): the rows of ``fits[table]`` where every sphere's is there,
+    keyed as :data:`PLAIN_FITS` (``other`` the radius) or :data:`MIRRORS` (``other`` the centres,
+    (K, 3)) say, fitted before one sphere at a time (the same values); else ``_kept``'s."""
+    known = fits.get(table) if fits else None
+    if known:
+        keys = [(other, p.tobytes()) for p in points] if table == PLAIN_FITS else \
+            [(p.tobytes(), c.tobytes()) for p, c in zip(points, other)]
+        rows = [known.get(k) for k in keys]
+        if all(r is not None for r in rows):
+            return np.array(rows, dtype=float).reshape(len(rows), 3)
+    return _kept(fits, fn, points, other)
+
+
 def _rows_key(obs) -> tuple:
     """A key of every array an observation table holds (poses, names, measured values)."""
     return tuple(_key(v) for v in vars(obs).values() if isinstance(v, np.ndarray))
@@ -213,7 +234,7 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
         # Start each centre from a sphere fit of its points (batched over balls with equal counts).
         init_c = np.full((len(key), 3), np.nan)
         for vs, pts in point_groups(var_of_probe, pr.xyz, minimum=4):
-            init_c[vs] = _kept(fits, fit_spheres_batch, pts, ds.tooling.radius)
+            init_c[vs] = _known(fits, PLAIN_FITS, fit_spheres_batch, pts, ds.tooling.radius)
         world_points = _points_by_pose(ball_pose, ball_offset, init_c)
         kw.update(probes=(probe_row, var_of_probe, pr.xyz), ball_pose=ball_pose, ball_offset=ball_offset,
                   radius=ds.tooling.radius)
@@ -291,9 +312,9 @@ def build_graph(ds: Dataset, model: RobotModel, names, options: CalibrationOptio
             first_ok = np.where(ok[:, None], first, predicted[vs])
             # from the plain fits and their mirror images (the same at any start where every plain fit
             # succeeded: kept in ``fits``), and from the prediction
+            mirrors = _known(fits, MIRRORS, mirror_through_points, pts, first_ok)
             candidates = [_kept(fits, fit_spheres_batch, pts, ds.tooling.radius, guess=first_ok),
-                          _kept(fits, fit_spheres_batch, pts, ds.tooling.radius,
-                                guess=_kept(fits, mirror_through_points, pts, first_ok)),
+                          _kept(fits, fit_spheres_batch, pts, ds.tooling.radius, guess=mirrors),
                           fit_spheres_batch(pts, ds.tooling.radius, guess=predicted[vs])]
             init_c[vs] = best_of_candidates(pts, ds.tooling.radius, candidates,
                                             np.inf if warm else ds.noise.cmm_sigma, predicted[vs])

@@ -133,12 +133,15 @@ def point_groups(owner, xyz, minimum: int = 1):
         yield spheres, xyz[order[starts[spheres][:, None] + np.arange(n)]]
 
 
-def fit_spheres_checked(point_sets, radius: float, sigma: float, threshold: float | None = None):
+def fit_spheres_checked(point_sets, radius: float, sigma: float, threshold: float | None = None,
+                        plain: list | None = None):
     """:func:`fit_sphere` (known radius) for several balls at once, fast for the common case.
 
     Balls with equal point counts are fitted together (vectorised Gauss-Newton from algebraic
     starts); a ball that fails the residual check, or whose fit is doubtful, is refitted by
     :func:`fit_sphere` to get its full diagnosis. Returns a list of :class:`SphereFit`.
+    ``plain``: a list as long as ``point_sets``, given to be filled with each ball's centre (3,)
+    from :func:`fit_spheres_batch` before any check (None for fewer than 4 points).
     """
     out: list[SphereFit | None] = [None] * len(point_sets)
     by_count: dict[int, list[int]] = {}
@@ -152,6 +155,8 @@ def fit_spheres_checked(point_sets, radius: float, sigma: float, threshold: floa
         centres, res, rms, cov, passed = fit_spheres_arrays(np.array([point_sets[i] for i in idx], dtype=float),
                                                             radius, sigma, threshold)
         for k, i in enumerate(idx):
+            if plain is not None:
+                plain[i] = centres[k]
             if passed[k]:
                 out[i] = SphereFit(centres[k], float(radius), res[k], float(rms[k]), cov[k], True, "ok")
             else:

@@ -16,7 +16,7 @@ from fgcal.estimation.holding import unseen_parameters
 from fgcal.estimation.options import WEAK_PRIOR, CalibrationOptions
 from fgcal.estimation.setup_params import is_setup_name
 from fgcal.measurements.dataset import Dataset
-from fgcal.online.centres import _good_centres
+from fgcal.online.centres import _good_centres, smoothing_fits
 from fgcal.online.measurement import NoiseTracker, PoseMeasurement, UpdateReport
 from fgcal.online.records import PoseData, _variant, records_dataset
 from fgcal.online.setup_blocks import OnlineSetup
@@ -74,6 +74,7 @@ class _Engine:
         self.final_held: dict[str, list[str]] = {}  # held by the final smoothing besides
         self.params = ParameterSet(model, tuple(names))
         self.index = self.params.index  # slot of each parameter (P,) (a property that builds it anew)
+        self.is_angle = self.params.is_angle.astype(float)  # (P,) 1 for an angle, 0 for a length
         self.held = model.nominal.copy()
         self.sigmas: Sigmas = _sigmas(ds, model, options)
         self.prior_sigma = self._prior_sigma()
@@ -98,6 +99,7 @@ class _Engine:
         """Estimate ``names`` (a restored snapshot's); the others of the model's are held as unseen."""
         self.params = ParameterSet(self.model, tuple(names))
         self.index = self.params.index
+        self.is_angle = self.params.is_angle.astype(float)
         self.prior_sigma = self._prior_sigma()
         self.unseen = {n: self.unseen.get(n, []) for n in self.model.parameters().names
                        if n not in names and n not in self.gauge}
@@ -287,7 +289,8 @@ class _Engine:
         reasons = gauge_names(seen, self.model, [*self.gauge, *names])
         self._gauge_reasons = {**reasons, **self._gauge_reasons}
         gauge = [n for n in reasons if n in names]
-        fits: dict = {}  # the sphere fits both builds of ``seen`` share (fgcal.estimation.build.build_graph)
+        # the sphere fits both builds of ``seen`` share (fgcal.estimation.build.build_graph), from the engine's own
+        fits: dict = smoothing_fits(self.seen.values(), self.ds.tooling.radius)
         try:
             held, priors = batch_held(self, seen, [n for n in names if n not in gauge], fits)
             held = {**{n: [] for n in gauge}, **held}

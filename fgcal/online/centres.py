@@ -55,7 +55,7 @@ def _good_centres(rec: PoseData, tooling, sigma_cmm: float, prediction=None, spr
     sigma = max(sigma_cmm, 1e-6)
     prefit([rec], tooling, sigma_cmm)
     assert rec.fits is not None  # set by prefit
-    fits = [rec.fits[j][1:] for j, (_, p) in enumerate(rec.probes) if len(p) >= 3]
+    fits = [rec.fits[j][1:4] for j, (_, p) in enumerate(rec.probes) if len(p) >= 3]
     kept, narrow = [], {}
     for (ball, pts), (fit, mirror, thin) in zip(usable, fits):
         # A residual above the sphere check's limit alone does not reject the ball: as in the batch
@@ -150,7 +150,8 @@ def prefit(records, tooling, sigma_cmm: float) -> None:
             r.fits = {}
     if not todo:
         return
-    fits = fit_spheres_checked([p for _, _, p in todo], tooling.radius, max(sigma_cmm, 1e-6))
+    plain: list = [None] * len(todo)  # the unchecked fits, for the final smoothing's build (smoothing_fits)
+    fits = fit_spheres_checked([p for _, _, p in todo], tooling.radius, max(sigma_cmm, 1e-6), plain=plain)
     covs = np.array([f.covariance for f in fits])
     finite = np.all(np.isfinite(covs), axis=(1, 2))
     ev = np.linalg.eigvalsh(np.where(finite[:, None, None], covs, np.eye(3)))
@@ -161,8 +162,24 @@ def prefit(records, tooling, sigma_cmm: float) -> None:
         idx = np.nonzero(counts == n)[0]
         mirrors[idx] = mirror_through_points(np.array([todo[i][2] for i in idx]),
                                              np.array([fits[i].centre for i in idx]))
-    for (r, j, p), fit, mirror, narrow in zip(todo, fits, mirrors, thin.tolist()):
-        r.fits[j] = (p, fit, mirror, narrow)  # the points themselves: a record whose points are replaced is fitted again
+    for (r, j, p), fit, mirror, narrow, c in zip(todo, fits, mirrors, thin.tolist(), plain):
+        r.fits[j] = (p, fit, mirror, narrow, c)  # the points themselves: a record whose points are replaced is fitted again
+
+
+def smoothing_fits(records, radius: float) -> dict:
+    """The sphere fits of ``records`` (:func:`prefit`'s) as the batch build takes them
+    (:data:`fgcal.estimation.build.PLAIN_FITS`, :data:`~fgcal.estimation.build.MIRRORS`): each
+    ball's unchecked fit and the mirror image of its fit, by the bytes of its points."""
+    from fgcal.estimation.build import MIRRORS, PLAIN_FITS
+
+    plain, mirrors = {}, {}
+    for r in records:
+        for p, fit, mirror, _, c in (r.fits or {}).values():
+            key = np.ascontiguousarray(p, dtype=float).tobytes()
+            if c is not None:
+                plain[(radius, key)] = c
+            mirrors[(key, np.ascontiguousarray(fit.centre, dtype=float).tobytes())] = mirror
+    return {PLAIN_FITS: plain, MIRRORS: mirrors}
 
 
 def _search_mirrors(kept, prediction, radius, sigma, flip):

@@ -85,8 +85,9 @@ class NoiseTracker:
     def observe(self, v, A, R) -> float:
         """Record innovation ``v`` (A, R as above); returns the factor to gate and update it with."""
         f = self.factor()
-        Si = np.linalg.inv(A + f * R)
-        d2, a, b = float(v @ Si @ v), float(np.trace(Si @ A)), float(np.trace(Si @ R))
+        m = len(v)
+        X = np.linalg.solve(A + f * R, np.hstack([v[:, None], A, R]))  # S^-1 [v, A, R]: one factorisation
+        d2, a, b = float(v @ X[:, 0]), float(np.trace(X[:, 1:m + 1])), float(np.trace(X[:, m + 1:]))
         self.last = None
         if f * b >= REDUNDANCY * len(v):
             self.add(max((d2 - a) / b, 0.0), f * b)
@@ -160,6 +161,23 @@ class PoseMeasurement:
             return self._last[1]
         self._last = (key, self._evaluate(theta))
         return self._last[1]
+
+    def bend(self, dx, H, R) -> float:
+        """A bound on how far the state's step ``dx`` (P,) moves the measurement from its
+        linearisation ``H`` (M, P), whitened by ``R`` (M, M): to second order, a point's second
+        derivatives are its first ones turned by a rotation's axis, so the error is at most the
+        angles' steps summed (rad) times the point's first-order move bound (mm). Ball centres
+        only (inf for other rows, or with set-up entries in the state: relinearised by the step)."""
+        engine = self.engine
+        if not self._centres_only or len(dx) != len(engine.params):
+            return np.inf
+        step = np.abs(dx)
+        turn = float(step @ engine.is_angle)
+        if not turn:
+            return 0.0
+        columns = np.sqrt(np.add.reduce((H * H).reshape(-1, 3, H.shape[1]), axis=1))  # (B, P): each column's length per ball
+        move = columns @ step  # (B,) mm
+        return turn * float(np.sqrt(move @ move)) / float(np.sqrt(max(np.linalg.eigvalsh(R)[0], 1e-300)))
 
     def augment(self, x, P):
         """The state ``(x, P)`` with the set-up blocks this pose starts appended (see
