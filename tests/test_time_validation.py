@@ -91,3 +91,18 @@ def test_the_cross_validation_problem_is_released_before_the_fits(monkeypatch):
     ds.poses.xyz[:, 0] += 0.4 * np.linspace(0, 1, ds.n_poses)  # drifting: the later poses' fold sums are formed
     _, sel = ms.compare_models(ds, UR10, CalibrationOptions(), up_to="compliance", rng=np.random.default_rng(0))
     assert sel.drift and alive and alive == [0] * len(alive)
+
+
+def test_a_column_no_pose_sees_fits_zero_under_its_prior_without_a_warning():
+    import warnings
+
+    from fgcal.estimation.time_validation import FoldSums
+
+    sums = FoldSums.__new__(FoldSums)  # the fold sums alone: two folds, column 2 seen by no pose
+    A = np.diag([1.0, 2.0, 0.0])
+    sums.A, sums.b = np.stack([A, A]), np.tile([1.0, 4.0, 0.0], (2, 1))
+    sums.A_all, sums.b_all = sums.A.sum(0), sums.b.sum(0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        x = sums.fit_without(0, [0, 1, 2], [np.inf, np.inf, 1e-6])
+    np.testing.assert_allclose(x, [-1.0, -2.0, 0.0], rtol=1e-8)

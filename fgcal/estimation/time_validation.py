@@ -72,7 +72,8 @@ class FoldSums:
         A = (self.A_all - self.A[f])[np.ix_(cols, cols)]
         b = (self.b_all - self.b[f])[cols]
         d = np.sqrt(np.maximum(np.diag(A), 1e-300))
-        As = A / np.outer(d, d) + np.diag(lam / d**2) + 1e-10 * np.eye(len(cols))
+        with np.errstate(over="ignore"):  # a column no pose sees, under a prior: an infinite diagonal, its fit 0
+            As = A / np.outer(d, d) + np.diag(lam / d**2) + 1e-10 * np.eye(len(cols))
         return -np.linalg.solve(As, b / d) / d
 
     def held_out_errors(self, cols, prior_sigma) -> np.ndarray:
