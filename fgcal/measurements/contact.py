@@ -157,10 +157,16 @@ class SetupMeasurement(KinematicMeasurement):
         fitted to them with its normal towards the tool."""
         pts = tool_points(T, tooling.offsets(obs.ball)[:, None, :])[:, 0]
         out = {}
-        for f in dict.fromkeys(obs.fixture.tolist()):
+        # each fixture's rows, in their order, from one sort (a comparison of every row's name per
+        # fixture cost 1 ms at 66 sockets)
+        names, first, inverse = np.unique(obs.fixture, return_index=True, return_inverse=True)
+        order = np.argsort(inverse.ravel(), kind="stable")
+        cuts = np.cumsum(np.bincount(inverse.ravel(), minlength=len(names)))[:-1]
+        rows_of = dict(zip(names.tolist(), np.split(order, cuts)))
+        for f in names[np.argsort(first)].tolist():  # in the order of first appearance
             if f not in unknown:
                 continue
-            sel = obs.fixture == f
+            sel = rows_of[f]
             c = pts[sel]
             if self.fixture_type == "point":
                 out[f] = c.mean(axis=0)
