@@ -199,9 +199,13 @@ class PoseColumns:
     def slots(self, pose: np.ndarray, where: np.ndarray) -> np.ndarray:
         """The position in each pose's columns (M, k) of the theta columns ``where`` (M, k) of rows
         of poses ``pose`` (M,); every one must be among its pose's columns."""
-        cols = self.cols[pose]  # (M, c)
-        hit = cols[:, None, :] == where[:, :, None]  # (M, k, c): one True each (the columns are distinct)
-        return np.argmax(hit, axis=2)
+        cache = self.__dict__.setdefault("_tables", {})
+        key = ("slots", np.asarray(pose).tobytes(), np.asarray(where).tobytes())  # the graph's structure: asked again every linearisation
+        if key not in cache:
+            cols = self.cols[pose]  # (M, c)
+            hit = cols[:, None, :] == where[:, :, None]  # (M, k, c): one True each (the columns are distinct)
+            cache[key] = np.argmax(hit, axis=2)
+        return cache[key]
 
     def scatter_vector(self, v: np.ndarray) -> np.ndarray:
         """The (P,) sum over poses of ``v`` (N, c) placed on each pose's columns."""

@@ -32,6 +32,15 @@ def connected_blocks(M: np.ndarray) -> np.ndarray:
         labels = new
 
 
+def _members(labels: np.ndarray) -> list[np.ndarray]:
+    """The indices (ascending) of each connected block of ``labels`` (n,), blocks in label order: one
+    stable sort (a comparison of every label per block cost 1 ms at 66 sockets)."""
+    _, comp = np.unique(labels, return_inverse=True)
+    comp = comp.ravel()
+    order = np.argsort(comp, kind="stable")
+    return np.split(order, np.cumsum(np.bincount(comp))[:-1])
+
+
 def marginal_information(info: np.ndarray, g: np.ndarray, s: np.ndarray) -> np.ndarray:
     """``info[g, g] - info[g, s] pinv(info[s, s]) info[s, g]``: the information of the ``g`` indices
     with the ``s`` ones marginalised, the pseudo-inverse taken per connected block of ``info[s, s]``.
@@ -50,9 +59,7 @@ def marginal_information(info: np.ndarray, g: np.ndarray, s: np.ndarray) -> np.n
     A, B, C, Bt = info[np.ix_(g, g)], info[np.ix_(g, s)], info[np.ix_(s, s)], info[np.ix_(s, g)]
     if len(s) <= DENSE_UP_TO:  # a few unknowns (planes, station frames): one dense pinv is cheaper
         return A - B @ np.linalg.pinv(C, rcond=RCOND) @ Bt
-    labels = connected_blocks(C)
-    _, comp = np.unique(labels, return_inverse=True)
-    members = [np.flatnonzero(comp == k) for k in range(comp.max() + 1)]
+    members = _members(connected_blocks(C))
     sizes = np.array([len(m) for m in members])
     parts = []  # (indices (b, w), U (b, w, w), singular values (b, w), Vt (b, w, w)) per block width
     for w in np.unique(sizes):
@@ -103,9 +110,7 @@ class SetupSplit:
         unknowns) or the blocks are wide."""
         if len(s) <= DENSE_UP_TO:
             return None
-        labels = connected_blocks(S[np.ix_(s, s)])
-        _, comp = np.unique(labels, return_inverse=True)
-        members = [np.flatnonzero(comp == k) for k in range(comp.max() + 1)]
+        members = _members(connected_blocks(S[np.ix_(s, s)]))
         widths = sorted({len(m) for m in members})
         if widths[-1] > MAX_BLOCK:
             return None

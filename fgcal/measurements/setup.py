@@ -274,10 +274,18 @@ class SetupLayout:
 
     def names(self) -> list[str]:
         """Names of the free entries, ``KIND.NAME.COMPONENT``."""
-        return self._per_block(lambda name, kind: [f"{kind.prefix}.{name}.{c}" for c in kind.components])
+        return list(self._names)
+
+    @cached_property
+    def _names(self) -> tuple[str, ...]:  # the layout is fixed once built: formed once (asked for ~6 times a solve)
+        return tuple(self._per_block(lambda name, kind: [f"{kind.prefix}.{name}.{c}" for c in kind.components]))
 
     def is_angle(self) -> np.ndarray:
         """(S_free,) whether each free entry is an angle (a plane's tilts, a station's angles)."""
+        return self._is_angle.copy()
+
+    @cached_property
+    def _is_angle(self) -> np.ndarray:
         return np.array(self._per_block(lambda name, kind: list(kind.angles)), dtype=bool)
 
     def prior(self) -> tuple[np.ndarray, np.ndarray]:
