@@ -29,18 +29,21 @@ Measured (round 3, session 5; ``--rows 3000 --repeat 5``, sequential best-of run
 per equation against the point type: as declared, stations 1.03-1.1, contacts 1.59-1.8, planes 1.02-1.14 (per
 pose 0.34); misdeclared, stations 1.0-1.5, contacts 1.7-2.05, planes 1.1-1.4.
 
-Measured (round 3, session 6; ``--rows 3000 --repeat 20``, interleaved rounds, three runs): the point type
-itself became 1.3x faster (12.7 -> 9.3-10.3 us a row: its base-fit points by views of one sort, the final
-covariance and identifiability sharing one inverse and one eigenvalue decomposition), so the ratios rose where
-every type's own time fell. As declared: stations 12.6-13.6 us a row (was 17.0), 1.27-1.39; contacts 15.3-16.0
-(was 23.5), 1.52-1.67 (the session's starting code, measured the same way: 1.82-1.89); planes 15.4-16.9 (was
-16.5), 1.55-1.74, per pose 0.52-0.58. Misdeclared: stations 1.31-1.38, contacts 1.62-1.74, planes 1.48-1.67.
+Measured (round 3, session 6; ``--rows 3000 --repeat 20``, interleaved rounds, the session's last code, two
+runs and one interleaved run of the calibrations alone): the point type itself became 1.3x faster (12.7 -> 9.2-9.3
+us a row: its base-fit points by views of one sort, the final covariance and identifiability sharing one inverse
+and one eigenvalue decomposition), so the ratios rose where every type's own time fell. As declared: stations
+12.2 us a row (was 17.0), 1.32-1.34; contacts 14.1 (was 23.5), 1.49-1.52 (the session's starting code, measured
+the same way: 1.82-1.89); planes 14.6 (was 16.5), 1.58-1.65, per pose 0.53. Misdeclared: stations 1.37,
+contacts 1.55, planes 1.69. Runs earlier in the session (before its last two changes, helpers busy beside
+them) gave up to 1.39 / 1.67 / 1.74: the machine's noise is of that size.
+
 Not met: as fast per row as the point type. What is left, measured: stations and contacts take one more LM
 step (6 against 5: the second noise round moves their optimum, the set-up priors' and distances' weight
 against the data changing with the noise, where the point type's does not move), about 15 % of a
 calibration; contacts pay their 198 socket coordinates in the elimination's per-pose products on 24 columns
 (PoseColumns.inner, ~0.5 ms a linearisation: numpy's floor for 1,000 small products) and the set-up
-identifiability (marginal_information, ~2 ms a calibration); a plane touch is one row for a whole pose's
+identifiability (marginal_information, ~1 ms a calibration); a plane touch is one row for a whole pose's
 kinematics where a centre is three, so per row it pays three times the kinematics (per pose it costs half
 the point type's).
 
