@@ -14,14 +14,18 @@ from fgcal.robots.model import Tooling
 SOCKETS = 24
 
 
-def _many_sockets(model, joint_resolution, seed=3, n=120):
-    """Contacts of one ball in SOCKETS unknown points (pairs 50 mm apart) at random joints (the rows
-    need not be zero: the linearisations are compared, not solved)."""
+def _many_sockets(model, joint_resolution, seed=3, n=120, known=0):
+    """Contacts of one ball in SOCKETS points (pairs 50 mm apart; the first ``known`` fixed at given
+    positions, the next ``known`` given with a prior) at random joints (the rows need not be zero: the
+    linearisations are compared, not solved)."""
     rng = np.random.default_rng(seed)
     lo, hi = model.joint_limits[:, 0], model.joint_limits[:, 1]
     q = rng.uniform(np.maximum(lo, -2.5), np.minimum(hi, 2.5), size=(n, model.n_joints))
     names = [f"s{k}" for k in range(SOCKETS)]
     fixtures = {f: FixtureSpec(f, "point") for f in names}
+    for k in range(known):
+        fixtures[names[k]] = FixtureSpec(names[k], "point", rng.normal(size=3) * 300, None, True)
+        fixtures[names[known + k]] = FixtureSpec(names[known + k], "point", rng.normal(size=3) * 300, 0.5)
     distances = tuple(DistanceConstraint(names[k], names[k + 1], 50.0, 0.01) for k in range(0, SOCKETS, 2))
     ds = Dataset(robot=model.name, tooling=Tooling(4.0, {"B": np.array([10.0, -5.0, 60.0])}),
                  noise=Noise(cmm_sigma=0.01, joint_resolution=joint_resolution, extra=(("contact_sigma", 0.02),)),
@@ -31,8 +35,8 @@ def _many_sockets(model, joint_resolution, seed=3, n=120):
     return ds
 
 
-def _graphs(model, joint_resolution):
-    ds = _many_sockets(model, joint_resolution)
+def _graphs(model, joint_resolution, known=0):
+    ds = _many_sockets(model, joint_resolution, known=known)
     names = model.parameters().names
     graph, state, _ = build_graph(ds, model, names, CalibrationOptions())
     dense, _, _ = build_graph(ds, model, names, CalibrationOptions())
@@ -43,9 +47,10 @@ def _graphs(model, joint_resolution):
     return graph, dense, state
 
 
-@pytest.mark.parametrize("joint_resolution", [0.0, 0.001])
-def test_pose_column_linearisation_equals_the_dense_one(puma, joint_resolution):
-    graph, dense, state = _graphs(puma, joint_resolution)
+@pytest.mark.parametrize("joint_resolution, known", [(0.0, 0), (0.001, 0), (0.0, 3)])
+def test_pose_column_linearisation_equals_the_dense_one(puma, joint_resolution, known):
+    """Also with fixed sockets (rows with no set-up column) and sockets given with a prior."""
+    graph, dense, state = _graphs(puma, joint_resolution, known)
     lin, ref = graph.linearise(state), dense.linearise(state)
     P = len(state.theta)
     assert lin.columns is not None and ref.columns is None
