@@ -38,14 +38,15 @@ the same way: 1.82-1.89); planes 14.6 (was 16.5), 1.58-1.65, per pose 0.53. Misd
 contacts 1.55, planes 1.69. Runs earlier in the session (before its last two changes, helpers busy beside
 them) gave up to 1.39 / 1.67 / 1.74: the machine's noise is of that size.
 
-Not met: as fast per row as the point type. What is left, measured: stations and contacts take one more LM
-step (6 against 5: the second noise round moves their optimum, the set-up priors' and distances' weight
-against the data changing with the noise, where the point type's does not move), about 15 % of a
-calibration; contacts pay their 198 socket coordinates in the elimination's per-pose products on 24 columns
-(PoseColumns.inner, ~0.5 ms a linearisation: numpy's floor for 1,000 small products) and the set-up
-identifiability (marginal_information, ~1 ms a calibration); a plane touch is one row for a whole pose's
-kinematics where a centre is three, so per row it pays three times the kinematics (per pose it costs half
-the point type's).
+Not met: as fast per row as the point type. What is left, measured (one linearisation, its normal equations and
+a step at the solution, least of 7 x 10): stations and contacts take one more LM iteration (6 against 5: the
+second noise round moves their optimum, the set-up priors' and distances' weight against the data changing with
+the noise, where the point type's does not move), 2.0 ms for contacts and 2.3 ms for stations, ~5 % of a
+calibration; a station linearisation costs 1.5x a centres one (1.96 against 1.29 ms: the frames' transforms and
+their columns), over the 8 of a calibration ~5 ms; contacts' normal equations cost 0.39 ms against 0.20 (per-pose
+products on 24 columns, PoseColumns.inner: numpy's floor for 1,000 small products) and their set-up
+identifiability (marginal_information) 0.45 ms twice; a plane touch is one row for a whole pose's kinematics
+where a centre is three, so per row it pays three times the kinematics (per pose it costs half the point type's).
 
 Run: ``python bench/bench_types.py [--rows 3000] [--repeat 10] [--data DIR]`` (``--data``: the datasets are
 kept in DIR and reused by later runs with the same ``--rows`` and ``--seed``; generating 3,000 rows takes minutes).

@@ -182,14 +182,10 @@ def ball_centres_factor(index, held, offsets, centres, covariance, *, t_key: int
 
 
 class PoseKinematics:
-    """The tool points' kinematics at every pose at once, for the per-pose factors that share it.
-
-    A loop that owns its ``gtsam.Values`` (fgcal's :func:`~fgcal.estimation.gtsam_graph.gtsam_levenberg_marquardt`)
-    calls :meth:`fill` with the values it is about to linearise at: one chain evaluation vectorised
-    over the poses instead of one per pose factor (each ~40 numpy calls on 4x4 arrays). A factor
-    given this object reads its rows here when its ``(theta, q)`` are exactly the filled ones and
-    evaluates its own chain otherwise (other values, another optimiser): the numbers are the same
-    up to rounding (~1e-13 relative) either way.
+    """The tool points' kinematics at every pose at once, for per-pose factors whose rows an
+    optimiser fills for all poses together (:class:`factors.pose_balls.PoseBallRows`): one chain
+    evaluation vectorised over the poses instead of one per pose factor (each ~40 numpy calls on 4x4
+    arrays).
 
     Parameters
     ----------
@@ -204,36 +200,23 @@ class PoseKinematics:
         self.held = np.array(held, dtype=float)
         self.offsets = np.array(offsets, dtype=float)
         self.chain = chain
-        self.theta: bytes | None = None
-        self.q: list[bytes] = []
         self.points = self.J_theta = self.J_q = np.zeros(0)
 
     def fill(self, theta, q) -> None:
-        """Evaluate at ``theta`` (P,) and every pose's joints ``q`` (N, n)."""
+        """Evaluate at ``theta`` (P,) and every pose's joints ``q`` (N, n): ``points`` (N, B, 3),
+        ``J_theta`` (N, B, 3, P) and ``J_q`` (N, B, 3, n)."""
         theta = np.array(theta, dtype=float)
         q = np.array(q, dtype=float).reshape(len(self.offsets), -1)
         jac = jacobians(slots_of(theta, self.index, self.held), q, offsets=self.offsets, chain=self.chain)
         assert jac.points is not None and jac.point_slots is not None and jac.point_joints is not None
-        # Compared by their bytes: exactly the values filled (a factor's callback is ~50 us; array_equal ~5)
-        self.theta, self.q = theta.tobytes(), [row.tobytes() for row in q]
         self.points, self.J_theta, self.J_q = jac.points, jac.point_slots[..., self.index], jac.point_joints
-
-    def rows(self, pose: int, slots, theta, q):
-        """``(points (B, 3), J_theta (B, 3, P), J_q (B, 3, n))`` of ``pose``'s points ``slots``, or
-        None when ``(theta, q)`` (float arrays) are not those of the last :meth:`fill`."""
-        if self.theta is None or theta.tobytes() != self.theta or np.asarray(q, dtype=float).tobytes() != self.q[pose]:
-            return None
-        return self.points[pose, slots], self.J_theta[pose, slots], self.J_q[pose, slots]
 
 
 def pose_centres_factor(index, held, offsets, sigma: float, *, t_key: int, c_keys, q_key: int | None = None,
-                        q_fixed=None, chain=None, shared: tuple | None = None) -> gtsam.CustomFactor:
+                        q_fixed=None, chain=None) -> gtsam.CustomFactor:
     """The B ball-centre variables ``c_keys`` of one pose at FK(theta, q) times their ``offsets``
     (B, 3), in one factor (3B-dim error, one kinematics call; not robust): the same rows as B
     :func:`ball_centre_factor`s, a third of the Python callbacks for three balls.
-
-    ``shared``: ``(PoseKinematics, pose, slots)``, where this factor's points are ``slots`` (B,) of
-    ``pose`` in a :class:`PoseKinematics` the optimiser fills (the same offsets and chain).
     """
     if (q_key is None) == (q_fixed is None):
         raise ValueError("give exactly one of q_key and q_fixed")
@@ -254,11 +237,7 @@ def pose_centres_factor(index, held, offsets, sigma: float, *, t_key: int, c_key
         q = q_const if q_key is None else _vector(values, q_key)
         centres = np.array([_vector(values, k) for k in c_keys])
         theta = _vector(values, t_key)
-        hit = None if shared is None else shared[0].rows(shared[1], shared[2], theta, q)
-        if hit is None:
-            e, J_t, J_q = pose_ball_centres_error(theta, q, offsets, centres, index, held, chain)
-        else:
-            e, J_t, J_q = hit[0] - centres, hit[1], hit[2]
+        e, J_t, J_q = pose_ball_centres_error(theta, q, offsets, centres, index, held, chain)
         if H is not None:
             H[0] = J_t.reshape(3 * B, -1)
             i = 1

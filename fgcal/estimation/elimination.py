@@ -39,11 +39,12 @@ def scaled_inverse(S, split: SetupSplit | None = None) -> np.ndarray:
     see, ``decide_held=False``: the rows' leverage is then the projection on the seen directions).
     ``split``: the inverse by the set-up block's blocks (:class:`~fgcal.estimation.setup_schur.SetupSplit`)."""
     d = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    dd = np.outer(d, d)
+    scaled = S / dd
     try:
-        scaled = S / np.outer(d, d)
-        return (np.linalg.inv(scaled) if split is None else split.inverse(scaled)) / np.outer(d, d)
+        return (np.linalg.inv(scaled) if split is None else split.inverse(scaled)) / dd
     except np.linalg.LinAlgError:
-        return np.linalg.pinv(S / np.outer(d, d), hermitian=True) / np.outer(d, d)
+        return np.linalg.pinv(scaled, hermitian=True) / dd
 
 
 def _times(X: np.ndarray, M: np.ndarray) -> np.ndarray:
@@ -265,11 +266,12 @@ class ArrowElimination:
         made once per pattern of its set-up block (the graph's structure: the same at every step)."""
         if self.S <= 0:
             return None
-        g, s = np.arange(self.n_geo + self.K), np.arange(self.n_geo + self.K, len(S))
-        pattern = S[self.n_geo + self.K:, self.n_geo + self.K:] != 0.0
+        k = self.n_geo + self.K  # theta: the robot's k, then the set-up unknowns
+        pattern = S[k:, k:] != 0.0
         last = getattr(self, "_last_split", None)
         if last is None or last[0].shape != pattern.shape or not np.array_equal(last[0], pattern):
-            self._last_split: tuple[np.ndarray, SetupSplit | None] = (pattern, SetupSplit.of(S, g, s))
+            split = SetupSplit.of(S, np.arange(k), np.arange(k, len(S)))
+            self._last_split: tuple[np.ndarray, SetupSplit | None] = (pattern, split)
         return self._last_split[1]
 
     def covariance(self, state: State, lin: Linearisation | None = None) -> np.ndarray:

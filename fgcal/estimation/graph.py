@@ -16,12 +16,12 @@ linearisation (or the nonlinear factors) into GTSAM graphs. No I/O here.
 from __future__ import annotations
 
 from functools import cached_property
-from typing import Any
+from typing import Literal
 
 import numpy as np
 
 import factors.errors as fx
-from fgcal.estimation.column_groups import setup_columns
+from fgcal.estimation.column_groups import PoseColumns, setup_columns
 from fgcal.estimation.elimination import POSE_CHUNK, ArrowElimination
 from fgcal.estimation.graph_block import JointErrorColumns, compact_design
 from fgcal.estimation.graph_types import Linearisation, Sigmas, State, _robust
@@ -93,7 +93,7 @@ class Graph(ArrowElimination, JointErrorColumns):
         self._setup_col = None if setup is None else self.n_geo + self.K + setup.column()  # < n_geo+K: fixed
         # The pose columns the theta Jacobian is formed on (set-up unknowns): False until the first
         # linearisation has shown which set-up columns each pose's rows touch, then None (dense) or them.
-        self._pose_columns: Any = False if self.S else None
+        self._pose_columns: PoseColumns | Literal[False] | None = False if self.S else None
         n = len(self.readings)
         self.n_poses = n
         nb = 0 if ball_pose is None else len(ball_pose)
@@ -254,14 +254,16 @@ class Graph(ArrowElimination, JointErrorColumns):
         q = self.joints(state)
         # The set-up levels' rows first: their entries say which columns each pose's rows touch (the
         # graph's structure, known from its first linearisation on), before the Jacobian is allocated.
-        setup_rows = {level: BY_LEVEL[level].setup_error(theta, q[terms.pose], terms.data, self.setup_values(state.theta),
-                                                         self.index, self.held, self.chain)
+        s_values = self.setup_values(state.theta) if self.setup is not None else None
+        setup_rows = {level: BY_LEVEL[level].setup_error(theta, q[terms.pose], terms.data, s_values, self.index,
+                                                         self.held, self.chain)
                       for level, terms in self.measurements.items() if getattr(BY_LEVEL[level], "uses_setup", False)}
         if self._pose_columns is False and not residuals_only:
             touched = [self._setup_touched(self.measurements[lv].pose, rows[4]) for lv, rows in setup_rows.items()]
             self._pose_columns = setup_columns(n, self.n_geo + self.K, P, *map(np.concatenate, zip(*touched))) \
                 if touched else None
-        on_columns = None if residuals_only else self._pose_columns
+        known = self._pose_columns
+        on_columns = None if residuals_only or known is False else known
         Jt = np.zeros((n, mt, 0 if residuals_only else P if on_columns is None else on_columns.cols.shape[1]))
         Jz = np.zeros((n, m, nz))
         cost = 0.0

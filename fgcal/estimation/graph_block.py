@@ -101,8 +101,8 @@ class JointErrorColumns:
         assert self._setup_col is not None  # a graph with set-up blocks
         where = self._setup_col[cols]  # (M, k) columns of theta; fixed entries map below n_geo + K
         free = where >= self.n_geo + self.K
-        if columns is not None:  # each free entry's place among its pose's columns (a fixed one's unused)
-            where = columns.slots(np.asarray(pose), np.where(free, where, where.max(initial=0)))
+        if columns is not None:  # each free entry's place among its pose's columns (a fixed one's, unused: column 0's)
+            where = columns.slots(np.asarray(pose), np.where(free, where, 0))
         if free.all():  # unknown blocks: every entry has its column
             Jt[pose[:, None, None], rows_[:, :, None], where[:, None, :]] = J_s * sw[:, :, None]
             return

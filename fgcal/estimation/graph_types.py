@@ -6,9 +6,10 @@ holds the graph itself. No I/O here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
-from typing import Any
 
 import numpy as np
+
+from fgcal.estimation.column_groups import PoseColumns
 
 __all__ = ["COST_ROUNDING", "Linearisation", "Sigmas", "State", "included"]
 
@@ -98,7 +99,7 @@ class Linearisation:
     raw: dict = field(default_factory=dict)
     cache: dict = field(default_factory=dict)  # normal equations, Schur complement, covariance
     excluded_rows: list = field(default_factory=list)
-    columns: Any = None
+    columns: PoseColumns | None = None
 
     @property
     def J_theta(self) -> np.ndarray:

@@ -36,6 +36,7 @@ from fgcal.estimation.model_noise import REUSED, REUSED_NOTE, fit_model
 from fgcal.estimation.options import CalibrationOptions
 from fgcal.estimation.time_validation import (
     drift_sentences,
+    forward_errors_many,
     forward_sums,
     later_poses,
     model_columns,
@@ -217,8 +218,8 @@ def compare_models(ds: Dataset, model: RobotModel, options: CalibrationOptions =
     sums = None
     if 3 <= later.sum() <= len(later) - 3:
         sums = forward_sums(prob, later)  # one pass over the Jacobian for every model compared
-        predicted = sums.held_out_errors_many([model_columns(prob, k, cv[k][1]) for k in errors])
-        forward = {k: np.where(later, e, np.nan) for k, e in zip(errors, predicted)}  # as forward_errors
+        predicted = forward_errors_many(prob, [model_columns(prob, k, cv[k][1]) for k in errors], later, sums)
+        forward = dict(zip(errors, predicted))
     drift = drift_sentences(forward, errors, later, unit) if forward else []
     # Its Jacobian (poses x rows x all candidate parameters: 158 MB on 8,400 poses) is not needed by the
     # fits; the fold sums hold the problem too.

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SetupSplit", "connected_blocks", "marginal_information"]
+__all__ = ["SetupSplit", "blocks_by_width", "connected_blocks", "marginal_information"]
 
 RCOND = 1e-15  # numpy.linalg.pinv's default: singular values up to this share of the largest are zero
 DENSE_UP_TO = 36  # set-up unknowns up to which the dense pinv is the cheaper (0.05 ms at 12, blocks 0.3 ms)
@@ -32,13 +32,15 @@ def connected_blocks(M: np.ndarray) -> np.ndarray:
         labels = new
 
 
-def _members(labels: np.ndarray) -> list[np.ndarray]:
-    """The indices (ascending) of each connected block of ``labels`` (n,), blocks in label order: one
-    stable sort (a comparison of every label per block cost 1 ms at 66 sockets)."""
-    _, comp = np.unique(labels, return_inverse=True)
+def blocks_by_width(M: np.ndarray) -> list[np.ndarray]:
+    """The connected blocks of the symmetric ``M`` (n, n) (:func:`connected_blocks`) grouped by width:
+    one (b, w) array of indices (each block's ascending, blocks in the order of their smallest
+    index) per width ``w``, widths ascending."""
+    _, comp = np.unique(connected_blocks(M), return_inverse=True)
     comp = comp.ravel()
-    order = np.argsort(comp, kind="stable")
-    return np.split(order, np.cumsum(np.bincount(comp))[:-1])
+    members = np.split(np.argsort(comp, kind="stable"), np.cumsum(np.bincount(comp))[:-1])
+    widths = np.array([len(m) for m in members])
+    return [np.array([m for m in members if len(m) == w]) for w in np.unique(widths)]
 
 
 def marginal_information(info: np.ndarray, g: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -59,11 +61,8 @@ def marginal_information(info: np.ndarray, g: np.ndarray, s: np.ndarray) -> np.n
     A, B, C, Bt = info[np.ix_(g, g)], info[np.ix_(g, s)], info[np.ix_(s, s)], info[np.ix_(s, g)]
     if len(s) <= DENSE_UP_TO:  # a few unknowns (planes, station frames): one dense pinv is cheaper
         return A - B @ np.linalg.pinv(C, rcond=RCOND) @ Bt
-    members = _members(connected_blocks(C))
-    sizes = np.array([len(m) for m in members])
     parts = []  # (indices (b, w), U (b, w, w), singular values (b, w), Vt (b, w, w)) per block width
-    for w in np.unique(sizes):
-        idx = np.array([m for m in members if len(m) == w])
+    for idx in blocks_by_width(C):
         U, sv, Vt = np.linalg.svd(C[idx[:, :, None], idx[:, None, :]])
         parts.append((idx, U, sv, Vt))
     cutoff = RCOND * max(float(p[2].max()) for p in parts)
@@ -87,8 +86,8 @@ class SetupSplit:
     With ``W = S_ss^-1 S_sg`` (per block) and ``K = S_gg - S_gs W`` (the robot's Schur complement), a
     solve is one (g, g) solve and per-block ones, and the inverse is ``[[K^-1, -K^-1 W^T], [-W K^-1,
     S_ss^-1 + W K^-1 W^T]]``: the same matrix as the dense one's (to rounding), at a cost of
-    ``s g^2`` instead of ``P^3`` (0.3 against 1.0 ms for the inverse at 198 socket coordinates beside
-    21 parameters; the step's solve 0.05 against 0.3 ms).
+    ``s g^2`` instead of ``P^3`` (0.26 against 0.92 ms for the inverse at 198 socket coordinates beside
+    21 parameters; the step's solve 0.12 against 0.38 ms).
 
     Parameters
     ----------
@@ -110,11 +109,8 @@ class SetupSplit:
         unknowns) or the blocks are wide."""
         if len(s) <= DENSE_UP_TO:
             return None
-        members = _members(connected_blocks(S[np.ix_(s, s)]))
-        widths = sorted({len(m) for m in members})
-        if widths[-1] > MAX_BLOCK:
-            return None
-        return cls(g, s, [np.array([m for m in members if len(m) == w]) for w in widths])
+        blocks = blocks_by_width(S[np.ix_(s, s)])
+        return None if blocks[-1].shape[1] > MAX_BLOCK else cls(g, s, blocks)
 
     def _parts(self, S: np.ndarray):
         """``(S_gg, S_sg in block order (s, g), [per-width block inverses (b, w, w)], W (s, g))``."""

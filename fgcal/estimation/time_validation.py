@@ -18,7 +18,7 @@ import numpy as np
 
 from fgcal.estimation.joint_errors import JointErrorSpec, ModelKind
 
-__all__ = ["FORWARD_FRACTION", "MAX_TOLERANCE", "FoldSums", "drift_sentences", "forward_errors", "forward_sums",
+__all__ = ["FORWARD_FRACTION", "MAX_TOLERANCE", "FoldSums", "drift_sentences", "forward_errors", "forward_errors_many", "forward_sums",
            "harmonic", "later_poses", "model_columns", "recommend"]
 
 FORWARD_FRACTION = 0.6  # the earlier share of the training poses that predicts the rest
@@ -129,9 +129,15 @@ def forward_errors(prob, cols, prior_sigma, later, sums: FoldSums | None = None)
 
     ``sums``: the fold sums of ``later`` (:func:`forward_sums`), shared by every model compared
     (forming them is the cost: a pass over the whole Jacobian)."""
+    return forward_errors_many(prob, [(cols, prior_sigma)], later, sums)[0]
+
+
+def forward_errors_many(prob, candidates, later, sums: FoldSums | None = None) -> list[np.ndarray]:
+    """:func:`forward_errors` of each ``(cols, prior_sigma)`` of ``candidates``, in one pass over the
+    Jacobian (:meth:`FoldSums.held_out_errors_many`)."""
     if sums is None:
         sums = forward_sums(prob, later)
-    return np.where(later, sums.held_out_errors(cols, prior_sigma), np.nan)
+    return [np.where(later, e, np.nan) for e in sums.held_out_errors_many(candidates)]
 
 
 def forward_sums(prob, later) -> FoldSums:

@@ -158,7 +158,7 @@ class SetupMeasurement(KinematicMeasurement):
         pts = tool_points(T, tooling.offsets(obs.ball)[:, None, :])[:, 0]
         out = {}
         # each fixture's rows, in their order, from one sort (a comparison of every row's name per
-        # fixture cost 1 ms at 66 sockets)
+        # fixture: 0.28 ms at 66 sockets and 1,000 contacts)
         names, first, inverse = np.unique(obs.fixture, return_index=True, return_inverse=True)
         order = np.argsort(inverse.ravel(), kind="stable")
         cuts = np.cumsum(np.bincount(inverse.ravel(), minlength=len(names)))[:-1]

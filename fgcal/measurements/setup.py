@@ -313,7 +313,7 @@ class SetupLayout:
         """The known distances between fixture points at ``s``: errors ``|p_a - p_b| - distance``
         (k,) mm, their Jacobian (k, S) in the whole vector ``s`` and their sigmas (k,) mm."""
         ka, kb, length, sd = self._distance_tables
-        diff = s[ka] - s[kb]  # (k, 3): all the constraints at once (their Python loop cost 0.5 ms a linearisation)
+        diff = s[ka] - s[kb]  # (k, 3): all the constraints at once (their Python loop: 0.12 ms a linearisation at 33, now 0.01)
         dist = np.sqrt(np.einsum("kj,kj->k", diff, diff))
         u = diff / np.maximum(dist, 1e-300)[:, None]
         J = np.zeros((len(length), self.size))
