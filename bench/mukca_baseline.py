@@ -114,149 +114,43 @@ import json
 import os
 import sys
 import time
-import xml.etree.ElementTree as ET
 
 import numpy as np
 from scipy.optimize import least_squares
 
-DEFAULT_DATA = "/work/shared/data/mukca-panda"
-ROOT_LINK = "panda_link0"
-TIP_LINK = "ball_link"
 OPTIMISED_JOINTS = [f"panda_joint{i}" for i in range(1, 8)] + ["ball_joint"]
 UNREGULARISED_JOINTS = ("ball_joint",)
-SOCKET_DISTANCE = 0.05     # m
 REG_WEIGHT = 1e-4          # per training placement
 PARAM_NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
 
 
-# --------------------------------------------------------------------- URDF
-def _floats(text, default):
-    return [float(v) for v in text.split()] if text else list(default)
+# The chain and its kinematics, the placements and their scores: modules beside this file, loaded by
+# path (this file is run as a script and loaded by path itself: its folder need not be on sys.path).
+def _sibling(name):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, os.path.join(os.path.dirname(os.path.abspath(__file__)),
+                                                                     f"{name}.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
-def parse_chain(urdf_path, root=ROOT_LINK, tip=TIP_LINK):
-    """The joints from root to tip, in order, as plain dicts."""
-    tree = ET.parse(urdf_path)
-    by_child = {}
-    for j in tree.getroot().findall("joint"):
-        origin = j.find("origin")
-        axis = j.find("axis")
-        by_child[j.find("child").get("link")] = {
-            "name": j.get("name"),
-            "type": j.get("type"),
-            "parent": j.find("parent").get("link"),
-            "xyz": _floats(origin.get("xyz") if origin is not None else None, (0, 0, 0)),
-            "rpy": _floats(origin.get("rpy") if origin is not None else None, (0, 0, 0)),
-            "axis": _floats(axis.get("xyz") if axis is not None else None, (1, 0, 0)),
-        }
-    chain, link = [], tip
-    while link != root:
-        if link not in by_child:
-            raise ValueError(f"{tip} is not below {root} in {urdf_path}")
-        chain.append(by_child[link])
-        link = by_child[link]["parent"]
-    chain.reverse()
-    for j in chain:
-        if j["type"] not in ("revolute", "continuous", "fixed"):
-            raise ValueError(f"joint type {j['type']} of {j['name']} not handled")
-    return chain
+_kinematics, _placements = _sibling("mukca_kinematics"), _sibling("mukca_placements")
+parse_chain, nominal_params, fk, write_urdf = (_kinematics.parse_chain, _kinematics.nominal_params, _kinematics.fk,
+                                               _kinematics.write_urdf)
+DEFAULT_DATA, SOCKET_DISTANCE = _placements.DEFAULT_DATA, _placements.SOCKET_DISTANCE
+load_sets, _as_list, summarise = _placements.load_sets, _placements._as_list, _placements.summarise
 
 
-def nominal_params(urdf_path):
-    """Parameter dict for the nominal URDF (the format calibrate_mukca returns)."""
-    chain = parse_chain(urdf_path)
-    return {
-        "urdf": os.path.abspath(urdf_path),
-        "chain": chain,
-        "origins": {j["name"]: list(j["xyz"]) + list(j["rpy"]) for j in chain},
-        "optimised": [],
-    }
+def evaluate(params, sets):
+    """Per placement: per-socket consistency and the distance error, in mm (``mukca_placements.scores``).
 
-
-# ----------------------------------------------------------------------- FK
-def _rx(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def _ry(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def _rz(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-
-
-def _axis_angle(axis, q):
-    """Rotation matrices (N,3,3) about a unit axis by angles q (N,)."""
-    k = np.asarray(axis, float)
-    k = k / np.linalg.norm(k)
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    s, c = np.sin(q)[:, None, None], np.cos(q)[:, None, None]
-    return np.eye(3) + s * K + (1 - c) * (K @ K)
-
-
-def fk(params, Q, jac_joints=()):
-    """Ball centres (N,3) in metres for joint sets Q (N,7), in the root frame.
-
-    With jac_joints, also d(centre)/d(x,y,z,roll,pitch,yaw) of each named
-    joint's origin: array (N, 3, 6*len(jac_joints)).
+    params: from calibrate_mukca() or nominal_params(), or a URDF path (nominal).
     """
-    Q = np.atleast_2d(np.asarray(Q, float))
-    n = Q.shape[0]
-    R = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
-    p = np.zeros((n, 3))
-    frames = {}          # joint name -> (R, p, Rz, Ry, t) of the frame before its origin
-    qi = 0
-    for j in params["chain"]:
-        o = params["origins"][j["name"]]
-        t, (r_, p_, y_) = np.asarray(o[:3]), o[3:]
-        Rz, Ry, Rx = _rz(y_), _ry(p_), _rx(r_)
-        if j["name"] in jac_joints:
-            frames[j["name"]] = (R.copy(), p.copy(), Rz, Ry, t)
-        p = p + R @ t
-        R = R @ (Rz @ Ry @ Rx)
-        if j["type"] != "fixed":
-            R = R @ _axis_angle(j["axis"], Q[:, qi])
-            qi += 1
-    if not jac_joints:
-        return p
-    J = np.zeros((n, 3, 6 * len(jac_joints)))
-    ex, ey, ez = np.eye(3)
-    for k, name in enumerate(jac_joints):
-        A, a, Rz, Ry, t = frames[name]
-        # s = R_origin u: the centre relative to the origin's translated point,
-        # expressed in the parent frame
-        s = np.einsum("nji,nj->ni", A, p - a) - t
-        J[:, :, 6 * k:6 * k + 3] = A
-        d_yaw = np.cross(ez, s)
-        d_pitch = np.cross(ey, s @ Rz) @ Rz.T
-        d_roll = np.cross(ex, s @ (Rz @ Ry)) @ (Rz @ Ry).T
-        for c, d in ((3, d_roll), (4, d_pitch), (5, d_yaw)):
-            J[:, :, 6 * k + c] = np.einsum("nij,nj->ni", A, d)
-    return p, J
-
-
-# --------------------------------------------------------------------- data
-def load_sets(data_dir=DEFAULT_DATA, names=None, robot="panda_2"):
-    """{placement: (Q_socket0, Q_socket1)} in sorted placement order."""
-    base = os.path.join(data_dir, robot)
-    if names is None:
-        names = sorted(d for d in os.listdir(base)
-                       if os.path.isfile(os.path.join(base, d, "hole_0.csv")))
-    out = {}
-    for name in names:
-        out[name] = tuple(np.loadtxt(os.path.join(base, name, f"hole_{k}.csv"),
-                                     delimiter=",", ndmin=2) for k in (0, 1))
-    return out
-
-
-def _as_list(sets):
-    if isinstance(sets, dict):
-        return list(sets.items())
-    return [(f"set{i}", s) for i, s in enumerate(sets)]
+    if isinstance(params, str):
+        params = nominal_params(params)
+    return _placements.scores(lambda Q: fk(params, Q), sets)
 
 
 # -------------------------------------------------------------- calibration
@@ -361,66 +255,6 @@ def calibrate_mukca(train_sets, urdf_path, variant="full", verbose=False):
         print(f"  calibrated on {out['train']}: objective {out['solver']['cost_nominal']:.4e}"
               f" -> {out['solver']['cost']:.4e} m^2 in {sol.nfev} evaluations", file=sys.stderr)
     return out
-
-
-def write_urdf(params, out_path):
-    """The URDF with the calibrated origins written in (like the authors' output)."""
-    tree = ET.parse(params["urdf"])
-    for j in tree.getroot().findall("joint"):
-        if j.get("name") in params.get("optimised", []):
-            o = params["origins"][j.get("name")]
-            origin = j.find("origin")
-            origin.set("xyz", " ".join(repr(v) for v in o[:3]))
-            origin.set("rpy", " ".join(repr(v) for v in o[3:]))
-    tree.write(out_path, xml_declaration=True, encoding="utf-8")
-
-
-# --------------------------------------------------------------- evaluation
-def evaluate(params, sets):
-    """Per placement: per-socket consistency and the distance error, in mm.
-
-    params: from calibrate_mukca() or nominal_params(), or a URDF path (nominal).
-    """
-    if isinstance(params, str):
-        params = nominal_params(params)
-    out = {}
-    for name, (Q0, Q1) in _as_list(sets):
-        sockets, means, sq, counts = [], [], [], []
-        for Q in (Q0, Q1):
-            P = fk(params, Q)
-            m = P.mean(0)
-            d = np.linalg.norm(P - m, axis=1)
-            sockets.append({"n": int(len(P)),
-                            "rms_mm": float(1e3 * np.sqrt(np.mean(d ** 2))),
-                            "max_mm": float(1e3 * d.max()),
-                            "mean_mm": [float(v) for v in 1e3 * m]})
-            means.append(m)
-            sq.append(np.sum(d ** 2))
-            counts.append(len(P))
-        dist = float(np.linalg.norm(means[0] - means[1]))
-        out[name] = {
-            "socket": sockets,
-            "consistency_rms_mm": float(np.mean([s["rms_mm"] for s in sockets])),
-            "pooled_rms_mm": float(1e3 * np.sqrt(sum(sq) / sum(counts))),
-            "distance_mm": 1e3 * dist,
-            "distance_error_mm": 1e3 * (dist - SOCKET_DISTANCE),
-            "abs_distance_error_mm": 1e3 * abs(dist - SOCKET_DISTANCE),
-        }
-    return out
-
-
-def summarise(per_placement):
-    rows = list(per_placement.values())
-    if not rows:
-        return {}
-    return {
-        "n_placements": len(rows),
-        "consistency_rms_mm": float(np.mean([r["consistency_rms_mm"] for r in rows])),
-        "consistency_max_mm": float(np.mean([max(s["max_mm"] for s in r["socket"]) for r in rows])),
-        "pooled_rms_mm": float(np.mean([r["pooled_rms_mm"] for r in rows])),
-        "abs_distance_error_mm": float(np.mean([r["abs_distance_error_mm"] for r in rows])),
-        "max_abs_distance_error_mm": float(np.max([r["abs_distance_error_mm"] for r in rows])),
-    }
 
 
 # ---------------------------------------------------------------------- CLI
