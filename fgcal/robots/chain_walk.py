@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["Frame", "WalkPlan", "frame_points", "homogeneous", "projected_screws", "screws", "walk"]
+__all__ = ["Frame", "WalkPlan", "frame_points", "homogeneous", "point_slot_screws", "projected_screws", "screws", "walk"]
 
 Frame = tuple  # (X, Y, Z, p): world axes and origin, each (3, N), or (3, 1) while the same at every pose
 _UNIT = np.eye(3)[:, :, None]  # the world axes as (3, 1) columns
@@ -293,3 +293,43 @@ def projected_screws(chain, frames, points, directions):
         if j is not None:
             along_values[:, j] = value
     return along_slots, along_values
+
+
+def point_slot_screws(chain, frames, points, slots) -> np.ndarray:
+    """The Jacobians of world points on the tool with respect to the slots ``slots`` (P,) only,
+    slot-major: ``(P, B, 3, N)``, each slot's block written once, contiguous (no pose Jacobians,
+    no joint columns, no ``(N, ..., S)`` arrays written column by column).
+
+    The same products as :func:`_column_screws`' point columns (the same roundings).
+
+    Parameters
+    ----------
+    frames : from :func:`walk`
+    points : ndarray, shape (B, 3, N)
+        World positions of the tool points (:func:`frame_points`).
+    slots : ndarray of int, shape (P,)
+    """
+    B, _, n = points.shape
+    out = np.zeros((len(slots),) + points.shape)
+    where: dict[int, list[int]] = {}
+    for i, s in enumerate(np.asarray(slots, dtype=int).tolist()):
+        where.setdefault(s, []).append(i)
+    moved, tmp = np.empty((B, 3, n)), np.empty((B, 3, n))
+    origin = None
+    arm = (tmp, tmp)
+    for k, (rotation, axis, s, _) in enumerate(chain.walk_plan.steps):
+        if s is None or s not in where:
+            continue
+        frame = frames[k]
+        a = frame[axis]
+        if rotation:
+            if frame[3] is not origin:
+                origin = frame[3]
+                arm = _rolled(points - origin)
+            _cross(a, arm[0], arm[1], moved, tmp)
+            for i in where[s]:
+                out[i] = moved
+        else:
+            for i in where[s]:
+                out[i] = a[None]
+    return out

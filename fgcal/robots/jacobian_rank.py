@@ -35,6 +35,8 @@ def slot_jacobian(chain, x, q, idx, measurement="pose", orientation_scale: float
         else:
             raise ValueError(f"measurement must be 'pose', 'position' or (B, 3) points, got {measurement!r}")
         return J.reshape(-1, len(idx))
+    if np.ndim(measurement) == 2:  # the same points at every pose: only their slot columns
+        return chain.point_slot_jacobian(x, q, measurement, idx)
     jac = chain.jacobians(x, q, offsets=measurement)
     return jac.point_slots[..., idx].reshape(-1, len(idx))
 

@@ -24,7 +24,16 @@ from functools import lru_cache
 import numpy as np
 
 from fgcal.robots.chain_jacobians import ChainJacobians
-from fgcal.robots.chain_walk import WalkPlan, frame_points, homogeneous, projected_screws, screws, walk
+from fgcal.robots.chain_walk import (
+    STACKED_MAX,
+    WalkPlan,
+    frame_points,
+    homogeneous,
+    point_slot_screws,
+    projected_screws,
+    screws,
+    walk,
+)
 from fgcal.robots.single_pose import OperationTables, jacobians_one
 
 __all__ = [
@@ -219,6 +228,22 @@ class Chain:
             out.points = np.ascontiguousarray(points.transpose(2, 0, 1))
             out.point_slots, out.point_joints = point_slots, self._to_readings(point_values)
         return out
+
+    def point_slot_jacobian(self, x, q, offsets, idx) -> np.ndarray:
+        """The stacked Jacobian ``(N B 3, P)`` of tool-frame points ``offsets`` (B, 3) with respect
+        to the slots ``idx`` (P,) at slots ``x`` (S,) and readings ``q`` (N, n): rows in the order
+        pose, point, coordinate, as ``jacobians(x, q, offsets).point_slots[..., idx]`` stacked, the
+        same numbers, without the pose and joint Jacobians (many poses: those cost most of it)."""
+        x = self.check_slots(x)
+        q = self.check_joints(q)
+        offsets = np.asarray(offsets, dtype=float).reshape(-1, 3)
+        idx = np.asarray(idx, dtype=int)
+        n = q.shape[0]
+        if len(self.walk_plan.rot_ops) * (1 + len(offsets)) * 3 * n <= STACKED_MAX:  # few poses: that path's roundings
+            return self.jacobians(x, q, offsets).point_slots[..., idx].reshape(-1, len(idx))
+        frames, tool = walk(self, x, self.joint_values(q), keep=True)
+        J = point_slot_screws(self, frames, frame_points(tool, offsets), idx)  # (P, B, 3, N)
+        return np.ascontiguousarray(J.transpose(3, 1, 2, 0)).reshape(-1, len(idx))
 
     def projected_point_jacobians(self, x, q, offsets, directions):
         """Jacobians of one tool-frame point per pose along one world direction per pose, ``u . dp``
