@@ -240,7 +240,9 @@ class Chain:
         idx = np.asarray(idx, dtype=int)
         n = q.shape[0]
         if len(self.walk_plan.rot_ops) * (1 + len(offsets)) * 3 * n <= STACKED_MAX:  # few poses: that path's roundings
-            return self.jacobians(x, q, offsets).point_slots[..., idx].reshape(-1, len(idx))
+            slots = self.jacobians(x, q, offsets).point_slots
+            assert slots is not None  # points were given
+            return slots[..., idx].reshape(-1, len(idx))
         frames, tool = walk(self, x, self.joint_values(q), keep=True)
         J = point_slot_screws(self, frames, frame_points(tool, offsets), idx)  # (P, B, 3, N)
         return np.ascontiguousarray(J.transpose(3, 1, 2, 0)).reshape(-1, len(idx))
